@@ -1,0 +1,170 @@
+"""Command line: ``gyrorig <command> ...`` (thin layer over the public functions).
+
+Exit codes: 0 success; 2 bad input (protocol, arguments); 3 a computation failed
+(integration error, lost quaternion norm).  Nothing is written under a final file
+name unless the whole computation succeeded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from . import _io
+from .physics import METHODS, SimulationError, exact_solution, exact_solution_applies, simulate
+from .physics.exact import ExactSolutionError
+from .protocols import Protocol, ProtocolError, load_protocol
+
+logger = logging.getLogger("gyrorig")
+
+PROTOCOL_DIR = Path(__file__).resolve().parents[2] / "protocols"
+DEMO_PROTOCOL = "air-cushion-heavy-top.toml"
+
+EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
+
+
+def _protocol_summary(p: Protocol) -> dict:
+    return {"name": p.name, "source": p.source, "description": p.description, "rig": asdict(p.rig),
+            "launch": asdict(p.launch), "pivot": asdict(p.pivot), "scene": asdict(p.scene)}
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    protocol = load_protocol(args.protocol)
+    out = Path(args.out)
+    if args.method == "exact":
+        ok, why = exact_solution_applies(protocol)
+        if not ok:
+            raise ExactSolutionError(f"--method exact: no exact solution for {protocol.name}: {why}")
+        duration = protocol.scene.duration_s if args.duration is None else args.duration
+        rate = protocol.scene.output_rate_hz if args.rate is None else args.rate
+        t = np.arange(int(np.floor(duration * rate + 1e-9)) + 1) / rate
+        start = time.perf_counter()
+        df = exact_solution(protocol, t)
+        info = {"method": "exact", "wall_time_s": time.perf_counter() - start}
+    else:
+        df, sim_info = simulate(protocol, method=args.method, rtol=args.rtol, atol=args.atol,
+                                duration_s=args.duration, rate_hz=args.rate, return_info=True)
+        info = asdict(sim_info)
+    manifest = {"command": "simulate", "protocol": _protocol_summary(protocol), "simulation": info,
+                "n_rows": len(df), "columns": list(df.columns), "versions": _io.versions()}
+    _io.write_csv(df, out / "trajectory.csv")
+    _io.write_json(manifest, out / "manifest.json")
+    print(f"{protocol.name}: {len(df)} rows, method {info['method']}, {info['wall_time_s']:.3f} s wall "
+          f"-> {out / 'trajectory.csv'}")
+    return EXIT_OK
+
+
+def _cmd_bench_methods(args: argparse.Namespace) -> int:
+    from .bench import DEFAULT_COMPARE_METHODS, compare_methods
+
+    protocol = load_protocol(args.protocol)
+    methods = args.methods or list(DEFAULT_COMPARE_METHODS)
+    for m in methods:
+        if m not in METHODS:
+            raise ValueError(f"--methods: unknown method {m!r}; allowed {', '.join(METHODS)}")
+    print(f"{protocol.name}: {args.duration:g} s simulated, errors at {args.rate:g} Hz samples", flush=True)
+    table, reference = compare_methods(protocol, duration_s=args.duration, rate_hz=args.rate, methods=methods,
+                                       rtol=args.rtol, repeats=args.repeats)
+    print(f"reference: {reference}")
+    cols = ["method", "formulation", "rtol", "wall_time_s", "n_rhs_evaluations", "max_tip_error_rad", "status"]
+    print(table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    dop = table[table.method == "DOP853"]
+    gyro = table[table.method == "gyro"]
+    if len(dop) and len(gyro) and dop.status.iloc[0] == "ok" and gyro.status.iloc[0] == "ok":
+        ratio = dop.wall_time_s.iloc[0] / gyro.wall_time_s.iloc[0]
+        print(f"speed ratio DOP853(body) / gyro, same run: {ratio:.2f}")
+    if args.out:
+        _io.write_csv(table, Path(args.out) / "methods.csv")
+    return EXIT_OK
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .report import plot_trajectory
+
+    out = Path(args.out)
+    protocol = load_protocol(PROTOCOL_DIR / DEMO_PROTOCOL)
+    duration = args.duration
+    print(f"demo: {protocol.description}")
+    print(f"simulating {duration:g} s ...", flush=True)
+    df, info = simulate(protocol, duration_s=duration, rate_hz=500.0, return_info=True)
+    sol = exact_solution(protocol)
+    ref = sol.evaluate(df.t_s.to_numpy())
+    err = float(np.linalg.norm(df[["tip_x", "tip_y", "tip_z"]].to_numpy() - ref[["tip_x", "tip_y", "tip_z"]]
+                               .to_numpy(), axis=1).max())
+    fig = plot_trajectory(df, reference=ref, title=f"{protocol.name}: simulator ({info.method}) vs exact solution")
+    with _io.atomic_path(out / "trajectory.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    _io.write_csv(df, out / "trajectory.csv")
+    _io.write_json({"command": "demo", "protocol": _protocol_summary(protocol), "simulation": asdict(info),
+                    "max_tip_error_vs_exact_rad": err, "versions": _io.versions()}, out / "manifest.json")
+    th_min, th_max = sol.tilt_range_rad
+    print(f"method {info.method} (auto), {info.wall_time_s:.2f} s wall, {info.n_rhs_evaluations} rhs evaluations")
+    print(f"max tip-direction error against the exact solution: {err:.2e} rad")
+    print(f"tilt oscillates between {np.degrees(th_min):.3f} and {np.degrees(th_max):.3f} deg "
+          f"(half-range {np.degrees(th_max - th_min) / 2:.3f} deg)")
+    print(f"nutation frequency {sol.nutation_frequency_rad_s / (2 * np.pi):.3f} Hz, "
+          f"mean precession rate {sol.mean_precession_rate_rad_s:.4f} rad/s (exact solution)")
+    print(f"wrote {out / 'trajectory.csv'}, {out / 'trajectory.png'}, {out / 'manifest.json'}")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (exposed for documentation and tests)."""
+    p = argparse.ArgumentParser(prog="gyrorig", description=__doc__.splitlines()[0])
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="integrate a protocol's scene; write trajectory.csv and manifest.json")
+    s.add_argument("protocol", help="protocol TOML file")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--method", default="auto", choices=["auto", "exact", *METHODS],
+                   help="integration method (default: chosen from the scene); 'exact' for undamped scenes")
+    s.add_argument("--rtol", type=float, default=None, help="relative tolerance (default per method)")
+    s.add_argument("--atol", type=float, default=None, help="absolute tolerance (default rtol/100)")
+    s.add_argument("--duration", type=float, default=None, help="override scene.duration_s [s]")
+    s.add_argument("--rate", type=float, default=None, help="output sample rate [Hz]")
+    s.set_defaults(func=_cmd_simulate)
+
+    b = sub.add_parser("bench", help="benchmarks that print figures")
+    bsub = b.add_subparsers(dest="bench", required=True)
+    bm = bsub.add_parser("methods", help="error against the exact solution and wall time of each method")
+    bm.add_argument("protocol")
+    bm.add_argument("--duration", type=float, default=10.0, help="simulated time [s] (default 10)")
+    bm.add_argument("--rate", type=float, default=100.0, help="comparison sample rate [Hz]")
+    bm.add_argument("--methods", nargs="+", default=None, help="methods to run (default: all but RK23)")
+    bm.add_argument("--rtol", type=float, default=None, help="one tolerance for all methods")
+    bm.add_argument("--repeats", type=int, default=1, help="median of this many timings")
+    bm.add_argument("--out", default=None, help="also write methods.csv here")
+    bm.set_defaults(func=_cmd_bench_methods)
+
+    d = sub.add_parser("demo", help="simulate the bundled air-cushion rig and compare with the exact solution")
+    d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")
+    d.add_argument("--duration", type=float, default=10.0, help="simulated time [s] (default 10)")
+    d.set_defaults(func=_cmd_demo)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    try:
+        return int(args.func(args))
+    except (ProtocolError, ExactSolutionError, ValueError) as exc:
+        print(f"gyrorig: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except SimulationError as exc:
+        print(f"gyrorig: simulation failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
