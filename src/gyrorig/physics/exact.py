@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import ellipj, ellipk, elliprf, elliprj
 
 from ..protocols import Protocol
-from .rotations import euler_from_matrix, euler_to_matrix
+from .rotations import euler_from_matrix, euler_matrix_cs, euler_to_matrix
 from .simulate import initial_state, rot_z, trajectory_frame
 
 __all__ = ["ExactSolutionError", "LagrangeTopSolution", "exact_solution", "exact_solution_applies"]
@@ -260,12 +260,12 @@ class LagrangeTopSolution:
             dpsi = (om - a) * t + common
             dpsi_f = ((om_f or 0.0) - a) * t + common
         psi = self.psi0_rad + dpsi
-        rotor = self.basis @ _euler_cs(phi, u, sin_th, psi)
+        rotor = self.basis @ euler_matrix_cs(phi, u, sin_th, psi)
         w = (thetadot + 1j * phidot_sin) * np.exp(-1j * psi)
         rates = np.column_stack([w.real, w.imag, np.full_like(t, om)])
         frame = None
         if om_f is not None:
-            frame = (self.basis @ _euler_cs(phi, u, sin_th, self.psi_frame0_rad + dpsi_f), np.full_like(t, om_f))
+            frame = (self.basis @ euler_matrix_cs(phi, u, sin_th, self.psi_frame0_rad + dpsi_f), np.full_like(t, om_f))
         return trajectory_frame(self.protocol, t, rotor, rates, frame=frame)
 
     def _evaluate_free(self, t: NDArray[np.float64]) -> pd.DataFrame:
@@ -283,25 +283,6 @@ class LagrangeTopSolution:
         if om_f is not None and self.frame0 is not None:
             frame = (spin_about_l @ self.frame0 @ rot_z((om_f - self.a_per_s) * t), np.full_like(t, om_f))
         return trajectory_frame(self.protocol, t, rotor, rates, frame=frame)
-
-
-def _euler_cs(
-    phi: NDArray[np.float64], cos_th: NDArray[np.float64], sin_th: NDArray[np.float64], psi: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Body-to-lab matrices from phi, (cos, signed sin) of theta and psi; shape (n, 3, 3)."""
-    cph, sph, cps, sps = np.cos(phi), np.sin(phi), np.cos(psi), np.sin(psi)
-    cth, sth = cos_th, sin_th
-    a = np.empty((len(phi), 3, 3))
-    a[:, 0, 0] = cph * cps - cth * sph * sps
-    a[:, 0, 1] = sph * cps + cth * cph * sps
-    a[:, 0, 2] = sth * sps
-    a[:, 1, 0] = -cph * sps - cth * sph * cps
-    a[:, 1, 1] = -sph * sps + cth * cph * cps
-    a[:, 1, 2] = sth * cps
-    a[:, 2, 0] = sth * sph
-    a[:, 2, 1] = -sth * cph
-    a[:, 2, 2] = cth
-    return np.swapaxes(a, 1, 2)
 
 
 def exact_solution(protocol: Protocol, t_s: ArrayLike | None = None) -> LagrangeTopSolution | pd.DataFrame:

@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "euler_to_matrix",
+    "euler_matrix_cs",
     "matrix_to_quaternion",
     "quaternion_to_matrix",
     "tip_from_angles",
@@ -28,32 +29,45 @@ __all__ = [
 ]
 
 
-def euler_to_matrix(phi_rad: float, theta_rad: float, psi_rad: float) -> NDArray[np.float64]:
-    """Body-to-lab rotation matrix for Goldstein x-convention Euler angles.
+def euler_to_matrix(phi_rad: ArrayLike, theta_rad: ArrayLike, psi_rad: ArrayLike) -> NDArray[np.float64]:
+    """Body-to-lab rotation matrices for Goldstein x-convention Euler angles.
 
     Parameters
     ----------
-    phi_rad, theta_rad, psi_rad : float
-        Precession, nutation (tilt) and spin angles. [rad]
+    phi_rad, theta_rad, psi_rad : float or array_like
+        Precession, nutation (tilt) and spin angles (broadcast together). [rad]
 
     Returns
     -------
-    ndarray, shape (3, 3)
+    ndarray, shape (..., 3, 3)
         ``R`` with columns ``d, q, o`` in lab coordinates (transpose of the
         paper's eq. 7).
     """
-    cph, sph = np.cos(phi_rad), np.sin(phi_rad)
-    cth, sth = np.cos(theta_rad), np.sin(theta_rad)
-    cps, sps = np.cos(psi_rad), np.sin(psi_rad)
-    # Rows of the paper's eq. (7) are d, q, o in lab coordinates.
-    a = np.array(
-        [
-            [cph * cps - cth * sph * sps, sph * cps + cth * cph * sps, sth * sps],
-            [-cph * sps - cth * sph * cps, -sph * sps + cth * cph * cps, sth * cps],
-            [sth * sph, -sth * cph, cth],
-        ]
-    )
-    return a.T
+    th = np.asarray(theta_rad, dtype=float)
+    return euler_matrix_cs(phi_rad, np.cos(th), np.sin(th), psi_rad)
+
+
+def euler_matrix_cs(phi_rad: ArrayLike, cos_theta: ArrayLike, sin_theta: ArrayLike, psi_rad: ArrayLike) -> NDArray[np.float64]:
+    """As :func:`euler_to_matrix`, from ``cos`` and (possibly negative) ``sin`` of theta.
+
+    A signed ``sin(theta)`` lets a path cross a pole smoothly: ``(phi, -theta, psi)``
+    is the same rotation as ``(phi + pi, theta, psi + pi)``.
+    """
+    phi, cth, sth, psi = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in
+                                               (phi_rad, cos_theta, sin_theta, psi_rad)))
+    cph, sph, cps, sps = np.cos(phi), np.sin(phi), np.cos(psi), np.sin(psi)
+    # rows of the paper's eq. (7) are d, q, o in lab coordinates; R is its transpose
+    a = np.empty(phi.shape + (3, 3))
+    a[..., 0, 0] = cph * cps - cth * sph * sps
+    a[..., 0, 1] = sph * cps + cth * cph * sps
+    a[..., 0, 2] = sth * sps
+    a[..., 1, 0] = -cph * sps - cth * sph * cps
+    a[..., 1, 1] = -sph * sps + cth * cph * cps
+    a[..., 1, 2] = sth * cps
+    a[..., 2, 0] = sth * sph
+    a[..., 2, 1] = -sth * cph
+    a[..., 2, 2] = cth
+    return np.swapaxes(a, -1, -2)
 
 
 def quaternion_to_matrix(q: ArrayLike) -> NDArray[np.float64]:
