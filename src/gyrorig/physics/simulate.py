@@ -217,6 +217,29 @@ def _make_rhs(protocol: Protocol, formulation: str) -> Any:
     return rhs
 
 
+def _integrate(
+    rhs: Any, solver: str, y: NDArray[np.float64], t_eval: NDArray[np.float64], bounds: list[float],
+    states: NDArray[np.float64], rtol: float, atol: float, method: str,
+) -> int:
+    """Integrate segment by segment (restarting at breakpoints), filling ``states``; returns rhs calls."""
+    nfev = 0
+    for lo, hi in zip(bounds, bounds[1:]):
+        sel = (t_eval > lo) & (t_eval <= hi)
+        seg_t = t_eval[sel]
+        # always end the segment exactly at its breakpoint, to restart from there
+        te = seg_t if len(seg_t) and seg_t[-1] == hi else np.append(seg_t, hi)
+        sol = solve_ivp(rhs, (lo, hi), y, method=solver, t_eval=te, rtol=rtol, atol=atol)
+        nfev += int(sol.nfev)
+        if not sol.success:
+            t_fail = sol.t[-1] if len(sol.t) else lo
+            raise SimulationError(f"{method} failed at t = {t_fail:.6g} s: {sol.message}")
+        if not np.all(np.isfinite(sol.y)):
+            raise SimulationError(f"{method} produced non-finite values")
+        states[sel] = sol.y[:, : len(seg_t)].T
+        y = sol.y[:, -1]
+    return nfev
+
+
 def _segments(protocol: Protocol, t_end: float) -> list[float]:
     """Integration breakpoints: start, knots of an acceleration table, end."""
     bounds = [0.0, t_end]
@@ -305,24 +328,15 @@ def simulate(
     rhs = _make_rhs(protocol, formulation)
     y = initial_state(protocol, formulation)
     states = np.empty((len(t_eval), len(y)))
-    nfev = 0
     start = time.perf_counter()
     states[t_eval == 0.0] = y
-    bounds = _segments(protocol, t_end)
-    for lo, hi in zip(bounds, bounds[1:]):
-        sel = (t_eval > lo) & (t_eval <= hi)
-        seg_t = t_eval[sel]
-        # always end the segment exactly at its breakpoint, to restart from there
-        te = seg_t if len(seg_t) and seg_t[-1] == hi else np.append(seg_t, hi)
-        sol = solve_ivp(rhs, (lo, hi), y, method=solver, t_eval=te, rtol=rtol, atol=atol)
-        nfev += int(sol.nfev)
-        if not sol.success:
-            t_fail = sol.t[-1] if len(sol.t) else lo
-            raise SimulationError(f"{method} failed at t = {t_fail:.6g} s: {sol.message}")
-        if not np.all(np.isfinite(sol.y)):
-            raise SimulationError(f"{method} produced non-finite values")
-        states[sel] = sol.y[:, : len(seg_t)].T
-        y = sol.y[:, -1]
+    try:
+        # a diverging solution overflows: report it as a failed run instead of warnings and NaN
+        with np.errstate(over="raise", invalid="raise", divide="raise"):
+            nfev = _integrate(rhs, solver, y, t_eval, _segments(protocol, t_end), states, rtol, atol, method)
+    except FloatingPointError as exc:
+        raise SimulationError(f"{method}: the solution diverged ({exc}); tighten rtol or choose another method") \
+            from None
     wall = time.perf_counter() - start
     drift = float(np.max(np.abs(np.linalg.norm(states[:, :4], axis=1) - 1.0)))
     if drift > QUATERNION_NORM_TOLERANCE:

@@ -1,0 +1,82 @@
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import PROTOCOL_DIR
+from gyrorig import _io
+from gyrorig.cli import main
+from gyrorig.physics import TRAJECTORY_COLUMNS
+
+AIR = str(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+EDDY = str(PROTOCOL_DIR / "eddy-damped-top.toml")
+
+
+def test_simulate_writes_trajectory_and_manifest(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["simulate", AIR, "--out", str(out), "--duration", "0.5", "--rate", "100"]) == 0
+    df = pd.read_csv(out / "trajectory.csv")
+    assert list(df.columns[:10]) == list(TRAJECTORY_COLUMNS)
+    assert len(df) == 51
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["simulation"]["method"] == "gyro"
+    assert manifest["protocol"]["name"] == "air-cushion-heavy-top"
+    assert manifest["versions"]["gyrorig"]
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "trajectory.csv"]
+    assert "51 rows" in capsys.readouterr().out
+
+
+def test_simulate_exact_method_and_its_refusal_for_damped_scenes(tmp_path, capsys):
+    assert main(["simulate", AIR, "--out", str(tmp_path / "a"), "--method", "exact", "--duration", "0.2"]) == 0
+    exact = pd.read_csv(tmp_path / "a" / "trajectory.csv")
+    assert main(["simulate", AIR, "--out", str(tmp_path / "b"), "--duration", "0.2", "--rtol", "1e-12"]) == 0
+    sim = pd.read_csv(tmp_path / "b" / "trajectory.csv")
+    assert np.abs(exact[["tip_x", "tip_y", "tip_z"]].to_numpy() - sim[["tip_x", "tip_y", "tip_z"]].to_numpy()).max() < 1e-10
+    assert main(["simulate", EDDY, "--out", str(tmp_path / "c"), "--method", "exact"]) == 2
+    assert "damped" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
+
+
+def test_bad_protocol_exits_2_and_writes_nothing(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text().replace("mass_kg = 0.5292", "mass_kg = -2"))
+    out = tmp_path / "out"
+    assert main(["simulate", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "rig.mass_kg = -2.0" in err and "(0, inf]" in err
+    assert not out.exists()
+
+
+def test_failed_integration_exits_3_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["simulate", AIR, "--out", str(out), "--method", "RK23", "--rtol", "0.5", "--duration", "2"])
+    assert code == 3
+    assert "diverged" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_atomic_path_leaves_nothing_on_error(tmp_path):
+    target = tmp_path / "x.csv"
+    with pytest.raises(RuntimeError):
+        with _io.atomic_path(target) as tmp:
+            tmp.write_text("partial")
+            raise RuntimeError("interrupted")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bench_methods_prints_a_table(tmp_path, capsys):
+    code = main(["bench", "methods", AIR, "--duration", "0.5", "--methods", "gyro", "DOP853", "--out", str(tmp_path)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "reference: exact" in text and "speed ratio" in text
+    table = pd.read_csv(tmp_path / "methods.csv")
+    assert set(table.method) == {"exact", "gyro", "DOP853"}
+    assert (table[table.method != "exact"].max_tip_error_rad < 1e-7).all()
+
+
+def test_demo_runs_and_writes_a_plot(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path), "--duration", "1"]) == 0
+    assert (tmp_path / "trajectory.png").stat().st_size > 10_000
+    text = capsys.readouterr().out
+    assert "max tip-direction error against the exact solution" in text
