@@ -89,7 +89,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from .report import plot_trajectory
 
     out = Path(args.out)
-    protocol = load_protocol(PROTOCOL_DIR / DEMO_PROTOCOL)
+    path = PROTOCOL_DIR / DEMO_PROTOCOL
+    if not path.exists():
+        raise ProtocolError(f"bundled protocol {DEMO_PROTOCOL} not found at {path}: install gyrorig from a clone "
+                            "of the repository with 'pip install -e .'")
+    protocol = load_protocol(path)
     duration = args.duration
     print(f"demo: {protocol.description}")
     print(f"simulating {duration:g} s ...", flush=True)
