@@ -8,6 +8,7 @@ name unless the whole computation succeeded.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 import time
@@ -119,6 +120,88 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _json_safe(obj):
+    """NaN and inf become null so the output is strict JSON."""
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def _print_prediction(pred: dict) -> None:
+    print(f"{pred['protocol']}: theory for this scene (paper as printed / corrected / exact or simulated)")
+    for k, v in pred["flags"].items():
+        print(f"  flag {k} = {v:.4g}" if isinstance(v, float) else f"  flag {k} = {v}")
+    fmt = lambda x: "-" if x is None else (f"{x:.6g}" if isinstance(x, float) else str(x))  # noqa: E731
+    for key, v in pred.items():
+        if key in ("protocol", "flags"):
+            continue
+        if key == "equilibrium_tip":
+            print(f"  {key}: paper {np.round(v['paper'], 5).tolist()}, exact {np.round(v['exact'], 5).tolist()}, "
+                  f"{v['angle_between_rad']:.4g} rad apart; leans towards the acceleration: "
+                  f"paper {v['leans_towards_acceleration']['paper']}, exact {v['leans_towards_acceleration']['exact']}")
+            continue
+        line = f"  {key}: paper {fmt(v.get('paper'))}"
+        if "corrected" in v:
+            line += f", corrected {fmt(v['corrected'])}"
+        line += f", exact {fmt(v.get('exact'))} ({v['exact_source']})"
+        if "relative_difference" in v:
+            line += f"; paper off by {v['relative_difference']:+.2%}"
+        if v.get("sign_agrees") is False:
+            line += "  ** WRONG SIGN **"
+        if "direction" in v:
+            line += f"; direction: paper {v['direction']['paper']}, simulated {v['direction']['exact']}"
+        print(line)
+
+
+def _cmd_theory(args: argparse.Namespace) -> int:
+    from . import theory
+
+    if args.validate:
+        return _cmd_validate(args)
+    if not args.protocol:
+        raise ValueError("give a PROTOCOL, or --validate")
+    pred = theory.predict(load_protocol(args.protocol), simulate_damping=not args.no_simulate)
+    if args.json:
+        print(json.dumps(_json_safe(pred), indent=2))
+    else:
+        _print_prediction(pred)
+    return EXIT_OK
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    from .report import markdown_table, plot_validation
+    from .validation import summarize, validate
+
+    out = Path(args.out or "theory-validation")
+    print(f"validating the paper's formulas against the simulator ({'quick' if args.quick else 'full'} sweeps)",
+          flush=True)
+    table = validate(quick=args.quick, progress=lambda m: print("  " + m, flush=True))
+    summary = summarize(table)
+    _io.write_csv(table, out / "validation.csv")
+    _io.write_csv(summary, out / "summary.csv")
+    cols = ["formula", "equation", "fast_top_ratio", "tilt_rad", "params", "paper", "corrected", "exact",
+            "simulator", "rel_error_paper", "rel_error_corrected", "sign_agrees_paper", "in_regime"]
+    md = ("# The paper's formulas judged by the simulator\n\n"
+          "Relative errors are against the value measured by the simulator. `in_regime`: fast-top ratio >= 10 "
+          "(fast-top formulas) or tilt <= 0.3 rad (small-angle formulas). Derivations of the corrected forms: "
+          "`docs/theory.md`.\n\n## Verdicts\n\n" + markdown_table(summary)
+          + "\n## All points\n\n" + markdown_table(table[cols]))
+    with _io.atomic_path(out / "validation.md") as tmp:
+        tmp.write_text(md)
+    fig = plot_validation(table)
+    with _io.atomic_path(out / "validation.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    print(summary[["formula", "equation", "verdict"]].to_string(index=False))
+    print(f"wrote {out / 'validation.md'}, {out / 'validation.csv'}, {out / 'summary.csv'}, {out / 'validation.png'}")
+    return EXIT_OK
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for documentation and tests)."""
     p = argparse.ArgumentParser(prog="gyrorig", description=__doc__.splitlines()[0])
@@ -147,6 +230,15 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--repeats", type=int, default=1, help="median of this many timings")
     bm.add_argument("--out", default=None, help="also write methods.csv here")
     bm.set_defaults(func=_cmd_bench_methods)
+
+    t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
+    t.add_argument("protocol", nargs="?", help="protocol TOML file")
+    t.add_argument("--json", action="store_true", help="print JSON (keys carry units)")
+    t.add_argument("--no-simulate", action="store_true", help="skip the simulated damped tilt rate")
+    t.add_argument("--validate", action="store_true", help="judge every formula against the simulator over sweeps")
+    t.add_argument("--quick", action="store_true", help="with --validate: small sweeps (seconds)")
+    t.add_argument("--out", default=None, help="with --validate: output directory (default ./theory-validation)")
+    t.set_defaults(func=_cmd_theory)
 
     d = sub.add_parser("demo", help="simulate the bundled air-cushion rig and compare with the exact solution")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")

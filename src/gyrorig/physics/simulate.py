@@ -45,6 +45,7 @@ from scipy.integrate import solve_ivp
 
 from ..protocols import EddyFieldDamping, Protocol
 from .rotations import angles_from_tip, euler_from_matrix, euler_to_matrix, matrix_to_quaternion, quaternion_to_matrix
+from .phasor import PhasorSingularity, make_phasor_rhs, phasor_initial_state, phasor_states_to_arrays
 from .torques import torques_for
 
 logger = logging.getLogger(__name__)
@@ -63,6 +64,7 @@ __all__ = [
 METHODS: dict[str, tuple[str, str]] = {
     "gyro": ("axis", "DOP853"),
     "gyro-radau": ("axis", "Radau"),
+    "phasor": ("phasor", "DOP853"),
     "RK23": ("body", "RK23"),
     "RK45": ("body", "RK45"),
     "DOP853": ("body", "DOP853"),
@@ -325,8 +327,10 @@ def simulate(
             raise ValueError("t_eval_s must be a non-empty, strictly increasing array of times >= 0")
         t_end = float(t_eval[-1])
 
-    rhs = _make_rhs(protocol, formulation)
-    y = initial_state(protocol, formulation)
+    if formulation == "phasor":
+        rhs, y = make_phasor_rhs(protocol), phasor_initial_state(protocol)
+    else:
+        rhs, y = _make_rhs(protocol, formulation), initial_state(protocol, formulation)
     states = np.empty((len(t_eval), len(y)))
     start = time.perf_counter()
     states[t_eval == 0.0] = y
@@ -337,7 +341,14 @@ def simulate(
     except FloatingPointError as exc:
         raise SimulationError(f"{method}: the solution diverged ({exc}); tighten rtol or choose another method") \
             from None
+    except PhasorSingularity as exc:
+        raise SimulationError(f"phasor formulation is singular at the poles (eq. 9 divides by sin theta): {exc}; "
+                              "use method 'gyro'") from None
     wall = time.perf_counter() - start
+    if formulation == "phasor":
+        df = _phasor_frame(protocol, t_eval, states)
+        info = SimulationInfo(method, formulation, solver, rtol, atol, nfev, wall, 0.0)
+        return (df, info) if return_info else df
     drift = float(np.max(np.abs(np.linalg.norm(states[:, :4], axis=1) - 1.0)))
     if drift > QUATERNION_NORM_TOLERANCE:
         raise SimulationError(
@@ -407,6 +418,15 @@ def trajectory_frame(
         data["psi_frame_rad"] = _unwrap_near(psi_f, 0.0)
         data["omega_frame_rad_s"] = frame[1]
     return pd.DataFrame(data)
+
+
+def _phasor_frame(protocol: Protocol, t_s: NDArray[np.float64], states: NDArray[np.float64]) -> pd.DataFrame:
+    a = phasor_states_to_arrays(states)
+    rotor = euler_to_matrix(a["phi"], a["theta"], a["psi"])
+    frame = None
+    if "omega_f" in a:
+        frame = (euler_to_matrix(a["phi"], a["theta"], a["psi_f"]), a["omega_f"])
+    return trajectory_frame(protocol, t_s, rotor, a["rates"], frame=frame)
 
 
 def rot_z(angle: NDArray[np.float64]) -> NDArray[np.float64]:

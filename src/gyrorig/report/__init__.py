@@ -1,5 +1,6 @@
 """Reports: plots (matplotlib, object API only, never ``plt.show``) and text summaries."""
 
-from .plots import plot_trajectory
+from .plots import plot_trajectory, plot_validation
+from .text import markdown_table
 
-__all__ = ["plot_trajectory"]
+__all__ = ["markdown_table", "plot_trajectory", "plot_validation"]

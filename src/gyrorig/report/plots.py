@@ -48,3 +48,50 @@ def plot_trajectory(df: pd.DataFrame, *, reference: pd.DataFrame | None = None, 
     if title:
         fig.suptitle(title)
     return fig
+
+
+def plot_validation(table: pd.DataFrame) -> Figure:
+    """Four panels judging the paper's formulas against the simulator.
+
+    (a) relative error against the fast-top ratio for the fast-top formulas (small
+    tilt); (b) slow steady precession, paper vs simulator (signed); (c) damped tilt rate,
+    paper / corrected / simulated (signed); (d) accelerated pivot: x of the equilibrium tip.
+    """
+    fig = Figure(figsize=(12, 8.5), layout="constrained")
+    ax = fig.subplots(2, 2).ravel()
+    small = table[(table.tilt_rad <= 0.3) & table.fast_top_ratio.notna()]
+    for formula, g in small.groupby("formula", sort=False):
+        col = "rel_error_corrected" if g.rel_error_corrected.notna().any() else "rel_error_paper"
+        g = g.sort_values("fast_top_ratio")
+        label = formula + (" (corrected)" if col == "rel_error_corrected" else "")
+        ax[0].loglog(g.fast_top_ratio, np.maximum(np.abs(g[col]), 1e-8), "o", ms=4, alpha=0.8, label=label)
+    ax[0].set(xlabel="fast-top ratio (Io Omega)^2 / (4 I Mgh)", ylabel="|relative error| vs simulator",
+              title="(a) closed forms at tilt <= 0.3 rad")
+    ax[0].legend(fontsize=6)
+    slow = table[table.quantity == "precession_rate_slow_rad_s"]
+    x = np.arange(len(slow))
+    ax[1].plot(x, slow.simulator, "ko", label="simulator")
+    ax[1].plot(x, slow.paper, "rx", label="paper eq. 20 as printed")
+    ax[1].plot(x, slow.corrected, "g+", ms=10, label="eq. 20, Mgh sign corrected")
+    ax[1].axhline(0, color="0.7", lw=0.5)
+    ax[1].set(xlabel="sweep point (spin, tilt)", ylabel="slow precession [rad/s]", title="(b) steady slow precession")
+    ax[1].legend(fontsize=7)
+    damp = table[table.quantity == "tilt_growth_rate_per_s"]
+    x = np.arange(len(damp))
+    ax[2].plot(x, damp.simulator, "ko", label="simulator")
+    ax[2].plot(x, damp.paper, "rx", label="paper eq. 25a")
+    ax[2].plot(x, damp.corrected, "g+", ms=10, label="sign corrected")
+    ax[2].axhline(0, color="0.7", lw=0.5)
+    ax[2].set(xlabel="sweep point (spin, gamma)", ylabel="d ln(theta)/dt [1/s] (>0: tilt grows)",
+              title="(c) damped compensated top")
+    ax[2].legend(fontsize=7)
+    acc = table[table.quantity == "equilibrium_tip_x"]
+    a = acc.params.str.extract(r"a_m_s2=([0-9.e+-]+)")[0].astype(float)
+    ax[3].plot(a, acc.simulator, "ko", label="simulator (cone axis)")
+    ax[3].plot(a, acc.paper, "rx", label="paper eq. 31")
+    ax[3].plot(a, acc.exact, "g+", ms=10, label="effective vertical")
+    ax[3].axhline(0, color="0.7", lw=0.5)
+    ax[3].set(xlabel="pivot acceleration a along -x [m/s^2]", ylabel="x component of equilibrium tip",
+              title="(d) accelerated pivot: which way it leans")
+    ax[3].legend(fontsize=7)
+    return fig
