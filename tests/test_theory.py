@@ -1,0 +1,147 @@
+"""Each closed form of the paper against the simulator, in its regime, with sign checks.
+
+The simulator is the judge; tolerances are the formulas' approximation errors,
+stated per formula.  Where the paper's printed form has the wrong sign, the test
+asserts that the validation *detects* it and that the corrected form agrees.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from conftest import PROTOCOL_DIR, make_protocol, max_tip_error
+from gyrorig import SimulationError, exact_solution, load_protocol, simulate
+from gyrorig import theory as th
+from gyrorig.cli import main
+from gyrorig.validation import (
+    _sweep_accelerated,
+    _sweep_damped,
+    _sweep_free,
+    _sweep_release,
+    _sweep_steady_precession,
+    summarize,
+    validate,
+)
+
+KW = dict(inertia=1.0, inertia_axial=0.6, mgh=0.981)
+
+#: approximation errors at fast-top ratio 30 (first order in 1/ratio), small tilt
+FAST_TOP_RTOL_AT_30 = 0.03
+#: small-tilt (theta^2) and fast-top error of the corrected steady and damped forms at ratio 30, tilt 0.1-0.3
+CORRECTED_RTOL = 0.02
+
+
+def test_steady_launch_finds_the_exact_finite_tilt_rates():
+    for tilt in (0.05, 0.7, 2.0):
+        p = make_protocol(tilt=tilt, spin=25.0)
+        exact = th.exact_steady_precession_rates(25.0, tilt, **KW)
+        for k, mode in enumerate(["slow", "fast"]):
+            rate = th.steady_launch(p, mode=mode).launch.precession_rate_rad_s
+            assert rate == pytest.approx(exact[k], rel=1e-9)
+    # and the top launched at that rate does not nutate
+    steady = th.steady_launch(make_protocol(tilt=0.7, spin=25.0, duration=3.0))
+    df = simulate(steady, rtol=1e-12, rate_hz=100.0)
+    assert np.ptp(df.theta_rad) < 1e-9
+
+
+def test_eq20_slow_root_has_the_wrong_sign_and_the_corrected_form_agrees():
+    rows = _sweep_steady_precession([30, 100], [0.1, 0.3])
+    slow = [r for r in rows if r["quantity"] == "precession_rate_slow_rad_s"]
+    assert all(r["simulator"] > 0 for r in slow)  # same sense as the positive spin
+    assert not any(r["sign_agrees_paper"] for r in slow)
+    assert all(abs(r["rel_error_corrected"]) < 1e-3 for r in slow)
+    fast = [r for r in rows if r["quantity"] == "precession_rate_fast_rad_s"]
+    assert all(r["sign_agrees_paper"] and abs(r["rel_error_paper"]) < 0.05 for r in fast)
+
+
+def test_fast_top_release_formulas_converge_as_one_over_the_ratio():
+    rows = _sweep_release([10, 30, 100], [0.1])
+    for quantity in ["nutation_frequency_rad_s", "nutation_amplitude_rad", "mean_precession_rate_rad_s"]:
+        errs = {r["fast_top_ratio"]: abs(r["rel_error_paper"]) for r in rows if r["quantity"] == quantity}
+        assert errs[30] < FAST_TOP_RTOL_AT_30, quantity
+        assert errs[100] < errs[10] / 5, quantity  # first order in 1/ratio: x10 ratio, ~x10 smaller error
+        # the measured values agree with the exact elliptic solution
+    for r in rows:
+        assert r["simulator"] == pytest.approx(r["exact"], rel=2e-3)
+
+
+def test_free_top_eq12_agrees_in_the_small_cone_regime():
+    rows = _sweep_free([0.3, 1.5], [0.05])
+    for r in rows:
+        assert abs(r["rel_error_paper"]) < 3e-3
+        assert r["simulator"] == pytest.approx(r["exact"], rel=1e-6)
+
+
+def test_eq25a_predicts_decay_but_the_simulator_shows_growth():
+    rows = _sweep_damped([30], [0.2, 2.0])
+    rates = [r for r in rows if r["quantity"] == "tilt_growth_rate_per_s"]
+    assert all(r["simulator"] > 0 for r in rates)
+    assert all(r["paper"] < 0 for r in rates)
+    assert all(abs(r["rel_error_corrected"]) < CORRECTED_RTOL for r in rates)
+
+
+def test_eq31_leans_against_the_acceleration_and_the_top_precesses_about_the_effective_vertical():
+    (row,) = _sweep_accelerated([2.0])
+    assert row["paper"] > 0 > row["simulator"]  # acceleration along -x: the cone axis leans to -x
+    assert row["simulator"] == pytest.approx(row["exact"], abs=1e-3)
+
+
+def test_summary_names_every_disagreement():
+    table = validate(quick=True)
+    summary = summarize(table).set_index("equation")
+    for eq in ["20", "25a", "26", "31"]:
+        verdicts = " ".join(summary.loc[[eq], "verdict"])
+        assert "DISAGREES" in verdicts, eq
+    assert "agrees" in summary.loc["12", "verdict"]
+    assert "singular" in summary.loc["9", "verdict"]
+
+
+def test_phasor_integrator_is_exact_away_from_the_poles_and_refuses_them():
+    p = make_protocol(tilt=0.5, tilt_rate=1.5, precession_rate=-2.0, spin=40.0, duration=3.0)
+    t = np.linspace(0, 3, 301)
+    assert max_tip_error(simulate(p, method="phasor", rtol=1e-12, atol=1e-14, t_eval_s=t), exact_solution(p, t)) < 1e-9
+    damped = make_protocol(tilt=0.5, spin=40.0, duration=3.0, frame_inertia=0.05,
+                           damping={"model": "eddy-field", "coefficient_N_m_s": 0.3, "field_direction": [0, 0, 1],
+                                    "spin_compensated": True})
+    a = simulate(damped, method="phasor", rtol=1e-12, t_eval_s=t)
+    b = simulate(damped, method="gyro", rtol=1e-12, t_eval_s=t)
+    assert max_tip_error(a, b) < 1e-8
+    with pytest.raises(SimulationError, match="singular at the poles"):
+        simulate(make_protocol(tilt=0.0, tilt_rate=0.5, spin=30.0), method="phasor")
+
+
+def test_predict_reports_only_what_the_scene_has():
+    preds = {p.stem: th.predict(load_protocol(p), simulate_damping=False) for p in sorted(PROTOCOL_DIR.glob("*.toml"))}
+    assert set(preds["free-top"]) == {"protocol", "flags", "precession_rate_rad_s"}
+    air = preds["air-cushion-heavy-top"]
+    assert "tilt_growth_rate_per_s" not in air and "equilibrium_tip" not in air
+    assert {"precession_rate_slow_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"} <= set(air)
+    assert "tilt_growth_rate_per_s" in preds["eddy-damped-top-b2"]
+    assert "equilibrium_tip" in preds["accelerated-pivot"]
+    # the rig is at fast-top ratio ~9 and 45 deg: the flags say the approximations are stretched
+    assert air["flags"]["fast_top_ratio"] == pytest.approx(9.17, abs=0.01)
+    assert air["flags"]["fast_top"] is False and air["flags"]["small_tilt"] is False
+    assert air["precession_rate_slow_rad_s"]["sign_agrees"] is False
+
+
+def test_predict_damped_rig_simulates_the_growth():
+    pred = th.predict(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"))
+    g = pred["tilt_growth_rate_per_s"]
+    assert g["paper"] < 0 < g["exact"]
+    assert g["exact"] == pytest.approx(g["corrected"], rel=0.15)  # small-tilt formula at 45 deg
+    assert pred["tilt_time_constant_s"]["direction"] == {"paper": "decay", "exact": "growth"}
+    lab_field = th.predict(load_protocol(PROTOCOL_DIR / "eddy-damped-top.toml"))
+    assert abs(lab_field["tilt_growth_rate_per_s"]["exact"]) < 1e-9  # damps theta-dot only
+
+
+def test_theory_cli_json_and_validate(tmp_path, capsys):
+    assert main(["theory", str(PROTOCOL_DIR / "accelerated-pivot.toml"), "--json", "--no-simulate"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["equilibrium_tip"]["leans_towards_acceleration"] == {"paper": False, "exact": True}
+    assert math.isclose(np.linalg.norm(data["equilibrium_tip"]["exact"]), 1.0)
+    assert main(["theory", "--validate", "--quick", "--out", str(tmp_path)]) == 0
+    for name in ["validation.csv", "summary.csv", "validation.md", "validation.png"]:
+        assert (tmp_path / name).stat().st_size > 0
+    assert "DISAGREES" in (tmp_path / "validation.md").read_text()
