@@ -69,4 +69,5 @@ def versions() -> dict[str, str]:
         "numpy": numpy.__version__,
         "scipy": scipy.__version__,
         "pandas": pd.__version__,
+        "numba": __import__("numba").__version__,
     }

@@ -6,7 +6,8 @@ The orientation is a unit quaternion of a *reference frame* whose third axis is
 the symmetry axis, so nothing is singular at tilt 0 or pi.  Two reference frames
 are available ("formulations"):
 
-``axis``  (gyrorig's own method, ``method="gyro"``)
+``axis``  (gyrorig's own method, ``method="gyro"``: compiled DOP853, see ``_jit.py``;
+         ``"gyro-scipy"``: the same equations on scipy's DOP853)
     A frame that follows the axis but does not turn about it (axial rate 0).  The
     fast spin never enters the orientation; the rotor angle relative to the frame
     is integrated as a separate scalar, ``chi' = omega_o``.  Steps are set by the
@@ -45,6 +46,7 @@ from scipy.integrate import solve_ivp
 
 from ..protocols import EddyFieldDamping, Protocol
 from .rotations import angles_from_tip, euler_from_matrix, euler_to_matrix, matrix_to_quaternion, quaternion_to_matrix
+from ._jit import STATUS_MESSAGES, integrate_dop853, pack_torques
 from .phasor import PhasorSingularity, make_phasor_rhs, phasor_initial_state, phasor_states_to_arrays
 from .torques import torques_for
 
@@ -62,8 +64,10 @@ __all__ = [
 
 #: method name -> (formulation, scipy solver)
 METHODS: dict[str, tuple[str, str]] = {
-    "gyro": ("axis", "DOP853"),
+    "gyro": ("axis", "DOP853-jit"),
+    "gyro-scipy": ("axis", "DOP853"),
     "gyro-radau": ("axis", "Radau"),
+    "DOP853-jit": ("body", "DOP853-jit"),
     "phasor": ("phasor", "DOP853"),
     "RK23": ("body", "RK23"),
     "RK45": ("body", "RK45"),
@@ -74,7 +78,7 @@ METHODS: dict[str, tuple[str, str]] = {
 }
 
 #: default relative tolerance per solver
-DEFAULT_RTOL = {"DOP853": 1e-10, "RK45": 1e-8, "RK23": 1e-6, "Radau": 1e-8, "BDF": 1e-8, "LSODA": 1e-9}
+DEFAULT_RTOL = {"DOP853-jit": 1e-10, "DOP853": 1e-10, "RK45": 1e-8, "RK23": 1e-6, "Radau": 1e-8, "BDF": 1e-8, "LSODA": 1e-9}
 
 #: columns of the trajectory DataFrame (gyrostats add ``psi_frame_rad, omega_frame_rad_s``)
 TRAJECTORY_COLUMNS = (
@@ -230,6 +234,13 @@ def _integrate(
         seg_t = t_eval[sel]
         # always end the segment exactly at its breakpoint, to restart from there
         te = seg_t if len(seg_t) and seg_t[-1] == hi else np.append(seg_t, hi)
+        if isinstance(rhs, _JitStepper):
+            out, y, n_calls, status, t_reached = rhs.integrate(y, lo, hi, seg_t, rtol, atol)
+            nfev += n_calls
+            if status != 0:
+                raise SimulationError(f"{method} failed at t = {t_reached:.6g} s: {STATUS_MESSAGES[status]}")
+            states[sel] = out
+            continue
         sol = solve_ivp(rhs, (lo, hi), y, method=solver, t_eval=te, rtol=rtol, atol=atol)
         nfev += int(sol.nfev)
         if not sol.success:
@@ -240,6 +251,23 @@ def _integrate(
         states[sel] = sol.y[:, : len(seg_t)].T
         y = sol.y[:, -1]
     return nfev
+
+
+class _JitStepper:
+    """Compiled DOP853 on the packed equations of one protocol (see ``_jit.py``)."""
+
+    def __init__(self, packed: tuple) -> None:
+        self.packed = packed
+
+    def integrate(self, y, lo, hi, t_out, rtol, atol):
+        return integrate_dop853(self.packed, y, lo, hi, t_out, rtol, atol)
+
+
+def _jit_stepper(protocol: Protocol, formulation: str) -> _JitStepper:
+    rig = protocol.rig
+    return _JitStepper(pack_torques(torques_for(protocol), inertia_transverse=rig.inertia_transverse_kg_m2,
+                                    inertia_axial=rig.inertia_axial_kg_m2,
+                                    frame_axial=rig.frame_axial_inertia_kg_m2, body_frame=formulation == "body"))
 
 
 def _segments(protocol: Protocol, t_end: float) -> list[float]:
@@ -268,9 +296,12 @@ def simulate(
     ----------
     protocol : Protocol
     method : str
-        ``"auto"`` (see :func:`choose_method`), ``"gyro"`` / ``"gyro-radau"`` (axis
-        formulation, explicit DOP853 / implicit Radau), or a scipy ``solve_ivp``
-        method on the body formulation: ``"RK23", "RK45", "DOP853", "Radau", "BDF", "LSODA"``.
+        ``"auto"`` (see :func:`choose_method`); ``"gyro"`` (axis formulation, compiled
+        DOP853), ``"gyro-scipy"`` (same on scipy's DOP853), ``"gyro-radau"`` (implicit
+        Radau); ``"phasor"`` (the paper's eqs. 5 and 9, singular at the poles);
+        ``"DOP853-jit"`` (compiled DOP853 on the body formulation); or a scipy
+        ``solve_ivp`` method on the body formulation: ``"RK23", "RK45", "DOP853",
+        "Radau", "BDF", "LSODA"``.
     rtol, atol : float, optional
         Tolerances (defaults per solver: :data:`DEFAULT_RTOL`; ``atol = rtol * 1e-2``).
     duration_s : float, optional
@@ -329,6 +360,9 @@ def simulate(
 
     if formulation == "phasor":
         rhs, y = make_phasor_rhs(protocol), phasor_initial_state(protocol)
+    elif solver == "DOP853-jit":
+        rhs = _jit_stepper(protocol, formulation)
+        y = initial_state(protocol, formulation)
     else:
         rhs, y = _make_rhs(protocol, formulation), initial_state(protocol, formulation)
     states = np.empty((len(t_eval), len(y)))
