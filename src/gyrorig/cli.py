@@ -86,6 +86,54 @@ def _cmd_bench_methods(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+#: the issue's figures for the same case, measured elsewhere on this kind of machine (not re-measured here)
+REFERENCE_FIGURES = {
+    "release-spin60": "MuJoCo 4.0 RK4: 1.6e-10 rad in 0.16 s, 4e-12 in 0.5 s; scipy DOP853 (plain Python rhs): "
+                      "1.5e-10 in 0.9 s",
+    "release-spin300": "MuJoCo 4.0 RK4: 9e-11 rad in 0.5 s; scipy DOP853: 3.3 s",
+}
+
+
+def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
+    from .bench import accuracy_scenes, speed_ratio, work_precision
+    from .report import markdown_table, plot_work_precision
+
+    out = Path(args.out or "bench-accuracy")
+    md = ["# Work-precision study\n",
+          "Error: max tip-direction error against the exact solution (undamped) or the tightest converged "
+          "`gyro` run (damped), 10 s simulated.  Wall time: median of repeats in one process.\n"]
+    cols = ["method", "rtol", "wall_time_s", "n_rhs_evaluations", "max_tip_error_rad",
+            "precession_rate_error_rad_s", "nutation_amplitude_error_rad", "status"]
+    for name, protocol in accuracy_scenes(args.quick).items():
+        print(f"{name}: running ...", flush=True)
+        table, reference = work_precision(protocol, quick=args.quick)
+        table.insert(0, "scene", name)
+        ratios = speed_ratio(table)
+        _io.write_csv(table, out / f"{name}.csv")
+        fig = plot_work_precision(table, title=f"{name} (reference: {reference})")
+        with _io.atomic_path(out / f"{name}.png") as tmp:
+            fig.savefig(tmp, format="png", dpi=100)
+        print(f"reference: {reference}")
+        print(table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+        if len(ratios):
+            print("speed-up of gyro over scipy DOP853 (body frame, plain Python rhs) at equal or better error, "
+                  "same run:")
+            print(ratios[["baseline_rtol", "baseline_error_rad", "baseline_wall_s", "method_rtol",
+                          "method_error_rad", "method_wall_s", "speedup"]].to_string(
+                index=False, float_format=lambda v: f"{v:.3g}"))
+        if name in REFERENCE_FIGURES:
+            print(f"issue's reference figures: {REFERENCE_FIGURES[name]}")
+        md += [f"\n## {name}\n\nreference: {reference}\n\n", markdown_table(table[cols])]
+        if len(ratios):
+            md += ["\nSpeed-up of `gyro` over scipy DOP853 at equal or better error (same run):\n\n",
+                   markdown_table(ratios)]
+        md.append(f"\n![{name}]({name}.png)\n")
+    with _io.atomic_path(out / "accuracy.md") as tmp:
+        tmp.write_text("".join(md))
+    print(f"wrote {out / 'accuracy.md'} and one CSV and PNG per scene")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .report import plot_trajectory
 
@@ -230,6 +278,10 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--repeats", type=int, default=1, help="median of this many timings")
     bm.add_argument("--out", default=None, help="also write methods.csv here")
     bm.set_defaults(func=_cmd_bench_methods)
+    ba = bsub.add_parser("accuracy", help="work-precision study: error against wall time of every method")
+    ba.add_argument("--quick", action="store_true", help="two scenes, short tolerance ladders (< 1 minute)")
+    ba.add_argument("--out", default=None, help="output directory (default ./bench-accuracy)")
+    ba.set_defaults(func=_cmd_bench_accuracy)
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
     t.add_argument("protocol", nargs="?", help="protocol TOML file")

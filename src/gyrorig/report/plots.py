@@ -95,3 +95,21 @@ def plot_validation(table: pd.DataFrame) -> Figure:
               title="(d) accelerated pivot: which way it leans")
     ax[3].legend(fontsize=7)
     return fig
+
+
+def plot_work_precision(table: pd.DataFrame, *, title: str = "") -> Figure:
+    """Max tip error against wall time (log-log), one line per method; closed forms as points."""
+    fig = Figure(figsize=(7.5, 5.5), layout="constrained")
+    ax = fig.subplots()
+    ok = table[table.status.isin(["ok", "reference"])]
+    for method, g in ok.groupby("method", sort=False):
+        g = g.sort_values("wall_time_s")
+        err = np.maximum(g.max_tip_error_rad.to_numpy(), 1e-16)
+        style = "o-" if len(g) > 1 else "s"
+        label = method if method != "exact" else "exact (elliptic; error floored at 1e-16)"
+        ax.loglog(g.wall_time_s, err, style, ms=4, label=label)
+    ax.set(xlabel="wall time [s] (median, same process)", ylabel="max tip-direction error [rad]",
+           title=title or "work-precision")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=7)
+    return fig
