@@ -134,6 +134,39 @@ def _cmd_bench_accuracy(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_stability(args: argparse.Namespace) -> int:
+    from .report import markdown_table, plot_stability
+    from .stability import AGREEMENT_TOL_RAD, INVARIANT_RTOL, run_stability, verdicts
+
+    out = Path(args.out or "bench-stability")
+    print(f"stability suite ({'quick' if args.quick else 'full'})", flush=True)
+    table = run_stability(quick=args.quick, progress=lambda m: print("  " + m, flush=True))
+    summary = verdicts(table)
+    _io.write_csv(table, out / "stability.csv")
+    fig = plot_stability(table)
+    with _io.atomic_path(out / "stability.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    detail_cols = [c for c in ["case", "method", "resolved_method", "status", "wall_time_s", "n_rhs_evaluations",
+                               "quaternion_norm_drift", "energy_J_drift", "l_vertical_kg_m2_s_drift",
+                               "l_axial_kg_m2_s_drift", "max_energy_rise", "max_tip_error_vs_reference_rad",
+                               "energy_drift_per_spin_period", "reference"] if c in table]
+    md = (f"# Stability on stiff and extreme cases\n\nChecks: |q| drift <= 1e-9; conserved quantities drift <= "
+          f"{INVARIANT_RTOL:g} (relative; long run 1e-6); energy never rises when damped; tip within "
+          f"{AGREEMENT_TOL_RAD:g} rad of the reference (exact solution, or gyro-radau at rtol 1e-11).\n\n"
+          "## Verdicts (automatic method choice)\n\n" + markdown_table(summary)
+          + "\n## Every run\n\n" + markdown_table(table[detail_cols]) + "\n![matrix](stability.png)\n")
+    with _io.atomic_path(out / "stability.md") as tmp:
+        tmp.write_text(md)
+    print(summary.to_string(index=False))
+    long = table[table.case.str.startswith("long-run")]
+    if len(long) and "energy_drift_per_spin_period" in long:
+        r = long.iloc[0]
+        print(f"long run: relative energy drift {r.energy_J_drift:.3g} over the run, "
+              f"{r.energy_drift_per_spin_period:.3g} per spin period, {r.wall_time_s:.1f} s wall")
+    print(f"wrote {out / 'stability.md'}, {out / 'stability.csv'}, {out / 'stability.png'}")
+    return EXIT_OK if (summary.verdict == "pass").all() else EXIT_FAILED
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .report import plot_trajectory
 
@@ -282,6 +315,10 @@ def build_parser() -> argparse.ArgumentParser:
     ba.add_argument("--quick", action="store_true", help="two scenes, short tolerance ladders (< 1 minute)")
     ba.add_argument("--out", default=None, help="output directory (default ./bench-accuracy)")
     ba.set_defaults(func=_cmd_bench_accuracy)
+    bs = bsub.add_parser("stability", help="stiff and extreme cases: invariants, agreement, verdict per case")
+    bs.add_argument("--quick", action="store_true", help="shorter runs (long run: 1e4 instead of 1e6 spin periods)")
+    bs.add_argument("--out", default=None, help="output directory (default ./bench-stability)")
+    bs.set_defaults(func=_cmd_bench_stability)
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
     t.add_argument("protocol", nargs="?", help="protocol TOML file")

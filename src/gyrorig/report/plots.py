@@ -113,3 +113,23 @@ def plot_work_precision(table: pd.DataFrame, *, title: str = "") -> Figure:
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=7)
     return fig
+
+
+def plot_stability(table: pd.DataFrame) -> Figure:
+    """Pass/fail matrix of the stability suite: cases (rows) by methods (columns)."""
+    cases = list(dict.fromkeys(table.case))
+    methods = list(dict.fromkeys(table.method))
+    grid = np.full((len(cases), len(methods)), np.nan)
+    for r in table.itertuples():
+        grid[cases.index(r.case), methods.index(r.method)] = 1.0 if r.status == "pass" else 0.0
+    fig = Figure(figsize=(2 + 1.3 * len(methods), 1 + 0.42 * len(cases)), layout="constrained")
+    ax = fig.subplots()
+    ax.imshow(np.ma.masked_invalid(grid), cmap="RdYlGn", vmin=0, vmax=1, aspect="auto")
+    for i in range(len(cases)):
+        for j in range(len(methods)):
+            if not np.isnan(grid[i, j]):
+                ax.text(j, i, "pass" if grid[i, j] else "FAIL", ha="center", va="center", fontsize=7)
+    ax.set_xticks(range(len(methods)), methods, rotation=30, ha="right", fontsize=8)
+    ax.set_yticks(range(len(cases)), cases, fontsize=8)
+    ax.set_title("stability suite (see stability.md for the reasons)")
+    return fig

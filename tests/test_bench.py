@@ -1,0 +1,49 @@
+"""The quick forms of the benchmarks run in CI: they must finish and their figures must make sense.
+
+Timings are reported, never asserted (shared, noisy machines); what is asserted is
+accuracy and the verdicts.
+"""
+
+import pandas as pd
+import pytest
+
+from gyrorig.bench import speed_ratio, work_precision, benchmark_top
+from gyrorig.cli import main
+
+
+def test_work_precision_errors_fall_with_tolerance_and_beat_scipy_at_equal_error():
+    table, reference = work_precision(benchmark_top(60.0), quick=True)
+    assert reference == "exact"
+    gyro = table[(table.method == "gyro") & (table.status == "ok")].sort_values("rtol", ascending=False)
+    assert (gyro.max_tip_error_rad.diff().dropna() < 0).all()  # tighter tolerance, smaller error
+    assert gyro.max_tip_error_rad.min() < 1e-12
+    closed = table[table.method == "fast-top closed form"].iloc[0]
+    assert 1e-5 < closed.max_tip_error_rad < 1e-3  # first-order fast-top solution at ratio ~37
+    ratios = speed_ratio(table)
+    assert len(ratios) >= 1 and (ratios.method_error_rad <= ratios.baseline_error_rad).all()
+
+
+def test_bench_accuracy_quick_cli(tmp_path, capsys):
+    assert main(["bench", "accuracy", "--quick", "--out", str(tmp_path)]) == 0
+    for scene in ["release-spin60", "release-spin300"]:
+        t = pd.read_csv(tmp_path / f"{scene}.csv")
+        assert {"method", "rtol", "wall_time_s", "max_tip_error_rad", "precession_rate_error_rad_s"} <= set(t.columns)
+        assert (tmp_path / f"{scene}.png").stat().st_size > 10_000
+    assert "speed-up of gyro over scipy DOP853" in capsys.readouterr().out
+
+
+def test_bench_stability_quick_cli(tmp_path, capsys):
+    code = main(["bench", "stability", "--quick", "--out", str(tmp_path)])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    table = pd.read_csv(tmp_path / "stability.csv")
+    auto = table[table.method == "auto"]
+    assert (auto.status == "pass").all()
+    assert set(auto.case) >= {"very-fast-spin", "damping-faster-than-spin", "tilt-exactly-0", "tilt-1e-12-kicked",
+                              "tilt-near-pi", "flat-disc", "thin-rod", "resonance-Omega-equals-nu", "zero-gravity",
+                              "pivot-acceleration-20g"}
+    # the phasor formulation's singularity is listed, not hidden
+    phasor_pole = table[(table.method == "phasor") & (table.case == "tilt-exactly-0")].iloc[0]
+    assert phasor_pole.status.startswith("FAIL") and "singular" in phasor_pole.status
+    assert "stiff" in table[table.case == "damping-faster-than-nutation"].description.iloc[0]
+    assert auto.set_index("case").loc["damping-faster-than-spin", "resolved_method"] == "gyro-radau"
