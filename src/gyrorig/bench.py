@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
 from collections.abc import Sequence
 
 import numpy as np
@@ -262,3 +263,50 @@ def speed_ratio(table: pd.DataFrame, baseline: str = "DOP853", method: str = "gy
                             method_error_rad=best.max_tip_error_rad, method_wall_s=best.wall_time_s,
                             speedup=b.wall_time_s / best.wall_time_s))
     return pd.DataFrame(out)
+
+
+# --------------------------------------------------------------------------------------
+# rendering throughput (gyrorig bench render)
+
+
+def render_throughput(n_frames: int = 100) -> pd.DataFrame:
+    """Frames per second of rendering (no encoding) and of OpenCV's FFV1 encoder, same frames.
+
+    Sizes 640x480 and 1440x1080, with motion blur (8 sub-exposure samples) and without (1),
+    on the air-cushion protocol's markers and sensor.  The target is rendering at least as
+    fast as encoding, so that the disk encoder is the limit.
+    """
+    import tempfile
+    from dataclasses import replace
+
+    from .cli import PROTOCOL_DIR
+    from .protocols import load_protocol
+    from .render import _open_writer, marker_paths, render_frames
+    from .camera import camera_setup
+
+    base = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    rows = []
+    for (w, h) in [(640, 480), (1440, 1080)]:
+        for nsub in (1, 8):
+            cam_t = dict(base.extra["camera"])
+            scale = w / 1440
+            cam_t.update(width_px=w, height_px=h, pixel_size_um=3.45 / scale, motion_blur_samples=nsub)
+            p = replace(base, extra={**base.extra, "camera": cam_t})
+            setup = camera_setup(p)
+            duration = n_frames / setup.camera.fps
+            paths = marker_paths(p, setup, duration)
+            start = time.perf_counter()
+            frames = [img for img, _ in render_frames(p, duration_s=duration, setup=setup, paths=paths)]
+            t_render = time.perf_counter() - start
+            with tempfile.TemporaryDirectory() as tmp:
+                writer = _open_writer(Path(tmp) / "v.mkv", setup.camera, "lossless")
+                start = time.perf_counter()
+                for f in frames:
+                    writer.write(f)
+                writer.release()
+                t_encode = time.perf_counter() - start
+            rows.append(dict(width_px=w, height_px=h, motion_blur_samples=nsub, frames=len(frames),
+                             render_fps=len(frames) / t_render, ffv1_encode_fps=len(frames) / t_encode,
+                             render_over_encode=t_encode / t_render,
+                             encoding_share=t_encode / (t_encode + t_render)))
+    return pd.DataFrame(rows)

@@ -167,6 +167,49 @@ def _cmd_bench_stability(args: argparse.Namespace) -> int:
     return EXIT_OK if (summary.verdict == "pass").all() else EXIT_FAILED
 
 
+def _progress_printer(label: str):
+    """A progress bar on a terminal (stderr); silent when not a TTY."""
+    tty = sys.stderr.isatty()
+    start = time.perf_counter()
+
+    def show(done: int, total: int) -> None:
+        if not tty:
+            return
+        frac = done / max(total, 1)
+        rate = done / max(time.perf_counter() - start, 1e-9)
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r{label} [{bar:<30}] {done}/{total} ({rate:.0f}/s)")
+        if done >= total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from .render import render_video
+
+    protocol = load_protocol(args.protocol)
+    out = Path(args.out)
+    summary = render_video(protocol, out, seed=args.seed, codec=args.codec, duration_s=args.duration,
+                           calibration_views=args.calibration_views, progress=_progress_printer("render"))
+    n, r, e = summary["frames"], summary["render_s"], summary["encode_s"]
+    print(f"{protocol.name}: {n} frames -> {summary['video']} (rendering {n / max(r, 1e-9):.0f} frames/s, "
+          f"encoding {n / max(e, 1e-9):.0f} frames/s); truth.csv, camera.json"
+          + (f", calibration/ ({summary['calibration']['views']} views)" if summary["calibration"] else ""))
+    return EXIT_OK
+
+
+def _cmd_bench_render(args: argparse.Namespace) -> int:
+    from .bench import render_throughput
+
+    table = render_throughput(n_frames=args.frames)
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    if args.out:
+        _io.write_csv(table, Path(args.out) / "render.csv")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .report import plot_trajectory
 
@@ -319,6 +362,10 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--quick", action="store_true", help="shorter runs (long run: 1e4 instead of 1e6 spin periods)")
     bs.add_argument("--out", default=None, help="output directory (default ./bench-stability)")
     bs.set_defaults(func=_cmd_bench_stability)
+    br = bsub.add_parser("render", help="rendering and encoding throughput (frames per second)")
+    br.add_argument("--frames", type=int, default=100, help="frames per measurement")
+    br.add_argument("--out", default=None, help="also write render.csv here")
+    br.set_defaults(func=_cmd_bench_render)
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
     t.add_argument("protocol", nargs="?", help="protocol TOML file")
@@ -328,6 +375,16 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--quick", action="store_true", help="with --validate: small sweeps (seconds)")
     t.add_argument("--out", default=None, help="with --validate: output directory (default ./theory-validation)")
     t.set_defaults(func=_cmd_theory)
+
+    r = sub.add_parser("render", help="synthetic video of a protocol's scene, with truth and calibration images")
+    r.add_argument("protocol", help="protocol TOML file with [camera] and [markers]")
+    r.add_argument("--out", required=True, help="output directory")
+    r.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same bits)")
+    r.add_argument("--codec", choices=["lossless", "mp4"], default="lossless",
+                   help="lossless: video.mkv (FFV1); mp4: video.mp4 (mp4v, 8-bit, lossy)")
+    r.add_argument("--duration", type=float, default=None, help="override scene.duration_s [s]")
+    r.add_argument("--calibration-views", type=int, default=12, help="checkerboard images (0: none)")
+    r.set_defaults(func=_cmd_render)
 
     d = sub.add_parser("demo", help="simulate the bundled air-cushion rig and compare with the exact solution")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")

@@ -1,0 +1,280 @@
+"""Camera, sensor and marker descriptions (protocol sections ``[camera]`` and ``[markers]``).
+
+Conventions are OpenCV's: a lab point ``X`` maps to camera coordinates
+``R(rvec) X + tvec`` (x right, y down, z forward), then through the pinhole ``K`` and
+the radial/tangential distortion ``(k1, k2, p1, p2, k3)`` to pixels whose centres are
+at integer coordinates (``x_px`` right, ``y_px`` down).
+
+Protocol keys (SI, units in the names):
+
+``[camera]``: ``width_px, height_px, fps, exposure_s``; focal length as
+``focal_length_mm`` + ``pixel_size_um`` or as ``horizontal_fov_deg``; optional
+``principal_point_px = [cx, cy]`` (default: image centre), ``distortion = [k1, k2, p1,
+p2, k3]`` (default 0), ``position_m`` (required: camera centre in the lab, pivot at the
+origin), ``look_at_m`` (default the pivot), ``up_hint = [x, y, z]`` (lab direction that
+appears upwards in the image; default ``+y``), ``shutter = "global" | "rolling"``,
+``readout_time_s`` (rolling only: first to last row), ``psf_sigma_px`` (Gaussian
+point-spread function, default 0.8), ``motion_blur_samples`` (sub-exposure samples,
+default 8; 1 = no motion blur).
+
+``[camera.sensor]``: ``bit_depth`` (8, 10 or 12), ``full_well_e``, ``read_noise_e``,
+``gain_e_per_adu``, ``background_e_per_s`` (lighting: electrons per pixel per second).
+
+``[markers.NAME]``: ``body = "frame" | "lab"`` ("frame": fixed to the non-spinning
+frame, coordinates with ``z`` along the symmetry axis; for a top without a frame, fixed
+to the top), ``position_m = [x, y, z]``, ``radius_m`` (rendered as a sphere of this
+radius), ``brightness_e_per_s`` (electrons per pixel per second inside the dot).
+``kind = "occluder"`` instead describes an opaque cylinder about the axis
+(``radius_m, z_min_m, z_max_m``, on the frame), e.g. the rotor can.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .protocols import Protocol, ProtocolError, _bool, _check_keys, _number, _vector3  # noqa: F401
+
+__all__ = ["Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose"]
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Photon-to-ADU model: electrons = Poisson(signal) + Normal(0, read noise); ADU = electrons / gain."""
+
+    bit_depth: int
+    full_well_e: float
+    read_noise_e: float
+    gain_e_per_adu: float
+    background_e_per_s: float
+
+    @property
+    def max_adu(self) -> int:
+        """Largest pixel value (saturation). [ADU]"""
+        return (1 << self.bit_depth) - 1
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera with distortion, pose and exposure (OpenCV conventions)."""
+
+    width_px: int
+    height_px: int
+    fps: float
+    exposure_s: float
+    camera_matrix: np.ndarray
+    distortion: np.ndarray
+    rvec: np.ndarray
+    tvec: np.ndarray
+    shutter: str
+    readout_time_s: float
+    psf_sigma_px: float
+    motion_blur_samples: int
+    sensor: Sensor
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """World-to-camera rotation matrix ``R(rvec)``."""
+        import cv2
+
+        return cv2.Rodrigues(self.rvec)[0]
+
+    @property
+    def position_m(self) -> np.ndarray:
+        """Camera centre in the lab. [m]"""
+        return -self.rotation.T @ self.tvec
+
+    def to_json(self) -> dict[str, Any]:
+        """The camera in OpenCV's terms, for ``camera.json``."""
+        s = self.sensor
+        return {
+            "image_size": [self.width_px, self.height_px],
+            "camera_matrix": self.camera_matrix.tolist(),
+            "dist_coeffs": self.distortion.tolist(),
+            "rvec": self.rvec.ravel().tolist(),
+            "tvec": self.tvec.ravel().tolist(),
+            "fps": self.fps,
+            "exposure_s": self.exposure_s,
+            "shutter": self.shutter,
+            "readout_time_s": self.readout_time_s,
+            "psf_sigma_px": self.psf_sigma_px,
+            "motion_blur_samples": self.motion_blur_samples,
+            "sensor": {"bit_depth": s.bit_depth, "full_well_e": s.full_well_e, "read_noise_e": s.read_noise_e,
+                       "gain_e_per_adu": s.gain_e_per_adu, "background_e_per_s": s.background_e_per_s},
+            "conventions": "x_cam = R(rvec) X_lab + tvec (OpenCV); pixel centres at integer coordinates; "
+                           "rolling shutter: row y starts its exposure at t_frame + (y / height_px) * readout_time_s",
+        }
+
+
+@dataclass(frozen=True)
+class Marker:
+    """A bright spherical dot on the frame (``body="frame"``) or fixed in the lab (``body="lab"``)."""
+
+    name: str
+    body: str
+    position_m: tuple[float, float, float]
+    radius_m: float
+    brightness_e_per_s: float
+
+
+@dataclass(frozen=True)
+class Occluder:
+    """An opaque cylinder about the top's axis, ``z_min_m <= z <= z_max_m`` in frame coordinates."""
+
+    name: str
+    radius_m: float
+    z_min_m: float
+    z_max_m: float
+
+
+@dataclass(frozen=True)
+class CameraSetup:
+    """Everything the renderer needs besides the trajectory."""
+
+    camera: Camera
+    markers: tuple[Marker, ...]
+    occluders: tuple[Occluder, ...]
+
+
+def look_at_pose(position: np.ndarray, target: np.ndarray, up_hint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV ``rvec, tvec`` of a camera at ``position`` looking at ``target``, ``up_hint`` up in the image."""
+    import cv2
+
+    z = target - position
+    z = z / np.linalg.norm(z)
+    down = -(up_hint - (up_hint @ z) * z)
+    if np.linalg.norm(down) < 1e-9:
+        raise ProtocolError("camera.up_hint is parallel to the viewing direction; give another up_hint")
+    y = down / np.linalg.norm(down)
+    x = np.cross(y, z)
+    rot = np.vstack([x, y, z])  # rows: camera axes in the lab
+    rvec = cv2.Rodrigues(rot)[0].ravel()
+    return rvec, -rot @ position
+
+
+def _parse_sensor(t: Mapping[str, Any]) -> Sensor:
+    s = "camera.sensor"
+    _check_keys(s, t, {"bit_depth", "full_well_e", "read_noise_e", "gain_e_per_adu", "background_e_per_s"}, set())
+    bits = t["bit_depth"]
+    if bits not in (8, 10, 12):
+        raise ProtocolError(f"camera.sensor.bit_depth = {bits!r}: allowed 8, 10, 12")
+    return Sensor(int(bits), _number(s, "full_well_e", t["full_well_e"], lo=0.0, lo_open=True),
+                  _number(s, "read_noise_e", t["read_noise_e"], lo=0.0),
+                  _number(s, "gain_e_per_adu", t["gain_e_per_adu"], lo=0.0, lo_open=True),
+                  _number(s, "background_e_per_s", t["background_e_per_s"], lo=0.0))
+
+
+def _parse_camera(t: Mapping[str, Any]) -> Camera:
+    s = "camera"
+    required = {"width_px", "height_px", "fps", "exposure_s", "position_m", "sensor"}
+    optional = {"focal_length_mm", "pixel_size_um", "horizontal_fov_deg", "principal_point_px", "distortion",
+                "look_at_m", "up_hint", "shutter", "readout_time_s", "psf_sigma_px", "motion_blur_samples"}
+    _check_keys(s, t, required, optional)
+    w = int(_number(s, "width_px", t["width_px"], lo=16, hi=20000))
+    h = int(_number(s, "height_px", t["height_px"], lo=16, hi=20000))
+    fps = _number(s, "fps", t["fps"], lo=0.0, lo_open=True, hi=1e6)
+    exposure = _number(s, "exposure_s", t["exposure_s"], lo=0.0, lo_open=True)
+    if exposure > 1.0 / fps * (1 + 1e-12):
+        raise ProtocolError(f"camera.exposure_s = {exposure!r} is longer than the frame interval 1/fps = "
+                            f"{1.0 / fps:.6g} s; allowed (0, {1.0 / fps:.6g}]")
+    if "horizontal_fov_deg" in t:
+        if "focal_length_mm" in t:
+            raise ProtocolError("[camera] gives both horizontal_fov_deg and focal_length_mm; give one")
+        fov = _number(s, "horizontal_fov_deg", t["horizontal_fov_deg"], lo=0.0, hi=179.0, lo_open=True)
+        fx = (w / 2.0) / math.tan(math.radians(fov) / 2.0)
+    else:
+        if "focal_length_mm" not in t or "pixel_size_um" not in t:
+            raise ProtocolError("[camera] needs focal_length_mm and pixel_size_um, or horizontal_fov_deg")
+        f_mm = _number(s, "focal_length_mm", t["focal_length_mm"], lo=0.0, lo_open=True)
+        pix = _number(s, "pixel_size_um", t["pixel_size_um"], lo=0.0, lo_open=True)
+        fx = f_mm * 1e3 / pix
+    cx, cy = ((w - 1) / 2.0, (h - 1) / 2.0)
+    if "principal_point_px" in t:
+        pp = t["principal_point_px"]
+        if not isinstance(pp, list) or len(pp) != 2:
+            raise ProtocolError(f"camera.principal_point_px = {pp!r}: expected [cx, cy]")
+        cx = _number(s, "principal_point_px[0]", pp[0], lo=0.0, hi=w - 1)
+        cy = _number(s, "principal_point_px[1]", pp[1], lo=0.0, hi=h - 1)
+    dist = t.get("distortion", [0.0] * 5)
+    if not isinstance(dist, list) or len(dist) != 5:
+        raise ProtocolError(f"camera.distortion = {dist!r}: expected [k1, k2, p1, p2, k3]")
+    dist = np.array([_number(s, f"distortion[{i}]", v, lo=-10, hi=10) for i, v in enumerate(dist)])
+    shutter = t.get("shutter", "global")
+    if shutter not in ("global", "rolling"):
+        raise ProtocolError(f"camera.shutter = {shutter!r}: allowed 'global', 'rolling'")
+    readout = 0.0
+    if shutter == "rolling":
+        if "readout_time_s" not in t:
+            raise ProtocolError("camera.shutter = 'rolling' needs camera.readout_time_s")
+        readout = _number(s, "readout_time_s", t["readout_time_s"], lo=0.0, lo_open=True, hi=1.0 / fps)
+    elif "readout_time_s" in t:
+        raise ProtocolError("camera.readout_time_s is only meaningful with shutter = 'rolling'")
+    position = np.array(_vector3(s, "position_m", t["position_m"]))
+    target = np.array(_vector3(s, "look_at_m", t.get("look_at_m", [0.0, 0.0, 0.0])))
+    if np.linalg.norm(target - position) == 0:
+        raise ProtocolError("camera.position_m equals camera.look_at_m")
+    up = np.array(_vector3(s, "up_hint", t.get("up_hint", [0.0, 1.0, 0.0])))
+    rvec, tvec = look_at_pose(position, target, up)
+    k = np.array([[fx, 0.0, cx], [0.0, fx, cy], [0.0, 0.0, 1.0]])
+    sigma = _number(s, "psf_sigma_px", t.get("psf_sigma_px", 0.8), lo=0.3, hi=20.0)
+    nsub = int(_number(s, "motion_blur_samples", t.get("motion_blur_samples", 8), lo=1, hi=256))
+    return Camera(w, h, fps, exposure, k, dist, rvec, tvec, shutter, readout, sigma, nsub, _parse_sensor(t["sensor"]))
+
+
+def _parse_markers(t: Mapping[str, Any], gyrostat: bool) -> tuple[tuple[Marker, ...], tuple[Occluder, ...]]:
+    if not isinstance(t, Mapping) or not t:
+        raise ProtocolError("[markers] must contain at least one [markers.NAME] table")
+    markers, occluders = [], []
+    for name, m in t.items():
+        s = f"markers.{name}"
+        if not isinstance(m, Mapping):
+            raise ProtocolError(f"[{s}] must be a table")
+        if m.get("kind", "dot") == "occluder":
+            _check_keys(s, m, {"kind", "radius_m", "z_min_m", "z_max_m"}, set())
+            occluders.append(Occluder(name, _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True),
+                                      _finite_z(s, "z_min_m", m["z_min_m"]), _finite_z(s, "z_max_m", m["z_max_m"])))
+            continue
+        _check_keys(s, m, {"body", "position_m", "radius_m", "brightness_e_per_s"}, {"kind"})
+        if m.get("kind", "dot") != "dot":
+            raise ProtocolError(f"{s}.kind = {m['kind']!r}: allowed 'dot', 'occluder'")
+        if m["body"] not in ("frame", "lab"):
+            raise ProtocolError(f"{s}.body = {m['body']!r}: allowed 'frame', 'lab'")
+        markers.append(Marker(name, m["body"], _vector3(s, "position_m", m["position_m"]),
+                              _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1),
+                              _number(s, "brightness_e_per_s", m["brightness_e_per_s"], lo=0.0, lo_open=True)))
+    if not markers:
+        raise ProtocolError("[markers] has no dot (kind = 'dot'): nothing to track")
+    return tuple(markers), tuple(occluders)
+
+
+def _finite_z(section: str, key: str, value: Any) -> float:
+    return _number(section, key, value, lo=-1.0, hi=1.0)
+
+
+def camera_setup(protocol: Protocol) -> CameraSetup:
+    """Parse and validate the protocol's ``[camera]`` and ``[markers]`` sections.
+
+    Raises
+    ------
+    ProtocolError
+        Missing sections, impossible cameras (focal length <= 0, exposure longer than
+        the frame interval, the pivot outside the field of view), malformed markers.
+    """
+    if "camera" not in protocol.extra or "markers" not in protocol.extra:
+        missing = [k for k in ("camera", "markers") if k not in protocol.extra]
+        raise ProtocolError(f"{protocol.name}: rendering needs the section(s) {', '.join(missing)}")
+    cam = _parse_camera(protocol.extra["camera"])
+    markers, occluders = _parse_markers(protocol.extra["markers"], protocol.rig.is_gyrostat)
+    # the pivot must be in front of the camera and inside the image
+    import cv2
+
+    pc = cam.rotation @ np.zeros(3) + cam.tvec
+    px = cv2.projectPoints(np.zeros((1, 3)), cam.rvec, cam.tvec, cam.camera_matrix, cam.distortion)[0].reshape(2)
+    if pc[2] <= 0 or not (0 <= px[0] <= cam.width_px - 1 and 0 <= px[1] <= cam.height_px - 1):
+        raise ProtocolError(f"camera.position_m / look_at_m: the pivot projects to pixel ({px[0]:.1f}, {px[1]:.1f}), "
+                            f"outside the {cam.width_px} x {cam.height_px} image")
+    return CameraSetup(cam, markers, occluders)

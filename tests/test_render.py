@@ -1,0 +1,218 @@
+"""Synthetic video: geometry against cv2.projectPoints, spot centroids, noise statistics, I/O."""
+
+import copy
+import hashlib
+import math
+import tomllib
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import PROTOCOL_DIR
+from gyrorig import ProtocolError, parse_protocol, simulate
+from gyrorig.camera import camera_setup
+from gyrorig.physics.rotations import euler_to_matrix
+from gyrorig.render import background_distribution, render_frames, render_video
+
+#: brightness-weighted centroid of a noiseless, blur-free spot vs the projected centre [px]
+CENTROID_TOL_PX = 0.02
+
+BASE = tomllib.loads((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text())
+
+
+def small(**camera) -> dict:
+    """The air-cushion protocol with a small, fast camera (320 x 240 at 100 fps, same field of view)."""
+    d = copy.deepcopy(BASE)
+    d["camera"].update(width_px=320, height_px=240, fps=100.0, pixel_size_um=3.45 * 4.5, **camera)
+    d["scene"]["duration_s"] = 0.2
+    return d
+
+
+def test_truth_matches_independent_projection_of_the_simulated_markers():
+    p = parse_protocol(small(motion_blur_samples=1))
+    setup = camera_setup(p)
+    cam = setup.camera
+    truth = pd.concat([t for _, t in render_frames(p, noise=False)], ignore_index=True)
+    df = simulate(p, t_eval_s=np.unique(truth.t_marker_s.to_numpy()))
+    rot = euler_to_matrix(df.phi_rad.to_numpy(), df.theta_rad.to_numpy(), df.psi_frame_rad.to_numpy())
+    for m in setup.markers:
+        sel = truth[truth.marker == m.name]
+        pos = np.broadcast_to(m.position_m, (len(df), 3)) if m.body == "lab" else rot @ np.asarray(m.position_m)
+        px = cv2.projectPoints(np.ascontiguousarray(pos), cam.rvec, cam.tvec, cam.camera_matrix,
+                               cam.distortion)[0].reshape(-1, 2)
+        assert np.abs(px - sel[["x_px", "y_px"]].to_numpy()).max() < 1e-6, m.name
+    # theta, phi at mid-exposure agree with the simulator
+    mid = truth.drop_duplicates("frame")
+    ref = simulate(p, t_eval_s=mid.t_s.to_numpy())
+    assert np.abs(mid.theta_rad.to_numpy() - ref.theta_rad.to_numpy()).max() < 1e-9
+
+
+@pytest.mark.parametrize("distortion", [[0, 0, 0, 0, 0], [-0.2, 0.05, 0.001, -0.001, 0.0]])
+def test_noiseless_blur_free_spot_centroid_is_at_the_truth(distortion):
+    p = parse_protocol(small(motion_blur_samples=1, distortion=distortion))
+    cam = camera_setup(p).camera
+    bg = cam.sensor.background_e_per_s * cam.exposure_s
+    worst = 0.0
+    for image, truth in render_frames(p, noise=False, duration_s=0.05):
+        for r in truth[truth.visible].itertuples():
+            x0, y0 = int(round(r.x_px)), int(round(r.y_px))
+            win = image[y0 - 12:y0 + 13, x0 - 12:x0 + 13].astype(np.float64) - bg
+            if win.shape != (25, 25):
+                continue
+            yy, xx = np.mgrid[y0 - 12:y0 + 13, x0 - 12:x0 + 13]
+            cx, cy = (win * xx).sum() / win.sum(), (win * yy).sum() / win.sum()
+            worst = max(worst, math.hypot(cx - r.x_px, cy - r.y_px))
+    assert worst < CENTROID_TOL_PX
+
+
+def test_background_statistics_match_the_sensor_model():
+    p = parse_protocol(small())
+    cam = camera_setup(p).camera
+    s = cam.sensor
+    bg = s.background_e_per_s * cam.exposure_s
+    pmf = background_distribution(bg, s)
+    k = np.arange(len(pmf))
+    mean_model = (k * pmf).sum()
+    var_model = ((k - mean_model) ** 2 * pmf).sum()
+    # the exact model against its Gaussian approximation: mean bg/gain, variance (bg + rn^2)/gain^2 + 1/12
+    assert mean_model == pytest.approx(bg / s.gain_e_per_adu, rel=0.02)
+    assert var_model == pytest.approx((bg + s.read_noise_e**2) / s.gain_e_per_adu**2 + 1 / 12, rel=0.05)
+    frames = [img for img, _ in render_frames(p, seed=5, duration_s=0.1)]
+    patch = np.stack([f[:40, :40] for f in frames]).astype(float)  # a corner no marker reaches
+    n = patch.size
+    assert patch.mean() == pytest.approx(mean_model, abs=4 * math.sqrt(var_model / n))
+    assert patch.var() == pytest.approx(var_model, rel=6 * math.sqrt(2 / n))
+    # the distribution itself: a direct Monte Carlo of Poisson + read noise + quantisation
+    rng = np.random.default_rng(0)
+    e = rng.poisson(bg, 400_000) + rng.normal(0, s.read_noise_e, 400_000)
+    adu = np.clip(np.floor(np.clip(e, 0, s.full_well_e) / s.gain_e_per_adu + 0.5), 0, s.max_adu).astype(int)
+    mc = np.bincount(adu, minlength=len(pmf))[: len(pmf)] / len(adu)
+    assert np.abs(mc - pmf).max() < 5e-3
+
+
+def test_saturated_marker_clips_at_full_well():
+    d = small(motion_blur_samples=1)
+    d["markers"]["tip"]["brightness_e_per_s"] = 1e9
+    p = parse_protocol(d)
+    image, truth = next(render_frames(p, seed=1, duration_s=0.01))
+    r = truth[truth.marker == "tip"].iloc[0]
+    cam = camera_setup(p).camera
+    peak = image[int(round(r.y_px)) - 2:int(round(r.y_px)) + 3, int(round(r.x_px)) - 2:int(round(r.x_px)) + 3]
+    assert peak.max() == min(cam.sensor.max_adu, round(cam.sensor.full_well_e / cam.sensor.gain_e_per_adu))
+
+
+def test_video_decodes_to_the_stated_frames_and_is_reproducible(tmp_path):
+    p = parse_protocol(small())
+    a = render_video(p, tmp_path / "a", seed=3, calibration_views=0)
+    b = render_video(p, tmp_path / "b", seed=3, calibration_views=0)
+    c = render_video(p, tmp_path / "c", seed=4, calibration_views=0)
+    cap = cv2.VideoCapture(a["video"])
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(f[:, :, 0] if f.ndim == 3 else f)
+    assert len(frames) == a["frames"] == 20 and frames[0].shape == (240, 320)
+    expected = [img for img, _ in render_frames(p, seed=3)]
+    assert all(np.array_equal(x, y) for x, y in zip(frames, expected))  # lossless
+    # same seed, same bits: every decoded pixel and the truth files.  (The Matroska header still
+    # differs: FFmpeg writes a random segment UID and the date, and OpenCV cannot ask it for bitexact.)
+    decoded = {}
+    for d in "abc":
+        cap = cv2.VideoCapture(str(tmp_path / d / "video.mkv"))
+        decoded[d] = np.stack([cap.read()[1] for _ in range(20)])
+    assert np.array_equal(decoded["a"], decoded["b"]) and not np.array_equal(decoded["a"], decoded["c"])
+    digest = lambda d, f: hashlib.sha256((tmp_path / d / f).read_bytes()).hexdigest()  # noqa: E731
+    assert digest("a", "truth.csv") == digest("b", "truth.csv")
+    assert digest("a", "camera.json") == digest("b", "camera.json")
+    truth = pd.read_csv(tmp_path / "a" / "truth.csv")
+    assert list(truth.columns[:6]) == ["frame", "t_s", "marker", "x_px", "y_px", "visible"]
+    cam = tmp_path / "a" / "camera.json"
+    assert "camera_matrix" in cam.read_text()
+    assert sorted(x.name for x in (tmp_path / "a").iterdir()) == ["camera.json", "truth.csv", "video.mkv"]
+
+
+def test_mp4_and_sixteen_bit(tmp_path):
+    p = parse_protocol(small())
+    r = render_video(p, tmp_path / "m", codec="mp4", calibration_views=0, duration_s=0.05)
+    assert r["video"].endswith("video.mp4") and cv2.VideoCapture(r["video"]).read()[0]
+    d = small()
+    d["camera"]["sensor"].update(bit_depth=12, gain_e_per_adu=10500 / 4095)
+    r = render_video(parse_protocol(d), tmp_path / "s", calibration_views=0, duration_s=0.05)
+    cap = cv2.VideoCapture(r["video"], cv2.CAP_FFMPEG)
+    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+    ok, f = cap.read()
+    assert ok and f.dtype == np.uint16 and f.max() > 255
+
+
+def test_rolling_shutter_times_each_marker_by_its_row():
+    readout = 4e-3
+    p = parse_protocol(small(shutter="rolling", readout_time_s=readout))
+    truth = pd.concat([t for _, t in render_frames(p, noise=False, duration_s=0.05)], ignore_index=True)
+    shift = truth.t_marker_s - truth.t_s
+    expected = truth.y_px.clip(0, 239) / 240 * readout
+    assert np.abs(shift - expected).max() < 1e-3 * readout + 2 * readout / 240  # fixed point to ~1 row
+
+
+def test_occluded_markers_are_hidden_and_marked():
+    p = parse_protocol(small(motion_blur_samples=1))
+    truth = pd.concat([t for _, t in render_frames(p, noise=False, duration_s=1.0)], ignore_index=True)
+    hidden = truth[~truth.visible]
+    assert len(hidden) > 0 and set(hidden.marker) <= {"fiducial_1", "fiducial_2", "fiducial_3"}
+
+
+BAD_CAMERAS = [
+    (dict(focal_length_mm=0.0), "camera.focal_length_mm"),
+    (dict(focal_length_mm=-5.0), "camera.focal_length_mm"),
+    (dict(exposure_s=0.02), "camera.exposure_s"),
+    (dict(look_at_m=[0.5, 0.0, 0.0]), "pivot projects"),
+    (dict(shutter="rolling"), "readout_time_s"),
+]
+
+
+@pytest.mark.parametrize("change,words", BAD_CAMERAS, ids=[w for _, w in BAD_CAMERAS])
+def test_impossible_cameras_are_refused(change, words):
+    with pytest.raises(ProtocolError, match=words.replace(".", r"\.")):
+        camera_setup(parse_protocol(small(**change)))
+
+
+def test_marker_never_visible_and_interrupted_render_leave_nothing(tmp_path):
+    d = small()
+    d["markers"]["hidden"] = {"body": "frame", "position_m": [0.0, 0.0, 0.09], "radius_m": 0.002,
+                              "brightness_e_per_s": 1e7}  # inside the can
+    with pytest.raises(ProtocolError, match="markers.hidden: never visible"):
+        render_video(parse_protocol(d), tmp_path / "x", calibration_views=0)
+    assert not (tmp_path / "x" / "video.mkv").exists() and not list((tmp_path / "x").glob("*.mkv"))
+
+    def interrupt(done, total):
+        if done > 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        render_video(parse_protocol(small()), tmp_path / "y", calibration_views=0, progress=interrupt,
+                     duration_s=2.0)
+    assert list((tmp_path / "y").iterdir()) == []
+
+
+def test_calibration_images_show_the_board_where_the_camera_says(tmp_path):
+    from gyrorig.render import render_calibration_images
+
+    cam = camera_setup(parse_protocol(BASE)).camera
+    info = render_calibration_images(cam, tmp_path, seed=2, n_views=3)
+    board = __import__("json").loads((tmp_path / "board.json").read_text())
+    obj = np.array([[i * board["square_m"], j * board["square_m"], 0.0] for j in range(6) for i in range(9)])
+    for k, view in enumerate(board["views"]):
+        img = cv2.imread(str(tmp_path / f"view_{k:02d}.png"), cv2.IMREAD_UNCHANGED)
+        ok, corners = cv2.findChessboardCorners(img, (9, 6))
+        assert ok, f"board not found in view {k}"
+        corners = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1),
+                                   (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)).reshape(-1, 2)
+        proj = cv2.projectPoints(obj, np.array(view["rvec"]), np.array(view["tvec"]), cam.camera_matrix,
+                                 cam.distortion)[0].reshape(-1, 2)
+        # OpenCV may order the corners from either end of the board
+        err = min(np.abs(corners - proj).max(), np.abs(corners[::-1] - proj).max())
+        assert err < 0.5
+    assert info["views"] == 3
