@@ -341,6 +341,7 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
         if never:
             raise ProtocolError(f"markers.{never[0]}: never visible in the {n_frames} frames "
                                 "(outside the image or always occluded)")
+        os.chmod(tmp, 0o644)
         os.replace(tmp, out / name)
     finally:
         writer.release()
