@@ -210,6 +210,46 @@ def _cmd_bench_render(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibration import CalibrationError, calibrate_camera
+
+    try:
+        cols, rows = (int(v) for v in args.board.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--board {args.board!r}: expected COLSxROWS inner corners, e.g. 9x6") from None
+    try:
+        result = calibrate_camera(args.images, cols=cols, rows=rows, square_m=args.square_mm / 1000.0)
+    except CalibrationError as exc:
+        print(f"gyrorig: calibration refused: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    for name, err in result.per_image_rms_px.items():
+        print(f"  {name}: {err:.3f} px")
+    if result.not_found:
+        print(f"  board not found in: {', '.join(result.not_found)}")
+    k = result.camera_matrix
+    print(f"RMS reprojection error {result.rms_px:.3f} px; fx {k[0, 0]:.2f}, fy {k[1, 1]:.2f}, "
+          f"cx {k[0, 2]:.2f}, cy {k[1, 2]:.2f}, dist {np.round(result.dist_coeffs, 5).tolist()}")
+    _io.write_json(result.to_json(), args.out)
+    print(f"wrote {args.out} (add the camera pose rvec, tvec relative to the pivot before tracking)")
+    return EXIT_OK
+
+
+def _cmd_track(args: argparse.Namespace) -> int:
+    from .tracking import TrackingError, load_camera, track_video
+
+    protocol = load_protocol(args.protocol)
+    try:
+        summary = track_video(args.video, load_camera(args.camera), protocol, args.out,
+                              progress=_progress_printer("track"))
+    except TrackingError as exc:
+        print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    n = summary["frames"]
+    print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; tracking {n / summary['track_s']:.0f} "
+          f"frames/s, decoding {n / summary['decode_s']:.0f} frames/s -> {summary['angles']}, {summary['markers']}")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .report import plot_trajectory
 
@@ -385,6 +425,20 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--duration", type=float, default=None, help="override scene.duration_s [s]")
     r.add_argument("--calibration-views", type=int, default=12, help="checkerboard images (0: none)")
     r.set_defaults(func=_cmd_render)
+
+    c = sub.add_parser("calibrate", help="camera calibration from checkerboard images (OpenCV)")
+    c.add_argument("images", help="directory of checkerboard images")
+    c.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6")
+    c.add_argument("--square-mm", type=float, required=True, help="square size [mm]")
+    c.add_argument("--out", required=True, help="camera.json to write")
+    c.set_defaults(func=_cmd_calibrate)
+
+    k = sub.add_parser("track", help="track the tip marker: video -> angles.csv, markers.csv")
+    k.add_argument("video", help="any video OpenCV can decode")
+    k.add_argument("--camera", required=True, help="camera.json with intrinsics and the pose relative to the pivot")
+    k.add_argument("--protocol", required=True, help="protocol with the [markers] geometry")
+    k.add_argument("--out", required=True, help="output directory")
+    k.set_defaults(func=_cmd_track)
 
     d = sub.add_parser("demo", help="simulate the bundled air-cushion rig and compare with the exact solution")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")

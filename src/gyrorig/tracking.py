@@ -1,0 +1,462 @@
+"""Tracking: from a video to the tip direction theta(t), phi(t) with honest error bars.
+
+Works on any video OpenCV decodes; it reads only the video, ``camera.json`` and the
+protocol's marker geometry; never the simulator or a renderer's ``truth.csv``
+(this module imports neither).
+
+Per frame:
+
+1. **find** the tip spot: threshold and connected components in a window around the
+   position predicted from the previous frames; a full-frame search only to acquire or
+   reacquire.  Candidates must have the tip's expected size (from the camera and the
+   marker radius) and lie on the tip's sphere; a spurious bright spot fails one of these.
+2. **localise** it by weighted least squares of the rendered-spot model (a disc of
+   radius ``r`` convolved with the camera's Gaussian PSF, on a flat background), with
+   pixel variances from the sensor model ``mu / gain + (read noise / gain)^2 + 1/12``
+   [ADU^2]; saturated pixels are left out.  The covariance is the inverse Fisher matrix,
+   scaled up by the reduced chi-square when the model fits worse than the noise (motion
+   blur).
+3. **3D**: the undistorted ray through the spot centre meets the sphere of the tip's
+   radius about the pivot (the nearer intersection); ``theta, phi`` follow, with their
+   covariance propagated through the numerical Jacobian.
+
+Outputs (``track_video``): ``angles.csv`` (``frame, t_s, theta_rad, phi_rad,
+theta_sigma_rad, phi_sigma_rad, theta_phi_corr, tip_x, tip_y, tip_z, quality``) and
+``markers.csv`` (raw detections: ``frame, t_s, marker, x_px, y_px, sigma_x_px,
+sigma_y_px, radius_px, amplitude_adu, background_adu, chi2_red, quality``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+from scipy.special import erfc
+
+from . import _io
+from .protocols import Protocol, ProtocolError
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["TrackingCamera", "load_camera", "SpotFit", "fit_spot", "tip_from_pixel", "track_video",
+           "TrackingError", "ANGLE_COLUMNS", "MARKER_COLUMNS"]
+
+ANGLE_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
+                 "tip_x", "tip_y", "tip_z", "quality")
+MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma_y_px", "radius_px",
+                  "amplitude_adu", "background_adu", "chi2_red", "quality")
+
+
+class TrackingError(RuntimeError):
+    """The video cannot be tracked (unreadable, camera mismatch, marker never found)."""
+
+
+@dataclass(frozen=True)
+class TrackingCamera:
+    """What the tracker needs from ``camera.json`` (OpenCV conventions)."""
+
+    camera_matrix: np.ndarray
+    dist_coeffs: np.ndarray
+    rvec: np.ndarray
+    tvec: np.ndarray
+    width_px: int
+    height_px: int
+    fps: float
+    exposure_s: float
+    shutter: str
+    readout_time_s: float
+    psf_sigma_px: float
+    gain_e_per_adu: float
+    read_noise_e: float
+    max_adu: int
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return cv2.Rodrigues(self.rvec)[0]
+
+    @property
+    def centre_m(self) -> np.ndarray:
+        """Camera centre in the lab (pivot frame). [m]"""
+        return -self.rotation.T @ self.tvec
+
+
+def load_camera(path: str | Path) -> TrackingCamera:
+    """Read ``camera.json`` (as written by ``gyrorig render`` or ``gyrorig calibrate`` + a pose)."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise TrackingError(f"cannot read camera file {path}: {exc}") from exc
+    missing = [k for k in ("camera_matrix", "dist_coeffs", "image_size", "fps") if k not in d]
+    if missing:
+        raise TrackingError(f"{path}: missing key(s) {', '.join(missing)}")
+    if "rvec" not in d or "tvec" not in d:
+        raise TrackingError(f"{path}: no camera pose (rvec, tvec) relative to the pivot; "
+                            "the tracker needs it to turn pixels into directions")
+    sensor = d.get("sensor", {})
+    bits = int(sensor.get("bit_depth", 8))
+    return TrackingCamera(
+        np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
+        np.asarray(d["rvec"], dtype=float).ravel(), np.asarray(d["tvec"], dtype=float).ravel(),
+        int(d["image_size"][0]), int(d["image_size"][1]), float(d["fps"]), float(d.get("exposure_s", 0.0)),
+        d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
+        float(sensor.get("gain_e_per_adu", 1.0)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1)
+
+
+# --------------------------------------------------------------------------------------
+# spot localisation
+
+
+@dataclass(frozen=True)
+class SpotFit:
+    """A fitted spot: centre, radius, amplitude, background, covariance of the centre."""
+
+    x_px: float
+    y_px: float
+    radius_px: float
+    amplitude_adu: float
+    background_adu: float
+    cov_xy: np.ndarray
+    chi2_red: float
+    saturated: bool
+    converged: bool
+    blended: bool = False
+
+
+def _model(params, xx, yy, sigma):
+    """K discs (each x, y, r, amplitude) on one background; returns (mu, jacobian (..., 4K + 1))."""
+    k = (len(params) - 1) // 4
+    mu = np.full(xx.shape, params[-1], dtype=np.float64)
+    jac = np.empty(xx.shape + (len(params),))
+    jac[..., -1] = 1.0
+    for i in range(k):
+        x0, y0, r, amp = params[4 * i:4 * i + 4]
+        dx, dy = xx - x0, yy - y0
+        rho = np.sqrt(dx * dx + dy * dy) + 1e-12
+        arg = (rho - r) / (math.sqrt(2.0) * sigma)
+        prof = 0.5 * erfc(arg)
+        dprof = -np.exp(-arg * arg) / (math.sqrt(2.0 * math.pi) * sigma)  # d prof / d rho
+        mu += amp * prof
+        jac[..., 4 * i] = amp * dprof * (-dx / rho)
+        jac[..., 4 * i + 1] = amp * dprof * (-dy / rho)
+        jac[..., 4 * i + 2] = -amp * dprof
+        jac[..., 4 * i + 3] = prof
+    return mu, jac
+
+
+def _gauss_newton(win, xx, yy, use, p, cam, iterations):
+    sigma = cam.psf_sigma_px
+    g, rn2 = cam.gain_e_per_adu, (cam.read_noise_e / cam.gain_e_per_adu) ** 2
+    n = len(p)
+    converged = False
+    for _ in range(iterations):
+        mu, jac = _model(p, xx, yy, sigma)
+        var = np.maximum(mu, 0.0) / g + rn2 + 1.0 / 12.0
+        wgt = np.where(use, 1.0 / var, 0.0)
+        jf = jac.reshape(-1, n)
+        jw = jf * wgt.reshape(-1, 1)
+        try:
+            step = np.linalg.solve(jw.T @ jf, jw.T @ (win - mu).ravel())
+        except np.linalg.LinAlgError:
+            return None, False
+        # halve the step until radii and amplitudes stay positive (a damped Gauss-Newton step)
+        for _ in range(20):
+            trial = p + step
+            if np.all(np.isfinite(trial)) and np.all(trial[2:-1:4] > 0) and np.all(trial[3:-1:4] > 0):
+                break
+            step = step / 2
+        else:
+            return None, False
+        p = trial
+        if abs(step[0]) < 1e-5 and abs(step[1]) < 1e-5:
+            converged = True
+            break
+    return p, converged
+
+
+def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
+             iterations: int = 10) -> SpotFit | None:
+    """Weighted least-squares fit of the disc-spot model in a window around ``(x0, y0)``.
+
+    Light from a neighbouring spot inside the window (pixels beyond ``r + 3 sigma`` from the
+    fitted centre that are brighter than the model by more than 5 standard deviations)
+    triggers a joint fit of both discs; ``SpotFit.blended`` says so.  Saturated
+    pixels are left out.  Returns ``None`` when the window leaves the image or the fit
+    diverges.
+    """
+    sigma = cam.psf_sigma_px
+    half = int(math.ceil(r0 + 4 * sigma + 4))
+    xi, yi = int(round(x0)), int(round(y0))
+    h, w = image.shape
+    if xi - half < 0 or yi - half < 0 or xi + half >= w or yi + half >= h:
+        return None
+    win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
+    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
+    sat = win >= cam.max_adu
+    use = ~sat
+    border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
+    bg = float(np.median(border))
+    amp = float(np.percentile(win, 99)) - bg
+    if amp <= 0:
+        return None
+    p, converged = _gauss_newton(win, xx, yy, use, np.array([x0, y0, r0, amp, bg]), cam, iterations)
+    if p is None:
+        return None
+    g, rn2 = cam.gain_e_per_adu, (cam.read_noise_e / cam.gain_e_per_adu) ** 2
+    mu, _ = _model(p, xx, yy, sigma)
+    excess = (win - mu) / np.sqrt(np.maximum(mu, 0.0) / g + rn2 + 1.0 / 12.0)
+    foreign = (np.hypot(xx - p[0], yy - p[1]) > p[2] + 3 * sigma) & (excess > 5.0)
+    blended = bool(foreign.sum() >= 3)
+    if blended:
+        # a neighbouring spot reaches into the window: fit both discs jointly
+        n_lbl, labels, stats, _ = cv2.connectedComponentsWithStats(foreign.astype(np.uint8), connectivity=8)
+        big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        blob = np.pad((labels == big).astype(np.uint8), 1)
+        dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
+        iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
+        # the neighbour's visible part is a cap; start it a little beyond its inscribed circle
+        nx, ny, nr = xx[0, 0] + ix - 1, yy[0, 0] + iy - 1, float(dist[iy, ix]) + 0.5
+        namp = float(np.percentile(win[labels == big], 90)) - p[4]
+        p2 = np.array([*p[:4], nx, ny, nr, max(namp, 1.0), p[4]])
+        p2, converged = _gauss_newton(win, xx, yy, use, p2, cam, 2 * iterations)
+        if p2 is None:
+            return None
+        p = p2
+    if abs(p[0] - x0) > half or abs(p[1] - y0) > half:
+        return None
+    mu, jac = _model(p, xx, yy, sigma)
+    var = np.maximum(mu, 0.0) / g + rn2 + 1.0 / 12.0
+    wgt = np.where(use, 1.0 / var, 0.0)
+    jf = jac.reshape(-1, len(p))
+    fisher = (jf * wgt.reshape(-1, 1)).T @ jf
+    dof = max(int(use.sum()) - len(p), 1)
+    chi2_red = float(((win - mu) ** 2 * wgt).sum() / dof)
+    try:
+        cov = np.linalg.inv(fisher)[:2, :2] * max(1.0, chi2_red)
+    except np.linalg.LinAlgError:
+        return None
+    return SpotFit(float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[-1]), cov, chi2_red,
+                   bool(sat.any()), converged, blended)
+
+
+# --------------------------------------------------------------------------------------
+# geometry
+
+
+def tip_from_pixel(x_px: float, y_px: float, cam: TrackingCamera, radius_m: float) -> np.ndarray | None:
+    """Unit tip direction: the ray through the pixel meets the sphere ``|X| = radius_m`` (nearer point)."""
+    n = cv2.undistortPoints(np.array([[[x_px, y_px]]], dtype=np.float64), cam.camera_matrix, cam.dist_coeffs).reshape(2)
+    d = cam.rotation.T @ np.array([n[0], n[1], 1.0])
+    d /= np.linalg.norm(d)
+    c = cam.centre_m
+    b = c @ d
+    disc = b * b - (c @ c - radius_m**2)
+    if disc < 0:
+        return None
+    s = -b - math.sqrt(disc)
+    return (c + s * d) / radius_m
+
+
+def _angles(tip: np.ndarray) -> tuple[float, float]:
+    return math.atan2(math.hypot(tip[0], tip[1]), tip[2]), math.atan2(tip[0], -tip[1])
+
+
+def _angle_covariance(x: float, y: float, cov: np.ndarray, cam: TrackingCamera, radius_m: float):
+    """theta, phi, tip and their 2x2 covariance (numerical Jacobian of pixel -> angles)."""
+    tip = tip_from_pixel(x, y, cam, radius_m)
+    if tip is None:
+        return None
+    th, ph = _angles(tip)
+    jac = np.zeros((2, 2))
+    eps = 0.05
+    for k, (dx, dy) in enumerate([(eps, 0.0), (0.0, eps)]):
+        tp, tm = tip_from_pixel(x + dx, y + dy, cam, radius_m), tip_from_pixel(x - dx, y - dy, cam, radius_m)
+        if tp is None or tm is None:
+            return None
+        (a1, b1), (a2, b2) = _angles(tp), _angles(tm)
+        jac[0, k] = (a1 - a2) / (2 * eps)
+        jac[1, k] = math.remainder(b1 - b2, 2 * math.pi) / (2 * eps)
+    return th, ph, tip, jac @ cov @ jac.T
+
+
+# --------------------------------------------------------------------------------------
+# the tracking loop
+
+
+@dataclass(frozen=True)
+class _TipSpec:
+    name: str
+    length_m: float
+    radius_m: float
+
+
+def _tip_spec(protocol: Protocol) -> _TipSpec:
+    markers = protocol.extra.get("markers")
+    if not markers:
+        raise ProtocolError(f"{protocol.name}: tracking needs a [markers] section with the tip marker")
+    tip = markers.get("tip")
+    if not isinstance(tip, dict) or tip.get("body") != "frame":
+        raise ProtocolError("markers.tip: tracking needs a marker named 'tip' on the frame (body = 'frame')")
+    pos = tip.get("position_m", [0, 0, 0])
+    if abs(pos[0]) > 1e-9 or abs(pos[1]) > 1e-9 or pos[2] <= 0:
+        raise ProtocolError(f"markers.tip.position_m = {pos!r}: the tip must be on the axis, above the pivot "
+                            "([0, 0, L] with L > 0)")
+    return _TipSpec("tip", float(pos[2]), float(tip["radius_m"]))
+
+
+def _candidates(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold: float):
+    """Bright blobs in a window: (cx, cy, radius) of each blob's largest inscribed circle.
+
+    The maximum of the distance transform finds the centre of the largest disc in a blob,
+    so a spot merged with a smaller neighbour still starts the fit at the right place.
+    """
+    sub = image[y0:y1, x0:x1]
+    mask = (sub > threshold).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    out = []
+    for i in range(1, n):
+        if stats[i, cv2.CC_STAT_AREA] < 3:
+            continue
+        bx, by = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_TOP]
+        bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
+        blob = np.pad((labels[by:by + bh, bx:bx + bw] == i).astype(np.uint8), 1)
+        dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
+        iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
+        out.append((float(bx + ix - 1 + x0), float(by + iy - 1 + y0), float(dist[iy, ix]) + 0.5))
+    return out
+
+
+def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,
+                progress: Callable[[int, int], None] | None = None) -> dict:
+    """Track the tip marker through a video; write ``angles.csv`` and ``markers.csv``.
+
+    Returns a summary (frames, tracked fraction, timings).  Raises
+    :class:`TrackingError` for an unreadable video, a camera that does not match the
+    video, or a tip that is never found; nothing is written then.
+    """
+    spec = _tip_spec(protocol)
+    cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
+    if not cap.isOpened():
+        raise TrackingError(f"cannot open video {video}")
+    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+    w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    if (w, h) != (camera.width_px, camera.height_px):
+        raise TrackingError(f"camera file says {camera.width_px} x {camera.height_px}, the video is {w} x {h}")
+    n_total = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    # expected tip radius in pixels (tip upright) and the spot-size gate
+    depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, spec.length_m])))
+    r_expected = camera.camera_matrix[0, 0] * spec.radius_m / depth
+    rows_a, rows_m = [], []
+    last = []  # recent (x, y) of the tip
+    prev_hash = None
+    k = 0
+    t_decode = t_track = 0.0
+    noise_sigma = None
+    while True:
+        t0 = time.perf_counter()
+        ok, frame = cap.read()
+        t1 = time.perf_counter()
+        t_decode += t1 - t0
+        if not ok:
+            break
+        if frame.ndim == 3:
+            frame = frame[:, :, 0]
+        pos_ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+        t_frame = pos_ms / 1000.0 if pos_ms >= 0 else k / camera.fps
+        index = int(round(t_frame * camera.fps))
+        quality = "ok"
+        digest = hash(frame[::7, ::7].tobytes())
+        if digest == prev_hash:
+            rows_a.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
+            k += 1
+            continue
+        prev_hash = digest
+        if noise_sigma is None:
+            bg_level = float(np.median(frame[::4, ::4]))
+            noise_sigma = max(float(np.std(frame[::4, ::4][frame[::4, ::4] < bg_level + 20])), 0.5)
+        threshold = bg_level + max(8.0 * noise_sigma, 4.0)
+        cand = []
+        predicted = None
+        if last:
+            predicted = np.array(last[-1]) if len(last) < 2 else 2 * np.array(last[-1]) - np.array(last[-2])
+            reach = int(4 * r_expected + 20)
+            x0, y0 = max(int(predicted[0]) - reach, 0), max(int(predicted[1]) - reach, 0)
+            cand = _candidates(frame, x0, y0, min(int(predicted[0]) + reach, w), min(int(predicted[1]) + reach, h),
+                               threshold)
+        sized = [c for c in cand if 0.5 * r_expected <= c[2] <= 1.6 * r_expected]
+        if not sized:
+            if last:
+                quality = "reacquired"
+            cand = _candidates(frame, 0, 0, w, h, threshold)
+            sized = [c for c in cand if 0.5 * r_expected <= c[2] <= 1.6 * r_expected]
+        # candidates must lie on the tip's sphere
+        sized = [c for c in sized if tip_from_pixel(c[0], c[1], camera, spec.length_m) is not None]
+        if predicted is not None and len(sized) > 1:
+            sized.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
+        elif len(sized) > 1:
+            sized.sort(key=lambda c: -c[2])  # no history: the largest spot of the tip's size
+        fit = fit_spot(frame, sized[0][0], sized[0][1], sized[0][2], camera) if sized else None
+        t_mid = t_frame + camera.exposure_s / 2
+        if fit is None:
+            rows_a.append(_empty_angle_row(index, t_mid, "missing"))
+            last = []
+        else:
+            t_mid += (fit.y_px / camera.height_px) * camera.readout_time_s if camera.shutter == "rolling" else 0.0
+            for flag, on in (("saturated", fit.saturated), ("blended", fit.blended)):
+                if on:
+                    quality = flag if quality == "ok" else quality + "," + flag
+            geo = _angle_covariance(fit.x_px, fit.y_px, fit.cov_xy, camera, spec.length_m)
+            if geo is None:
+                rows_a.append(_empty_angle_row(index, t_mid, "off-sphere"))
+                last = []
+            else:
+                th, ph, tip, cov = geo
+                sth, sph = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+                rows_a.append((index, t_mid, th, ph, sth, sph, cov[0, 1] / (sth * sph), tip[0], tip[1], tip[2],
+                               quality))
+                last = (last + [(fit.x_px, fit.y_px)])[-2:]
+            rows_m.append((index, t_mid, spec.name, fit.x_px, fit.y_px, math.sqrt(fit.cov_xy[0, 0]),
+                           math.sqrt(fit.cov_xy[1, 1]), fit.radius_px, fit.amplitude_adu, fit.background_adu,
+                           fit.chi2_red, quality))
+        t_track += time.perf_counter() - t1
+        k += 1
+        if progress and (k % 50 == 0):
+            progress(k, n_total)
+    cap.release()
+    if k == 0:
+        raise TrackingError(f"{video}: no frame could be decoded (unreadable or truncated video)")
+    angles = pd.DataFrame(rows_a, columns=list(ANGLE_COLUMNS))
+    if not angles.theta_rad.notna().any():
+        raise TrackingError(f"{video}: the tip marker was never found in {k} frames")
+    angles["phi_rad"] = _unwrap_nan(angles.phi_rad.to_numpy())
+    markers = pd.DataFrame(rows_m, columns=list(MARKER_COLUMNS))
+    out = Path(out_dir)
+    _io.write_csv(angles, out / "angles.csv")
+    _io.write_csv(markers, out / "markers.csv")
+    if progress:
+        progress(k, k)
+    tracked = float(angles.theta_rad.notna().mean())
+    return {"frames": k, "tracked_fraction": tracked, "decode_s": t_decode, "track_s": t_track,
+            "angles": str(out / "angles.csv"), "markers": str(out / "markers.csv")}
+
+
+def _empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
+    nan = float("nan")
+    return (index, t_s, nan, nan, nan, nan, nan, nan, nan, nan, quality)
+
+
+def _unwrap_nan(phi: np.ndarray) -> np.ndarray:
+    """Unwrap the azimuth across the tracked frames, leaving gaps as NaN."""
+    ok = np.isfinite(phi)
+    out = phi.copy()
+    if ok.any():
+        out[ok] = np.unwrap(phi[ok])
+    return out
