@@ -7,6 +7,7 @@ one run (the machines are shared and noisy).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from pathlib import Path
 from collections.abc import Sequence
@@ -309,4 +310,87 @@ def render_throughput(n_frames: int = 100) -> pd.DataFrame:
                              render_fps=len(frames) / t_render, ffv1_encode_fps=len(frames) / t_encode,
                              render_over_encode=t_encode / t_render,
                              encoding_share=t_encode / (t_encode + t_render)))
+    return pd.DataFrame(rows)
+
+
+# --------------------------------------------------------------------------------------
+# tracking precision and speed (gyrorig bench track)
+
+
+def spot_crb_px(x: float, y: float, radius_px: float, amplitude_adu: float, background_adu: float, cam) -> float:
+    """Cramer-Rao bound (standard deviation per axis, px) of the disc-spot centre.
+
+    Exact Fisher matrix of the rendered model (disc of ``radius_px`` convolved with the
+    Gaussian PSF, on a flat background) for pixel variances ``mu / gain + (read noise /
+    gain)^2 + 1/12`` [ADU^2], all five parameters free.
+    """
+    from .tracking import _model
+
+    half = int(math.ceil(radius_px + 6 * cam.psf_sigma_px + 4))
+    xi, yi = int(round(x)), int(round(y))
+    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
+    mu, jac = _model(np.array([x, y, radius_px, amplitude_adu, background_adu]), xx, yy, cam.psf_sigma_px)
+    var = mu / cam.gain_e_per_adu + (cam.read_noise_e / cam.gain_e_per_adu) ** 2 + 1.0 / 12.0
+    jf = jac.reshape(-1, 5)
+    fisher = (jf / var.reshape(-1, 1)).T @ jf
+    cov = np.linalg.inv(fisher)
+    return float(math.sqrt(0.5 * (cov[0, 0] + cov[1, 1])))
+
+
+def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480)), seed: int = 0) -> pd.DataFrame:
+    """Render the air-cushion rig, track it, and compare with the truth and the bound.
+
+    For each image size, with motion blur off (the bound's model is exact) and on:
+    RMS position error of the tip against the truth, the Cramer-Rao bound, their ratio,
+    the standard deviation of the normalised errors of x, y, theta and phi, and the
+    tracking speed with and without video decoding.
+    """
+    import tempfile
+    from dataclasses import replace
+
+    from .camera import camera_setup
+    from .cli import PROTOCOL_DIR
+    from .physics import simulate as _simulate
+    from .protocols import load_protocol
+    from .render import render_video
+    from .tracking import load_camera, track_video
+
+    base = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    rows = []
+    for (w, h) in sizes:
+        for nsub in (1, 8):
+            cam_t = dict(base.extra["camera"])
+            cam_t.update(width_px=w, height_px=h, pixel_size_um=3.45 * 1440 / w, motion_blur_samples=nsub)
+            p = replace(base, extra={**base.extra, "camera": cam_t})
+            with tempfile.TemporaryDirectory() as tmp:
+                render_video(p, f"{tmp}/v", seed=seed, duration_s=duration_s, calibration_views=0)
+                cam = load_camera(f"{tmp}/v/camera.json")
+                summary = track_video(f"{tmp}/v/video.mkv", cam, p, f"{tmp}/t")
+                mk = pd.read_csv(f"{tmp}/t/markers.csv")
+                angles = pd.read_csv(f"{tmp}/t/angles.csv").dropna(subset=["theta_rad"])
+                truth = pd.read_csv(f"{tmp}/v/truth.csv")
+            truth = truth[truth.marker == "tip"]
+            m = mk.merge(truth, on="frame", suffixes=("", "_true"))
+            setup = camera_setup(p)
+            c = setup.camera
+            tip = next(x for x in setup.markers if x.name == "tip")
+            amp = tip.brightness_e_per_s * c.exposure_s / cam.gain_e_per_adu
+            bg = c.sensor.background_e_per_s * c.exposure_s / cam.gain_e_per_adu
+            crb = np.array([spot_crb_px(r.x_px_true, r.y_px_true, r.radius_px, amp, bg, cam) for r in m.itertuples()])
+            err = np.hypot(m.x_px - m.x_px_true, m.y_px - m.y_px_true) / math.sqrt(2)
+            sim = _simulate(p, t_eval_s=angles.t_s.to_numpy())
+            e_th = (angles.theta_rad.to_numpy() - sim.theta_rad.to_numpy()) / angles.theta_sigma_rad.to_numpy()
+            e_ph = np.angle(np.exp(1j * (angles.phi_rad.to_numpy() - sim.phi_rad.to_numpy()))) / \
+                angles.phi_sigma_rad.to_numpy()
+            n = summary["frames"]
+            rows.append(dict(
+                width_px=w, height_px=h, motion_blur_samples=nsub, frames=n,
+                tracked_fraction=summary["tracked_fraction"],
+                rms_error_px=float(np.sqrt(np.mean(err**2))), crb_px=float(np.sqrt(np.mean(crb**2))),
+                error_over_crb=float(np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(crb**2))),
+                pull_std_x=float(np.std((m.x_px - m.x_px_true) / m.sigma_x_px)),
+                pull_std_y=float(np.std((m.y_px - m.y_px_true) / m.sigma_y_px)),
+                pull_std_theta=float(np.std(e_th)), pull_std_phi=float(np.std(e_ph)),
+                track_fps=n / summary["track_s"], decode_fps=n / summary["decode_s"],
+                end_to_end_fps=n / (summary["track_s"] + summary["decode_s"])))
     return pd.DataFrame(rows)

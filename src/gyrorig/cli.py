@@ -250,6 +250,17 @@ def _cmd_track(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_track(args: argparse.Namespace) -> int:
+    from .bench import track_benchmark
+
+    sizes = ((640, 480),) if args.quick else ((1440, 1080), (640, 480))
+    table = track_benchmark(duration_s=args.duration, sizes=sizes)
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    if args.out:
+        _io.write_csv(table, Path(args.out) / "track.csv")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .report import plot_trajectory
 
@@ -406,6 +417,11 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("--frames", type=int, default=100, help="frames per measurement")
     br.add_argument("--out", default=None, help="also write render.csv here")
     br.set_defaults(func=_cmd_bench_render)
+    bt = bsub.add_parser("track", help="tracking precision against the Cramer-Rao bound, pull widths, speed")
+    bt.add_argument("--duration", type=float, default=1.0, help="video length [s] (default 1)")
+    bt.add_argument("--quick", action="store_true", help="640x480 only")
+    bt.add_argument("--out", default=None, help="also write track.csv here")
+    bt.set_defaults(func=_cmd_bench_track)
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
     t.add_argument("protocol", nargs="?", help="protocol TOML file")

@@ -379,9 +379,11 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
             k += 1
             continue
         prev_hash = digest
-        if noise_sigma is None:
-            bg_level = float(np.median(frame[::4, ::4]))
-            noise_sigma = max(float(np.std(frame[::4, ::4][frame[::4, ::4] < bg_level + 20])), 0.5)
+        if noise_sigma is None or k % 100 == 0:
+            # background level and noise, refreshed every 100 frames (slow illumination drift)
+            sample = frame[::8, ::8]
+            bg_level = float(np.median(sample))
+            noise_sigma = max(float(np.std(sample[sample < bg_level + 20])), 0.5)
         threshold = bg_level + max(8.0 * noise_sigma, 4.0)
         cand = []
         predicted = None
