@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from gyrorig.protocols import Protocol, parse_protocol
+from gyrorig.protocols import Protocol, top_protocol
 
 REPO = Path(__file__).resolve().parents[1]
 PROTOCOL_DIR = REPO / "protocols"
@@ -39,27 +39,12 @@ def make_protocol(
     duration: float = 5.0,
     azimuth: float = 0.0,
 ) -> Protocol:
-    """A protocol from keyword values (defaults: the benchmark top I=1, Io=0.6, M=1, h=0.1)."""
-    rig: dict[str, Any] = dict(mass_kg=mass, com_distance_m=com, inertia_axial_kg_m2=inertia_axial,
-                               inertia_transverse_kg_m2=inertia)
-    if gravity is not None:
-        rig["gravity_m_s2"] = gravity
-    if frame_inertia is not None:
-        rig["frame_axial_inertia_kg_m2"] = frame_inertia
-    data: dict[str, Any] = {
-        "rig": rig,
-        "launch": dict(tilt_rad=tilt, azimuth_rad=azimuth, tilt_rate_rad_s=tilt_rate,
-                       precession_rate_rad_s=precession_rate, spin_rate_rad_s=spin),
-        "scene": dict(duration_s=duration),
-    }
-    pivot: dict[str, Any] = {}
-    if acceleration is not None:
-        pivot["acceleration_m_s2"] = acceleration
-    if damping is not None:
-        pivot["damping"] = damping
-    if pivot:
-        data["pivot"] = pivot
-    return parse_protocol(data)
+    """Short-named wrapper of :func:`gyrorig.protocols.top_protocol` for the tests."""
+    return top_protocol(tilt_rad=tilt, tilt_rate_rad_s=tilt_rate, precession_rate_rad_s=precession_rate,
+                        spin_rate_rad_s=spin, gravity_m_s2=gravity, inertia_transverse_kg_m2=inertia,
+                        inertia_axial_kg_m2=inertia_axial, mass_kg=mass, com_distance_m=com,
+                        frame_axial_inertia_kg_m2=frame_inertia, acceleration_m_s2=acceleration, damping=damping,
+                        duration_s=duration, azimuth_rad=azimuth)
 
 
 TIP = ["tip_x", "tip_y", "tip_z"]

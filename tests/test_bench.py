@@ -5,7 +5,6 @@ accuracy and the verdicts.
 """
 
 import pandas as pd
-import pytest
 
 from gyrorig.bench import speed_ratio, work_precision, benchmark_top
 from gyrorig.cli import main

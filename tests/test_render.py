@@ -106,8 +106,8 @@ def test_saturated_marker_clips_at_full_well():
 def test_video_decodes_to_the_stated_frames_and_is_reproducible(tmp_path):
     p = parse_protocol(small())
     a = render_video(p, tmp_path / "a", seed=3, calibration_views=0)
-    b = render_video(p, tmp_path / "b", seed=3, calibration_views=0)
-    c = render_video(p, tmp_path / "c", seed=4, calibration_views=0)
+    render_video(p, tmp_path / "b", seed=3, calibration_views=0)
+    render_video(p, tmp_path / "c", seed=4, calibration_views=0)
     cap = cv2.VideoCapture(a["video"])
     frames = []
     while True:

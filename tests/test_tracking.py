@@ -7,7 +7,6 @@ PULL_STD_RANGE (60-frame videos: +-10 % statistical spread) and no outlier beyon
 
 import copy
 import json
-import math
 import tomllib
 
 import cv2

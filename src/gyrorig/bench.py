@@ -115,19 +115,10 @@ def compare_methods(
 #: the issue's reference top (SI): I = 1, Io = 0.6, M = 1, h = 0.1, g = 9.81, tilt 0.2, released from rest
 def benchmark_top(spin_rad_s: float, *, duration_s: float = 10.0, damping: dict | None = None) -> Protocol:
     """The benchmark top of the work-precision study, released from rest at tilt 0.2 rad."""
-    from .protocols import parse_protocol
+    from .protocols import top_protocol
 
-    data = {
-        "protocol": {"name": f"release-spin{spin_rad_s:g}" + ("-damped" if damping else "")},
-        "rig": dict(mass_kg=1.0, com_distance_m=0.1, inertia_axial_kg_m2=0.6, inertia_transverse_kg_m2=1.0,
-                    gravity_m_s2=9.81),
-        "launch": dict(tilt_rad=0.2, azimuth_rad=0.0, tilt_rate_rad_s=0.0, precession_rate_rad_s=0.0,
-                       spin_rate_rad_s=spin_rad_s),
-        "scene": dict(duration_s=duration_s),
-    }
-    if damping:
-        data["pivot"] = {"damping": damping}
-    return parse_protocol(data)
+    return top_protocol(tilt_rad=0.2, spin_rate_rad_s=spin_rad_s, damping=damping, duration_s=duration_s,
+                        name=f"release-spin{spin_rad_s:g}" + ("-damped" if damping else ""))
 
 
 def _ladders(quick: bool) -> dict[str, list[float]]:

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from .protocols import Protocol, ProtocolError, _bool, _check_keys, _number, _vector3  # noqa: F401
+from .protocols import Protocol, ProtocolError, _check_keys, _number, _vector3
 
 __all__ = ["Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose"]
 
@@ -225,7 +225,7 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
     return Camera(w, h, fps, exposure, k, dist, rvec, tvec, shutter, readout, sigma, nsub, _parse_sensor(t["sensor"]))
 
 
-def _parse_markers(t: Mapping[str, Any], gyrostat: bool) -> tuple[tuple[Marker, ...], tuple[Occluder, ...]]:
+def _parse_markers(t: Mapping[str, Any]) -> tuple[tuple[Marker, ...], tuple[Occluder, ...]]:
     if not isinstance(t, Mapping) or not t:
         raise ProtocolError("[markers] must contain at least one [markers.NAME] table")
     markers, occluders = [], []
@@ -268,7 +268,7 @@ def camera_setup(protocol: Protocol) -> CameraSetup:
         missing = [k for k in ("camera", "markers") if k not in protocol.extra]
         raise ProtocolError(f"{protocol.name}: rendering needs the section(s) {', '.join(missing)}")
     cam = _parse_camera(protocol.extra["camera"])
-    markers, occluders = _parse_markers(protocol.extra["markers"], protocol.rig.is_gyrostat)
+    markers, occluders = _parse_markers(protocol.extra["markers"])
     # the pivot must be in front of the camera and inside the image
     import cv2
 

@@ -34,6 +34,7 @@ __all__ = [
     "Protocol",
     "load_protocol",
     "parse_protocol",
+    "top_protocol",
 ]
 
 
@@ -569,3 +570,49 @@ def load_protocol(path: str | Path) -> Protocol:
         return parse_protocol(data, source=str(path))
     except ProtocolError as exc:
         raise ProtocolError(f"{path}: {exc}") from None
+
+
+def top_protocol(
+    *,
+    tilt_rad: float,
+    spin_rate_rad_s: float,
+    tilt_rate_rad_s: float = 0.0,
+    precession_rate_rad_s: float = 0.0,
+    azimuth_rad: float = 0.0,
+    mass_kg: float = 1.0,
+    com_distance_m: float = 0.1,
+    inertia_axial_kg_m2: float = 0.6,
+    inertia_transverse_kg_m2: float = 1.0,
+    gravity_m_s2: float | None = 9.81,
+    frame_axial_inertia_kg_m2: float | None = None,
+    acceleration_m_s2: list[float] | None = None,
+    damping: Mapping[str, Any] | None = None,
+    duration_s: float = 1.0,
+    name: str = "top",
+) -> Protocol:
+    """A validated protocol from keyword values (defaults: the benchmark top I = 1, Io = 0.6, M = 1, h = 0.1).
+
+    ``gravity_m_s2=None`` leaves gravity out (free top); ``damping`` is one
+    ``[pivot.damping]`` table as a mapping.
+    """
+    rig: dict[str, Any] = dict(mass_kg=mass_kg, com_distance_m=com_distance_m,
+                               inertia_axial_kg_m2=inertia_axial_kg_m2, inertia_transverse_kg_m2=inertia_transverse_kg_m2)
+    if gravity_m_s2 is not None:
+        rig["gravity_m_s2"] = gravity_m_s2
+    if frame_axial_inertia_kg_m2 is not None:
+        rig["frame_axial_inertia_kg_m2"] = frame_axial_inertia_kg_m2
+    pivot: dict[str, Any] = {}
+    if acceleration_m_s2 is not None:
+        pivot["acceleration_m_s2"] = list(acceleration_m_s2)
+    if damping is not None:
+        pivot["damping"] = dict(damping)
+    data: dict[str, Any] = {
+        "protocol": {"name": name},
+        "rig": rig,
+        "launch": dict(tilt_rad=tilt_rad, azimuth_rad=azimuth_rad, tilt_rate_rad_s=tilt_rate_rad_s,
+                       precession_rate_rad_s=precession_rate_rad_s, spin_rate_rad_s=spin_rate_rad_s),
+        "scene": dict(duration_s=duration_s),
+    }
+    if pivot:
+        data["pivot"] = pivot
+    return parse_protocol(data)

@@ -27,7 +27,7 @@ import pandas as pd
 from .bench import benchmark_top
 from .physics import SimulationError, choose_method, exact_solution, exact_solution_applies, simulate
 from .physics.invariants import invariants
-from .protocols import Protocol, parse_protocol
+from .protocols import Protocol, top_protocol
 
 __all__ = ["StabilityCase", "stability_cases", "run_stability", "INVARIANT_RTOL", "AGREEMENT_TOL_RAD"]
 
@@ -58,22 +58,11 @@ class StabilityCase:
 
 
 def _top(*, tilt, spin, tilt_rate=0.0, precession_rate=0.0, inertia_axial=0.6, gravity=True, acceleration=None,
-         damping=None, name="case") -> Protocol:
-    rig = dict(mass_kg=1.0, com_distance_m=0.1, inertia_axial_kg_m2=inertia_axial, inertia_transverse_kg_m2=1.0)
-    if gravity:
-        rig["gravity_m_s2"] = 9.81
-    data = {"protocol": {"name": name}, "rig": rig,
-            "launch": dict(tilt_rad=tilt, azimuth_rad=0.0, tilt_rate_rad_s=tilt_rate,
-                           precession_rate_rad_s=precession_rate, spin_rate_rad_s=spin),
-            "scene": dict(duration_s=1.0)}
-    pivot = {}
-    if acceleration is not None:
-        pivot["acceleration_m_s2"] = acceleration
-    if damping is not None:
-        pivot["damping"] = damping
-    if pivot:
-        data["pivot"] = pivot
-    return parse_protocol(data)
+         damping=None) -> Protocol:
+    return top_protocol(tilt_rad=tilt, spin_rate_rad_s=spin, tilt_rate_rad_s=tilt_rate,
+                        precession_rate_rad_s=precession_rate, inertia_axial_kg_m2=inertia_axial,
+                        gravity_m_s2=9.81 if gravity else None, acceleration_m_s2=acceleration, damping=damping,
+                        name="stability")
 
 
 ALL = ("energy_J", "l_vertical_kg_m2_s", "l_axial_kg_m2_s")

@@ -19,7 +19,6 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -27,7 +26,7 @@ import pandas as pd
 from . import theory as th
 from .physics import SimulationError, exact_solution, simulate
 from .physics.rotations import euler_from_matrix, euler_to_matrix
-from .protocols import Protocol, parse_protocol
+from .protocols import Protocol, top_protocol
 
 logger = logging.getLogger(__name__)
 
@@ -50,25 +49,10 @@ def spin_for_ratio(ratio: float, *, inertia: float = 1.0, inertia_axial: float =
 def _top(*, tilt: float, spin: float, tilt_rate: float = 0.0, precession_rate: float = 0.0, gravity: bool = True,
          inertia_axial: float = 0.6, acceleration: list[float] | None = None, damping: dict | None = None,
          duration: float = 10.0) -> Protocol:
-    rig: dict[str, Any] = dict(mass_kg=TEST_TOP["mass"], com_distance_m=TEST_TOP["com"],
-                               inertia_axial_kg_m2=inertia_axial, inertia_transverse_kg_m2=TEST_TOP["inertia"])
-    if gravity:
-        rig["gravity_m_s2"] = TEST_TOP["gravity"]
-    data: dict[str, Any] = {
-        "protocol": {"name": "validation"},
-        "rig": rig,
-        "launch": dict(tilt_rad=tilt, azimuth_rad=0.0, tilt_rate_rad_s=tilt_rate,
-                       precession_rate_rad_s=precession_rate, spin_rate_rad_s=spin),
-        "scene": dict(duration_s=duration),
-    }
-    pivot: dict[str, Any] = {}
-    if acceleration is not None:
-        pivot["acceleration_m_s2"] = acceleration
-    if damping is not None:
-        pivot["damping"] = damping
-    if pivot:
-        data["pivot"] = pivot
-    return parse_protocol(data)
+    return top_protocol(tilt_rad=tilt, spin_rate_rad_s=spin, tilt_rate_rad_s=tilt_rate,
+                        precession_rate_rad_s=precession_rate, gravity_m_s2=TEST_TOP["gravity"] if gravity else None,
+                        inertia_axial_kg_m2=inertia_axial, acceleration_m_s2=acceleration, damping=damping,
+                        duration_s=duration, name="validation")
 
 
 def _rel(a: float, ref: float) -> float:

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..protocols import Protocol
-from .torques import torques_for
+from .torques import sum_torques, torques_for
 
 __all__ = ["PhasorSingularity", "phasor_initial_state", "make_phasor_rhs", "phasor_states_to_arrays"]
 
@@ -67,13 +67,7 @@ def make_phasor_rhs(protocol: Protocol) -> Any:
         d = (cph * cps - cth * sph * sps, sph * cps + cth * cph * sps, sth * sps)
         q = (-cph * sps - cth * sph * cps, -sph * sps + cth * cph * cps, sth * cps)
         o = (sth * sph, -sth * cph, cth)
-        g1 = g2 = gr = gf = 0.0
-        for comp in comps:
-            a, b, c, e = comp(t, d, q, o, wr, wi, om, om_f)
-            g1 += a
-            g2 += b
-            gr += c
-            gf += e
+        g1, g2, gr, gf = sum_torques(comps, t, d, q, o, wr, wi, om, om_f)
         l3 = i_o * om + (i_f * om_f if gyrostat else 0.0)
         k = l3 - i_t * om  # = -I nu for a rigid top
         # eq. (9): theta' + j phi' sin(theta) = W e^{j psi}

@@ -48,7 +48,7 @@ from ..protocols import EddyFieldDamping, Protocol
 from .rotations import angles_from_tip, euler_from_matrix, euler_to_matrix, matrix_to_quaternion, quaternion_to_matrix
 from ._jit import STATUS_MESSAGES, integrate_dop853, pack_torques
 from .phasor import PhasorSingularity, make_phasor_rhs, phasor_initial_state, phasor_states_to_arrays
-from .torques import torques_for
+from .torques import sum_torques, torques_for
 
 logger = logging.getLogger(__name__)
 
@@ -196,13 +196,7 @@ def _make_rhs(protocol: Protocol, formulation: str) -> Any:
         e1 = (1.0 - s * (q2 * q2 + q3 * q3), s * (q1 * q2 + q0 * q3), s * (q1 * q3 - q0 * q2))
         e2 = (s * (q1 * q2 - q0 * q3), 1.0 - s * (q1 * q1 + q3 * q3), s * (q2 * q3 + q0 * q1))
         e3 = (s * (q1 * q3 + q0 * q2), s * (q2 * q3 - q0 * q1), 1.0 - s * (q1 * q1 + q2 * q2))
-        t1 = t2 = tr = tf = 0.0
-        for comp in comps:
-            a, b, c, d = comp(t, e1, e2, e3, w1, w2, om, om_f)
-            t1 += a
-            t2 += b
-            tr += c
-            tf += d
+        t1, t2, tr, tf = sum_torques(comps, t, e1, e2, e3, w1, w2, om, om_f)
         l3 = i_o * om + (i_f * om_f if gyrostat else 0.0)
         k = l3 - rho * i_t
         # quaternion kinematics q' = q (x) (0, w1, w2, rho) / 2

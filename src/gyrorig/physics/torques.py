@@ -30,7 +30,7 @@ from ..protocols import AirDamping, EddyFieldDamping, MagnetInBallDamping, Paper
 Vec = tuple[float, float, float]
 TorqueOut = tuple[float, float, float, float]
 
-__all__ = ["GravityTorque", "TransverseViscousTorque", "EddyFieldTorque", "torques_for"]
+__all__ = ["GravityTorque", "TransverseViscousTorque", "EddyFieldTorque", "sum_torques", "torques_for"]
 
 
 def _dot(a: Vec, b: Vec) -> float:
@@ -142,6 +142,19 @@ class EddyFieldTorque:
 
 
 Torque = GravityTorque | TransverseViscousTorque | EddyFieldTorque
+
+
+def sum_torques(comps, t_s: float, e1: Vec, e2: Vec, e3: Vec, w1: float, w2: float, omega_rotor: float,
+                omega_frame: float | None) -> TorqueOut:
+    """Sum of ``components`` of several torques (transverse, rotor-axial, frame-axial)."""
+    t1 = t2 = tr = tf = 0.0
+    for comp in comps:
+        a, b, c, d = comp(t_s, e1, e2, e3, w1, w2, omega_rotor, omega_frame)
+        t1 += a
+        t2 += b
+        tr += c
+        tf += d
+    return t1, t2, tr, tf
 
 
 def torques_for(protocol: Protocol) -> tuple[Torque, ...]:
