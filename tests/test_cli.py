@@ -75,8 +75,11 @@ def test_bench_methods_prints_a_table(tmp_path, capsys):
     assert (table[table.method != "exact"].max_tip_error_rad < 1e-7).all()
 
 
-def test_demo_runs_and_writes_a_plot(tmp_path, capsys):
+def test_demo_runs_the_chain_and_writes_its_plots(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--duration", "1"]) == 0
-    assert (tmp_path / "trajectory.png").stat().st_size > 10_000
+    for name in ("trajectory.png", "tracking.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
     text = capsys.readouterr().out
-    assert "max tip-direction error against the exact solution" in text
+    assert "max tip error vs exact" in text and "WRONG SIGN" in text and "frames tracked" in text
+    for f in ("trajectory.csv", "theory.json", "manifest.json", "video/video.mkv", "track/angles.csv"):
+        assert (tmp_path / f).exists(), f

@@ -262,7 +262,14 @@ def _cmd_bench_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from .report import plot_trajectory
+    from dataclasses import replace
+
+    import pandas as pd
+
+    from .render import render_video
+    from .report import plot_tracking, plot_trajectory
+    from .theory import predict
+    from .tracking import load_camera, track_video
 
     out = Path(args.out)
     path = PROTOCOL_DIR / DEMO_PROTOCOL
@@ -270,28 +277,62 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         raise ProtocolError(f"bundled protocol {DEMO_PROTOCOL} not found at {path}: install gyrorig from a clone "
                             "of the repository with 'pip install -e .'")
     protocol = load_protocol(path)
-    duration = args.duration
+    start = time.perf_counter()
     print(f"demo: {protocol.description}")
-    print(f"simulating {duration:g} s ...", flush=True)
-    df, info = simulate(protocol, duration_s=duration, rate_hz=500.0, return_info=True)
+
+    # 1. simulate, and judge the simulator by the exact solution
+    print(f"[1/4] simulating {args.duration:g} s ...", flush=True)
+    df, info = simulate(protocol, duration_s=args.duration, rate_hz=500.0, return_info=True)
     sol = exact_solution(protocol)
     ref = sol.evaluate(df.t_s.to_numpy())
-    err = float(np.linalg.norm(df[["tip_x", "tip_y", "tip_z"]].to_numpy() - ref[["tip_x", "tip_y", "tip_z"]]
-                               .to_numpy(), axis=1).max())
+    tips = ["tip_x", "tip_y", "tip_z"]
+    err = float(np.linalg.norm(df[tips].to_numpy() - ref[tips].to_numpy(), axis=1).max())
     fig = plot_trajectory(df, reference=ref, title=f"{protocol.name}: simulator ({info.method}) vs exact solution")
     with _io.atomic_path(out / "trajectory.png") as tmp:
         fig.savefig(tmp, format="png", dpi=110)
     _io.write_csv(df, out / "trajectory.csv")
-    _io.write_json({"command": "demo", "protocol": _protocol_summary(protocol), "simulation": asdict(info),
-                    "max_tip_error_vs_exact_rad": err, "versions": _io.versions()}, out / "manifest.json")
     th_min, th_max = sol.tilt_range_rad
-    print(f"method {info.method} (auto), {info.wall_time_s:.2f} s wall, {info.n_rhs_evaluations} rhs evaluations")
-    print(f"max tip-direction error against the exact solution: {err:.2e} rad")
-    print(f"tilt oscillates between {np.degrees(th_min):.3f} and {np.degrees(th_max):.3f} deg "
-          f"(half-range {np.degrees(th_max - th_min) / 2:.3f} deg)")
-    print(f"nutation frequency {sol.nutation_frequency_rad_s / (2 * np.pi):.3f} Hz, "
-          f"mean precession rate {sol.mean_precession_rate_rad_s:.4f} rad/s (exact solution)")
-    print(f"wrote {out / 'trajectory.csv'}, {out / 'trajectory.png'}, {out / 'manifest.json'}")
+    print(f"      method {info.method}: {info.wall_time_s * 1e3:.1f} ms, max tip error vs exact {err:.1e} rad; "
+          f"tilt {np.degrees(th_min):.3f}..{np.degrees(th_max):.3f} deg, nutation "
+          f"{sol.nutation_frequency_rad_s / (2 * np.pi):.3f} Hz, mean precession {sol.mean_precession_rate_rad_s:.4f} rad/s")
+
+    # 2. the paper's predictions for this rig, judged
+    print("[2/4] the paper's formulas for this rig (paper / exact):", flush=True)
+    pred = predict(protocol, simulate_damping=False)
+    _io.write_json(_json_safe(pred), out / "theory.json")
+    for key in ("precession_rate_slow_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad",
+                "mean_precession_rate_rad_s"):
+        v = pred[key]
+        flag = "  ** WRONG SIGN **" if v.get("sign_agrees") is False else ""
+        print(f"      {key}: {v['paper']:.5g} / {v['exact']:.5g} ({v['relative_difference']:+.1%}){flag}")
+    print(f"      fast-top ratio {pred['flags']['fast_top_ratio']:.2f} (the formulas want >= 10)")
+
+    # 3. a short synthetic video through the rig's camera (640x480 here, for speed)
+    print("[3/4] rendering 1 s of video (640x480, 200 fps) ...", flush=True)
+    cam = dict(protocol.extra["camera"], width_px=640, height_px=480, pixel_size_um=3.45 * 2.25)
+    video_protocol = replace(protocol, extra={**protocol.extra, "camera": cam})
+    rendered = render_video(video_protocol, out / "video", seed=0, duration_s=1.0, calibration_views=0,
+                            progress=_progress_printer("      render"))
+
+    # 4. track it without looking at the truth, then compare
+    print("[4/4] tracking the tip marker ...", flush=True)
+    tracked = track_video(rendered["video"], load_camera(out / "video" / "camera.json"), video_protocol,
+                          out / "track", progress=_progress_printer("      track"))
+    angles = pd.read_csv(out / "track" / "angles.csv").dropna(subset=["theta_rad"])
+    truth = simulate(protocol, t_eval_s=angles.t_s.to_numpy())
+    e_th = angles.theta_rad.to_numpy() - truth.theta_rad.to_numpy()
+    e_ph = np.angle(np.exp(1j * (angles.phi_rad.to_numpy() - truth.phi_rad.to_numpy())))
+    fig = plot_tracking(angles, truth, title="tip tracked from the synthetic video vs the simulator")
+    with _io.atomic_path(out / "tracking.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    print(f"      {tracked['tracked_fraction']:.1%} of {tracked['frames']} frames tracked; theta error "
+          f"{np.sqrt(np.mean(e_th**2)):.2e} rad rms (reported sigma {angles.theta_sigma_rad.mean():.2e}), "
+          f"phi error {np.sqrt(np.mean(e_ph**2)):.2e} rad rms (sigma {angles.phi_sigma_rad.mean():.2e})")
+    _io.write_json({"command": "demo", "protocol": _protocol_summary(protocol), "simulation": asdict(info),
+                    "max_tip_error_vs_exact_rad": err, "tracking": {k: v for k, v in tracked.items()},
+                    "versions": _io.versions()}, out / "manifest.json")
+    print(f"done in {time.perf_counter() - start:.0f} s. Look at {out / 'trajectory.png'} and {out / 'tracking.png'}; "
+          f"data in {out}/ (trajectory.csv, theory.json, video/, track/)")
     return EXIT_OK
 
 
@@ -456,7 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", required=True, help="output directory")
     k.set_defaults(func=_cmd_track)
 
-    d = sub.add_parser("demo", help="simulate the bundled air-cushion rig and compare with the exact solution")
+    d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")
     d.add_argument("--duration", type=float, default=10.0, help="simulated time [s] (default 10)")
     d.set_defaults(func=_cmd_demo)

@@ -133,3 +133,26 @@ def plot_stability(table: pd.DataFrame) -> Figure:
     ax.set_yticks(range(len(cases)), cases, fontsize=8)
     ax.set_title("stability suite (see stability.md for the reasons)")
     return fig
+
+
+def plot_tracking(angles: pd.DataFrame, truth: pd.DataFrame, *, title: str = "") -> Figure:
+    """Tracked theta, phi with their error bars against the true values, and the normalised errors."""
+    fig = Figure(figsize=(11, 6.5), layout="constrained")
+    ax = fig.subplots(2, 2).ravel()
+    t = angles.t_s.to_numpy()
+    for i, (col, label) in enumerate([("theta_rad", "tilt theta"), ("phi_rad", "azimuth phi")]):
+        ax[i].plot(truth.t_s, np.degrees(truth[col]), "k-", lw=0.8, label="truth (simulator)")
+        ax[i].errorbar(t, np.degrees(angles[col]), yerr=np.degrees(angles[col.replace("_rad", "_sigma_rad")]),
+                       fmt=".", ms=2, lw=0.5, label="tracked from the video")
+        ax[i].set(xlabel="t [s]", ylabel=f"{label} [deg]", title=label)
+        ax[i].legend(fontsize=7)
+    for i, col in enumerate(["theta_rad", "phi_rad"]):
+        err = np.interp(t, truth.t_s, truth[col]) - angles[col]
+        pull = -err / angles[col.replace("_rad", "_sigma_rad")]
+        ax[2 + i].plot(t, pull, ".", ms=2)
+        ax[2 + i].axhline(0, color="0.6", lw=0.5)
+        ax[2 + i].set(xlabel="t [s]", ylabel="(tracked - true) / sigma",
+                      title=f"{col.split('_')[0]}: normalised error, std {np.nanstd(pull):.2f}")
+    if title:
+        fig.suptitle(title)
+    return fig
