@@ -245,8 +245,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
     n = summary["frames"]
-    print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; tracking {n / summary['track_s']:.0f} "
-          f"frames/s, decoding {n / summary['decode_s']:.0f} frames/s -> {summary['angles']}, {summary['markers']}")
+    print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; "
+          f"{n / (summary['track_s'] + summary['decode_s']):.0f} frames/s -> {summary['angles']}, {summary['markers']}")
     return EXIT_OK
 
 
