@@ -94,6 +94,7 @@ def compare_methods(
         formulation, solver = METHODS[m]
         walls = []
         try:
+            simulate(protocol, method=m, duration_s=min(duration_s, 0.01), rate_hz=1000.0)  # load / compile first
             for _ in range(max(repeats, 1)):
                 df, info = simulate(protocol, method=m, rtol=rtol, t_eval_s=t, return_info=True)
                 walls.append(info.wall_time_s)
