@@ -67,11 +67,13 @@ def test_fast_top_release_formulas_converge_as_one_over_the_ratio():
         assert r["simulator"] == pytest.approx(r["exact"], rel=2e-3)
 
 
-def test_free_top_eq12_agrees_in_the_small_cone_regime():
+def test_free_top_eqs_12_15_16_agree_in_the_small_cone_regime():
     rows = _sweep_free([0.3, 1.5], [0.05])
+    assert {r["equation"] for r in rows} == {"12", "15", "16"}
     for r in rows:
-        assert abs(r["rel_error_paper"]) < 3e-3
-        assert r["simulator"] == pytest.approx(r["exact"], rel=1e-6)
+        assert abs(r["rel_error_paper"]) < 3e-3  # O(cone angle^2) = 2.5e-3
+        # eq. 16's simulated amplitude is a maximum over 2 kHz samples: good to ~1e-5
+        assert r["simulator"] == pytest.approx(r["exact"], rel=1e-4)
 
 
 def test_eq25a_predicts_decay_but_the_simulator_shows_growth():

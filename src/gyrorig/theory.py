@@ -35,6 +35,8 @@ __all__ = [
     "fast_top_release",
     "paper_free_precession_rate",
     "exact_free_precession_rate",
+    "paper_free_precession_rate_launch_frame",
+    "paper_free_nutation_amplitude_launch_frame",
     "paper_damped_tilt_rate",
     "corrected_damped_tilt_rate",
     "paper_damped_time_constant",
@@ -130,6 +132,26 @@ def paper_free_precession_rate(spin_rad_s: float, *, inertia: float, inertia_axi
     factor ``cos(cone angle)``: ``phi' = Io Omega / ((I - Io) cos(alpha))``.
     """
     return inertia_axial * spin_rad_s / (inertia - inertia_axial)
+
+
+def paper_free_precession_rate_launch_frame(omega_o_rad_s: float, *, inertia: float, inertia_axial: float) -> float:
+    """Eq. (15) ``phi' = Io Omega' / (2 I - Io)`` with ``Omega' = omega_o - phi'`` (its own frame): ``Io omega_o / (2 I)``.
+
+    In the frame whose ``z`` is the launch axis (the paper's ``C = 0`` choice), ``Omega'`` is
+    ``psi'`` there; with ``theta' ~ 0``, ``omega_o = Omega' + phi'``. [rad/s]
+    """
+    return inertia_axial * omega_o_rad_s / (2.0 * inertia)
+
+
+def paper_free_nutation_amplitude_launch_frame(omega_perp0_rad_s: float, omega_o_rad_s: float, *, inertia: float,
+                                               inertia_axial: float) -> float:
+    """Eq. (16): amplitude ``(2 I - Io) |omega_00| / (Io Omega')`` of theta in the launch-axis frame. [rad]
+
+    With ``Omega' = omega_o (2 I - Io) / (2 I)`` (see :func:`paper_free_precession_rate_launch_frame`)
+    this is ``2 I |omega_perp(0)| / (Io omega_o)``: twice the small cone angle.
+    """
+    omega_prime = omega_o_rad_s * (2.0 * inertia - inertia_axial) / (2.0 * inertia)
+    return (2.0 * inertia - inertia_axial) * omega_perp0_rad_s / (inertia_axial * abs(omega_prime))
 
 
 def exact_free_precession_rate(angular_momentum: float, *, inertia: float) -> float:

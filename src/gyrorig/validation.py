@@ -154,6 +154,22 @@ def _sweep_free(ratios_io, cones) -> list[dict]:
             rows.append(_row("free top: precession about L", "12", "precession_rate_rad_s", paper=paper,
                              exact=rate_l, simulator=coning, tilt=alpha, in_regime=alpha <= SMALL_TILT_MAX_RAD,
                              io_over_i=io, spin_in_L_frame=spin_l))
+            # eqs. 15-16 in the frame whose z is the launch axis: the tip circles through that axis, so
+            # phi' = (coning rate) / 2 and the largest tilt from it is twice the cone angle.  The paper's
+            # Omega' is psi' in that frame, Omega' = omega_o - phi' (theta' ~ 0), which makes eq. 15
+            # phi' = Io omega_o / (2 I) and eq. 16's amplitude 2 I |omega_perp(0)| / (Io omega_o).
+            sol = exact_solution(p)
+            omega_o = sol.omega_rotor_rad_s
+            paper15 = th.paper_free_precession_rate_launch_frame(omega_o, inertia=1.0, inertia_axial=io)
+            paper16 = th.paper_free_nutation_amplitude_launch_frame(abs(kick), omega_o, inertia=1.0, inertia_axial=io)
+            df = simulate(p, method="gyro", rtol=1e-11, duration_s=2 * math.pi / abs(coning), rate_hz=2000.0)
+            tip = df[["tip_x", "tip_y", "tip_z"]].to_numpy()
+            widest = float(np.arccos(np.clip(tip @ tip[0], -1.0, 1.0)).max())
+            common = dict(tilt=alpha, in_regime=alpha <= SMALL_TILT_MAX_RAD, io_over_i=io)
+            rows.append(_row("free top in the launch-axis frame: precession", "15", "precession_rate_rad_s",
+                             paper=paper15, exact=rate_l / 2, simulator=coning / 2, **common))
+            rows.append(_row("free top in the launch-axis frame: tilt amplitude", "16", "nutation_amplitude_rad",
+                             paper=paper16, exact=2 * alpha, simulator=widest, **common))
     return rows
 
 
