@@ -146,3 +146,29 @@ def test_bad_inputs_fail_clearly_and_write_nothing(tmp_path, capsys):
     assert code == 3 and "tracking failed" in capsys.readouterr().err
     for o in ("o1", "o2", "o3"):
         assert not (tmp_path / o / "angles.csv").exists()
+
+
+def test_pose_from_fiducials_when_the_camera_file_has_none(tmp_path):
+    d = scene(duration=2.0)  # every fiducial comes out from behind the can within 2 s
+    p = parse_protocol(d)
+    render_video(p, tmp_path / "v", seed=2, calibration_views=0)
+    cam_json = json.loads((tmp_path / "v" / "camera.json").read_text())
+    true_rvec, true_tvec = np.array(cam_json.pop("rvec")), np.array(cam_json.pop("tvec"))
+    cam_json.pop("fps")
+    (tmp_path / "nopose.json").write_text(json.dumps(cam_json))
+    cam = load_camera(tmp_path / "nopose.json", require_pose=False)
+    assert not cam.has_pose
+    with pytest.raises(TrackingError, match="no camera pose"):
+        load_camera(tmp_path / "nopose.json")
+    summary = track_video(tmp_path / "v" / "video.mkv", cam, p, tmp_path / "t")
+    assert summary["pose"]["pose_rms_px"] < 0.1
+    assert len(summary["pose"]["fiducials_matched"]) >= 4
+    rot_err = cv2.Rodrigues(cv2.Rodrigues(np.array(summary["rvec"]))[0] @ cv2.Rodrigues(true_rvec)[0].T)[0]
+    assert np.linalg.norm(rot_err) < 2e-3  # rad
+    assert np.linalg.norm(np.array(summary["tvec"]) - true_tvec) < 2e-3  # m
+    # fewer than 4 fiducials: refused with the reason
+    d2 = copy.deepcopy(d)
+    for k in (3, 4, 5):
+        del d2["markers"][f"fiducial_{k}"]
+    with pytest.raises(TrackingError, match="at least 4 are needed"):
+        track_video(tmp_path / "v" / "video.mkv", cam, parse_protocol(d2), tmp_path / "t2")

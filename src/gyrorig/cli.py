@@ -239,12 +239,17 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
     protocol = load_protocol(args.protocol)
     try:
-        summary = track_video(args.video, load_camera(args.camera), protocol, args.out,
+        summary = track_video(args.video, load_camera(args.camera, require_pose=False), protocol, args.out,
                               progress=_progress_printer("track"))
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
     n = summary["frames"]
+    if summary["pose"]:
+        pose = summary["pose"]
+        print(f"camera pose from {len(pose['fiducials_matched'])} fiducials ({', '.join(pose['fiducials_matched'])}), "
+              f"reprojection error {pose['pose_rms_px']:.3f} px: rvec {np.round(summary['rvec'], 5).tolist()}, "
+              f"tvec {np.round(summary['tvec'], 5).tolist()} m")
     print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; "
           f"{n / (summary['track_s'] + summary['decode_s']):.0f} frames/s -> {summary['angles']}, {summary['markers']}")
     return EXIT_OK

@@ -51,7 +51,8 @@ logger = logging.getLogger(__name__)
 __all__ = ["MarkerPaths", "marker_paths", "render_frames", "render_video", "render_calibration_images",
            "TRUTH_COLUMNS", "background_distribution"]
 
-TRUTH_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "visible", "theta_rad", "phi_rad", "t_marker_s")
+TRUTH_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "visible", "theta_rad", "phi_rad", "t_marker_s",
+                 "in_view")
 #: background pixels are drawn by inverse CDF from a table of this many equiprobable values
 BACKGROUND_TABLE_SIZE = 1 << 16
 
@@ -157,13 +158,14 @@ def _marker_samples(cam: Camera, setup: CameraSetup, paths: MarkerPaths, m: Mark
     pts = paths.position(m.name, times)
     px, depth = _project(cam, pts)
     radius = cam.camera_matrix[0, 0] * m.radius_m / np.maximum(depth, 1e-9)
-    visible = (depth > 0) & (px[..., 0] > -radius) & (px[..., 0] < cam.width_px - 1 + radius) & \
+    in_view = (depth > 0) & (px[..., 0] > -radius) & (px[..., 0] < cam.width_px - 1 + radius) & \
         (px[..., 1] > -radius) & (px[..., 1] < cam.height_px - 1 + radius)
+    visible = in_view.copy()
     if setup.occluders:
         visible &= ~_occluded(cam.position_m, pts, paths.tip(times), setup.occluders)
     t_mid = frames / cam.fps + shift + cam.exposure_s / 2
     truth_px, _ = _project(cam, paths.position(m.name, t_mid))
-    return px, radius, visible, truth_px, t_mid
+    return px, radius, visible, truth_px, t_mid, in_view.mean(axis=1) >= 0.5
 
 
 def _draw_spot(acc: np.ndarray, px: np.ndarray, radius: np.ndarray, vis: np.ndarray, peak_e: float,
@@ -270,12 +272,12 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
             windows = []
             rows = []
             for m in setup.markers:
-                px, rad, vis, truth_px, tm = per_marker[m.name]
+                px, rad, vis, truth_px, tm, inview = per_marker[m.name]
                 win = _draw_spot(acc, px[i], rad[i], vis[i], m.brightness_e_per_s * cam.exposure_s, cam.psf_sigma_px)
                 if win is not None:
                     windows.append(win)
                 rows.append((int(f), float(t_mid[i]), m.name, float(truth_px[i, 0]), float(truth_px[i, 1]),
-                             bool(vis[i].mean() >= 0.5), float(th[i]), float(ph[i]), float(tm[i])))
+                             bool(vis[i].mean() >= 0.5), float(th[i]), float(ph[i]), float(tm[i]), bool(inview[i])))
             truth = pd.DataFrame(rows, columns=list(TRUTH_COLUMNS))
             if noise:
                 image = _sensor(acc, windows, cam, rng, bg, table)
@@ -337,10 +339,12 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
                 progress(k + 1, n_frames)
         writer.release()
         truth = pd.concat(truths, ignore_index=True)
-        never = [m.name for m in setup.markers if not truth[truth.marker == m.name].visible.any()]
+        # a marker never in the field of view is a misconfigured camera or marker; one hidden
+        # behind the rig for the whole clip is not (it is marked visible = False)
+        never = [m.name for m in setup.markers if not truth[truth.marker == m.name].in_view.any()]
         if never:
-            raise ProtocolError(f"markers.{never[0]}: never visible in the {n_frames} frames "
-                                "(outside the image or always occluded)")
+            raise ProtocolError(f"markers.{never[0]}: never in the camera's field of view in the {n_frames} "
+                                "frames (check camera.position_m, look_at_m and the marker position)")
         os.chmod(tmp, 0o644)
         os.replace(tmp, out / name)
     finally:

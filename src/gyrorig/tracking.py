@@ -46,7 +46,7 @@ from .protocols import Protocol, ProtocolError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["TrackingCamera", "load_camera", "SpotFit", "fit_spot", "tip_from_pixel", "track_video",
+__all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "tip_from_pixel", "track_video",
            "TrackingError", "ANGLE_COLUMNS", "MARKER_COLUMNS"]
 
 ANGLE_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
@@ -79,6 +79,11 @@ class TrackingCamera:
     max_adu: int
 
     @property
+    def has_pose(self) -> bool:
+        """True when the pose relative to the pivot is known."""
+        return bool(np.all(np.isfinite(self.rvec)) and np.all(np.isfinite(self.tvec)))
+
+    @property
     def rotation(self) -> np.ndarray:
         return cv2.Rodrigues(self.rvec)[0]
 
@@ -88,27 +93,32 @@ class TrackingCamera:
         return -self.rotation.T @ self.tvec
 
 
-def load_camera(path: str | Path) -> TrackingCamera:
-    """Read ``camera.json`` (as written by ``gyrorig render`` or ``gyrorig calibrate`` + a pose)."""
+def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamera:
+    """Read ``camera.json`` (as written by ``gyrorig render``, or by ``gyrorig calibrate``).
+
+    Without a pose (``rvec``, ``tvec``) the camera is returned with NaN pose when
+    ``require_pose=False``; :func:`estimate_pose` then finds it from the fiducials.
+    """
     path = Path(path)
     try:
         d = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise TrackingError(f"cannot read camera file {path}: {exc}") from exc
-    missing = [k for k in ("camera_matrix", "dist_coeffs", "image_size", "fps") if k not in d]
+    missing = [k for k in ("camera_matrix", "dist_coeffs", "image_size") if k not in d]
     if missing:
         raise TrackingError(f"{path}: missing key(s) {', '.join(missing)}")
-    if "rvec" not in d or "tvec" not in d:
+    if ("rvec" not in d or "tvec" not in d) and require_pose:
         raise TrackingError(f"{path}: no camera pose (rvec, tvec) relative to the pivot; "
                             "the tracker needs it to turn pixels into directions")
     sensor = d.get("sensor", {})
     bits = int(sensor.get("bit_depth", 8))
     return TrackingCamera(
         np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
-        np.asarray(d["rvec"], dtype=float).ravel(), np.asarray(d["tvec"], dtype=float).ravel(),
-        int(d["image_size"][0]), int(d["image_size"][1]), float(d["fps"]), float(d.get("exposure_s", 0.0)),
+        np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),
+        np.asarray(d.get("tvec", [np.nan] * 3), dtype=float).ravel(),
+        int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
         d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
-        float(sensor.get("gain_e_per_adu", 1.0)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1)
+        float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1)
 
 
 # --------------------------------------------------------------------------------------
@@ -152,15 +162,20 @@ def _model(params, xx, yy, sigma):
     return mu, jac
 
 
-def _gauss_newton(win, xx, yy, use, p, cam, iterations):
+def _variance(mu, cam, background_var):
+    """Pixel variance [ADU^2]: the sensor model, or the measured background variance if it is unknown."""
+    if math.isfinite(cam.gain_e_per_adu):
+        return np.maximum(mu, 0.0) / cam.gain_e_per_adu + (cam.read_noise_e / cam.gain_e_per_adu) ** 2 + 1.0 / 12.0
+    return np.full(mu.shape, background_var)
+
+
+def _gauss_newton(win, xx, yy, use, p, cam, iterations, background_var=1.0):
     sigma = cam.psf_sigma_px
-    g, rn2 = cam.gain_e_per_adu, (cam.read_noise_e / cam.gain_e_per_adu) ** 2
     n = len(p)
     converged = False
     for _ in range(iterations):
         mu, jac = _model(p, xx, yy, sigma)
-        var = np.maximum(mu, 0.0) / g + rn2 + 1.0 / 12.0
-        wgt = np.where(use, 1.0 / var, 0.0)
+        wgt = np.where(use, 1.0 / _variance(mu, cam, background_var), 0.0)
         jf = jac.reshape(-1, n)
         jw = jf * wgt.reshape(-1, 1)
         try:
@@ -207,12 +222,13 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
     amp = float(np.percentile(win, 99)) - bg
     if amp <= 0:
         return None
-    p, converged = _gauss_newton(win, xx, yy, use, np.array([x0, y0, r0, amp, bg]), cam, iterations)
+    known = math.isfinite(cam.gain_e_per_adu)
+    bvar = max(float(np.var(border)), 1.0 / 12.0)
+    p, converged = _gauss_newton(win, xx, yy, use, np.array([x0, y0, r0, amp, bg]), cam, iterations, bvar)
     if p is None:
         return None
-    g, rn2 = cam.gain_e_per_adu, (cam.read_noise_e / cam.gain_e_per_adu) ** 2
     mu, _ = _model(p, xx, yy, sigma)
-    excess = (win - mu) / np.sqrt(np.maximum(mu, 0.0) / g + rn2 + 1.0 / 12.0)
+    excess = (win - mu) / np.sqrt(_variance(mu, cam, bvar))
     foreign = (np.hypot(xx - p[0], yy - p[1]) > p[2] + 3 * sigma) & (excess > 5.0)
     blended = bool(foreign.sum() >= 3)
     if blended:
@@ -226,21 +242,21 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
         nx, ny, nr = xx[0, 0] + ix - 1, yy[0, 0] + iy - 1, float(dist[iy, ix]) + 0.5
         namp = float(np.percentile(win[labels == big], 90)) - p[4]
         p2 = np.array([*p[:4], nx, ny, nr, max(namp, 1.0), p[4]])
-        p2, converged = _gauss_newton(win, xx, yy, use, p2, cam, 2 * iterations)
+        p2, converged = _gauss_newton(win, xx, yy, use, p2, cam, 2 * iterations, bvar)
         if p2 is None:
             return None
         p = p2
     if abs(p[0] - x0) > half or abs(p[1] - y0) > half:
         return None
     mu, jac = _model(p, xx, yy, sigma)
-    var = np.maximum(mu, 0.0) / g + rn2 + 1.0 / 12.0
-    wgt = np.where(use, 1.0 / var, 0.0)
+    wgt = np.where(use, 1.0 / _variance(mu, cam, bvar), 0.0)
     jf = jac.reshape(-1, len(p))
     fisher = (jf * wgt.reshape(-1, 1)).T @ jf
     dof = max(int(use.sum()) - len(p), 1)
     chi2_red = float(((win - mu) ** 2 * wgt).sum() / dof)
     try:
-        cov = np.linalg.inv(fisher)[:2, :2] * max(1.0, chi2_red)
+        # a known noise model: inflate only when the fit is worse than the noise; else scale to the residuals
+        cov = np.linalg.inv(fisher)[:2, :2] * (max(1.0, chi2_red) if known else chi2_red)
     except np.linalg.LinAlgError:
         return None
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[-1]), cov, chi2_red,
@@ -285,6 +301,109 @@ def _angle_covariance(x: float, y: float, cov: np.ndarray, cam: TrackingCamera, 
         jac[0, k] = (a1 - a2) / (2 * eps)
         jac[1, k] = math.remainder(b1 - b2, 2 * math.pi) / (2 * eps)
     return th, ph, tip, jac @ cov @ jac.T
+
+
+# --------------------------------------------------------------------------------------
+# camera pose from the lab-fixed fiducials
+
+
+def _fiducials(protocol: Protocol) -> dict[str, np.ndarray]:
+    markers = protocol.extra.get("markers") or {}
+    return {name: np.asarray(m["position_m"], dtype=float) for name, m in markers.items()
+            if isinstance(m, dict) and m.get("body") == "lab" and m.get("kind", "dot") == "dot"}
+
+
+def estimate_pose(video: str | Path, camera: TrackingCamera, protocol: Protocol, *, span_s: float = 2.0,
+                  samples: int = 15, max_rms_px: float = 1.0) -> tuple[TrackingCamera, dict]:
+    """Camera pose relative to the pivot from the protocol's lab-fixed fiducials.
+
+    The per-pixel median of frames spread over the first ``span_s`` seconds keeps what
+    does not move (the fiducials) and drops the moving markers.  Static spots are
+    localised to sub-pixel precision, then matched to the fiducials by trying every
+    assignment with ``cv2.solvePnP`` (SQPnP, refined by Levenberg-Marquardt): the
+    assignment with the smallest reprojection error, the fiducials in front of the camera
+    and the camera above their plane (they face up) wins; the largest set of spots that
+    fits is used, so one stray static spot or one hidden fiducial does no harm.  Needs at least 4 fiducials visible; their layout must have no
+    rotational symmetry (else the azimuth is ambiguous), which the bundled protocols'
+    irregular circle satisfies.
+
+    Returns the camera with its pose and a summary (matched fiducials, RMS error in px).
+    """
+    import itertools
+
+    fid = _fiducials(protocol)
+    if len(fid) < 4:
+        raise TrackingError(f"the camera file has no pose and the protocol has {len(fid)} lab-fixed fiducial(s) "
+                            "(body = 'lab'); at least 4 are needed to find the pose")
+    cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
+    if not cap.isOpened():
+        raise TrackingError(f"cannot open video {video}")
+    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+    fps = camera.fps if math.isfinite(camera.fps) else float(cap.get(cv2.CAP_PROP_FPS))
+    n_span = max(int(span_s * fps), samples)
+    stack = []
+    for k in range(n_span):
+        ok, frame = cap.read()
+        if not ok:
+            break
+        if k % max(n_span // samples, 1) == 0:
+            stack.append(frame[:, :, 0] if frame.ndim == 3 else frame)
+    cap.release()
+    if len(stack) < 3:
+        raise TrackingError(f"{video}: too few frames to find the static fiducials")
+    median = np.median(np.stack(stack), axis=0).astype(stack[0].dtype)
+    sample = median[::8, ::8]
+    bg = float(np.median(sample))
+    noise = max(float(np.std(sample[sample < bg + 20])), 0.5)
+    spots = []
+    for cx, cy, r in _candidates(median, 0, 0, median.shape[1], median.shape[0], bg + max(8 * noise, 4.0)):
+        fit = fit_spot(median, cx, cy, r, camera)
+        if fit is not None:
+            spots.append((fit.x_px, fit.y_px, fit.amplitude_adu))
+    spots = sorted(spots, key=lambda s: -s[2])[:8]
+    if len(spots) < 4:
+        raise TrackingError(f"{video}: found {len(spots)} static spots; at least 4 fiducials must be visible")
+    names = list(fid)
+    obj_all = np.array([fid[n] for n in names])
+    best = None
+    # the largest set of spots that some assignment fits (a stray static spot or a hidden
+    # fiducial only removes one point)
+    for n_use in range(min(len(spots), len(names)), 3, -1):
+        for spot_set in itertools.combinations(range(len(spots)), n_use):
+            img = np.array([[spots[i][0], spots[i][1]] for i in spot_set], dtype=np.float64)
+            for perm in itertools.permutations(range(len(names)), n_use):
+                obj = obj_all[list(perm)]
+                # SQPnP (globally optimal; IPPE picks the wrong one of its two planar solutions when the
+                # fiducial plane faces the camera), then Levenberg-Marquardt refinement from it
+                ok, rvec, tvec = cv2.solvePnP(obj, img, camera.camera_matrix, camera.dist_coeffs,
+                                              flags=cv2.SOLVEPNP_SQPNP)
+                if not ok:
+                    continue
+                ok, rvec, tvec = cv2.solvePnP(obj, img, camera.camera_matrix, camera.dist_coeffs, rvec, tvec,
+                                              useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+                if not ok:
+                    continue
+                rot = cv2.Rodrigues(rvec)[0]
+                if np.any((obj @ rot.T + tvec.ravel())[:, 2] <= 0):
+                    continue
+                # the fiducials face up from the cup base: a camera that sees them is above their plane
+                # (this also rejects the mirror solution of a planar pose)
+                if (-rot.T @ tvec.ravel())[2] <= obj_all[:, 2].max():
+                    continue
+                proj = cv2.projectPoints(obj, rvec, tvec, camera.camera_matrix, camera.dist_coeffs)[0].reshape(-1, 2)
+                rms = float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
+                if best is None or rms < best[0]:
+                    best = (rms, rvec.ravel(), tvec.ravel(), [names[j] for j in perm])
+        if best is not None and best[0] <= max_rms_px:
+            break
+    if best is None or best[0] > max_rms_px:
+        rms = "no solution" if best is None else f"{best[0]:.3g} px"
+        raise TrackingError(f"{video}: no assignment of the {len(spots)} static spots to the fiducials "
+                            f"fits (best reprojection error {rms}, limit {max_rms_px} px)")
+    from dataclasses import replace
+
+    posed = replace(camera, rvec=best[1], tvec=best[2])
+    return posed, {"fiducials_matched": best[3], "pose_rms_px": best[0], "static_spots": len(spots)}
 
 
 # --------------------------------------------------------------------------------------
@@ -343,11 +462,18 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
     video, or a tip that is never found; nothing is written then.
     """
     spec = _tip_spec(protocol)
+    pose_info = None
+    if not camera.has_pose:
+        camera, pose_info = estimate_pose(video, camera, protocol)
     cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
     if not cap.isOpened():
         raise TrackingError(f"cannot open video {video}")
     cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
     w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    if not math.isfinite(camera.fps):
+        from dataclasses import replace
+
+        camera = replace(camera, fps=float(cap.get(cv2.CAP_PROP_FPS)))
     if (w, h) != (camera.width_px, camera.height_px):
         raise TrackingError(f"camera file says {camera.width_px} x {camera.height_px}, the video is {w} x {h}")
     n_total = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
@@ -448,7 +574,8 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
         progress(k, k)
     tracked = float(angles.theta_rad.notna().mean())
     return {"frames": k, "tracked_fraction": tracked, "decode_s": t_decode, "track_s": t_track,
-            "angles": str(out / "angles.csv"), "markers": str(out / "markers.csv")}
+            "angles": str(out / "angles.csv"), "markers": str(out / "markers.csv"), "pose": pose_info,
+            "rvec": camera.rvec.tolist(), "tvec": camera.tvec.tolist()}
 
 
 def _decoded_frames(cap: cv2.VideoCapture, depth: int = 8):
