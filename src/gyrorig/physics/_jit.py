@@ -163,6 +163,19 @@ def _norm(v, scale):
 
 
 @njit(cache=True)
+def _stages(s0, s1, t, y, h, K, tmp, A, C, p, eddy, acc_t, acc_v):
+    """Runge-Kutta stages s0 .. s1-1: K[s] = f(t + C[s] h, y + h sum_j A[s, j] K[j])."""
+    n = y.shape[0]
+    for s in range(s0, s1):
+        for i in range(n):
+            acc = 0.0
+            for j in range(s):
+                acc += A[s, j] * K[j, i]
+            tmp[i] = y[i] + h * acc
+        _rhs(t + C[s] * h, tmp, K[s], p, eddy, acc_t, acc_v)
+
+
+@njit(cache=True)
 def _integrate(y0, t0, t1, t_eval, rtol, atol, p, eddy, acc_t, acc_v, A, B, C, E3, E5, D, n_stages, n_ext,
                max_steps, states):
     n = y0.shape[0]
@@ -220,13 +233,7 @@ def _integrate(y0, t0, t1, t_eval, rtol, atol, p, eddy, acc_t, acc_v, A, B, C, E
             h_abs = abs(h)
             for i in range(n):
                 K[0, i] = f[i]
-            for s in range(1, n_stages):
-                for i in range(n):
-                    acc = 0.0
-                    for j in range(s):
-                        acc += A[s, j] * K[j, i]
-                    tmp[i] = y[i] + h * acc
-                _rhs(t + C[s] * h, tmp, K[s], p, eddy, acc_t, acc_v)
+            _stages(1, n_stages, t, y, h, K, tmp, A, C, p, eddy, acc_t, acc_v)
             for i in range(n):
                 acc = 0.0
                 for j in range(n_stages):
@@ -268,13 +275,7 @@ def _integrate(y0, t0, t1, t_eval, rtol, atol, p, eddy, acc_t, acc_v, A, B, C, E
             rejected = True
         # dense output for requested times in (t, t_new]
         if i_out < n_out and t_eval[i_out] <= t_new:
-            for s in range(n_stages + 1, n_ext):
-                for i in range(n):
-                    acc = 0.0
-                    for j in range(s):
-                        acc += A[s, j] * K[j, i]
-                    tmp[i] = y[i] + h * acc
-                _rhs(t + C[s] * h, tmp, K[s], p, eddy, acc_t, acc_v)
+            _stages(n_stages + 1, n_ext, t, y, h, K, tmp, A, C, p, eddy, acc_t, acc_v)
             nfev += n_ext - n_stages - 1
             for i in range(n):
                 dy = y_new[i] - y[i]
