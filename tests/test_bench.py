@@ -18,8 +18,9 @@ def test_work_precision_errors_fall_with_tolerance_and_beat_scipy_at_equal_error
     assert gyro.max_tip_error_rad.min() < 1e-12
     closed = table[table.method == "fast-top closed form"].iloc[0]
     assert 1e-5 < closed.max_tip_error_rad < 1e-3  # first-order fast-top solution at ratio ~37
-    ratios = speed_ratio(table)
-    assert len(ratios) >= 1 and (ratios.method_error_rad <= ratios.baseline_error_rad).all()
+    # every scipy DOP853 run has a gyro run at least as accurate (its speed is reported, not asserted)
+    baseline = table[(table.method == "DOP853") & (table.status == "ok")]
+    assert len(baseline) >= 1 and len(speed_ratio(table)) == len(baseline)
 
 
 def test_bench_accuracy_quick_cli(tmp_path, capsys):

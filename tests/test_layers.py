@@ -71,3 +71,9 @@ def test_tracking_cannot_reach_the_truth(module):
 def test_physics_core_has_no_video_filtering_or_plotting(module):
     reached = {m.split(".")[0] for m in closure(module)}
     assert not reached & {"cv2", "matplotlib", "filterpy"}, sorted(reached & {"cv2", "matplotlib", "filterpy"})
+
+
+@pytest.mark.parametrize("module", ["gyrorig.bench", "gyrorig.theory", "gyrorig.validation", "gyrorig.stability",
+                                    "gyrorig.render", "gyrorig.tracking", "gyrorig.physics.simulate"])
+def test_library_modules_do_not_import_the_command_line(module):
+    assert "gyrorig.cli" not in closure(module)

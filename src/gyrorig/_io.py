@@ -61,6 +61,7 @@ def write_json(obj: Any, path: str | Path) -> Path:
 
 def versions() -> dict[str, str]:
     """Versions of Python and the numerical libraries, for manifests."""
+    import numba
     import numpy
     import scipy
 
@@ -72,5 +73,5 @@ def versions() -> dict[str, str]:
         "numpy": numpy.__version__,
         "scipy": scipy.__version__,
         "pandas": pd.__version__,
-        "numba": __import__("numba").__version__,
+        "numba": numba.__version__,
     }

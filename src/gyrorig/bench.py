@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .physics import METHODS, SimulationError, exact_solution, exact_solution_applies, simulate
-from .protocols import Protocol
+from .protocols import BUNDLED_PROTOCOL_DIR, Protocol
 
 logger = logging.getLogger(__name__)
 
@@ -170,13 +170,12 @@ def _observables(df: pd.DataFrame) -> tuple[float, float]:
 
 def accuracy_scenes(quick: bool) -> dict[str, Protocol]:
     """Scenes of the work-precision study."""
-    from .cli import PROTOCOL_DIR
     from .protocols import load_protocol
 
     scenes = {"release-spin60": benchmark_top(60.0), "release-spin300": benchmark_top(300.0)}
     if not quick:
         for name in ("air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-pivot"):
-            p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
+            p = load_protocol(BUNDLED_PROTOCOL_DIR / f"{name}.toml")
             scenes[name] = p
         scenes["release-spin60-damped"] = benchmark_top(60.0, damping={"model": "paper", "gamma_per_s": 2.0})
     return scenes
@@ -272,12 +271,11 @@ def render_throughput(n_frames: int = 100) -> pd.DataFrame:
     import tempfile
     from dataclasses import replace
 
-    from .cli import PROTOCOL_DIR
     from .protocols import load_protocol
     from .render import _open_writer, marker_paths, render_frames
     from .camera import camera_setup
 
-    base = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    base = load_protocol(BUNDLED_PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     rows = []
     for (w, h) in [(640, 480), (1440, 1080)]:
         for nsub in (1, 8):
@@ -343,13 +341,12 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
     import cv2
 
     from .camera import camera_setup
-    from .cli import PROTOCOL_DIR
     from .physics import simulate as _simulate
     from .protocols import load_protocol
     from .render import render_video
     from .tracking import load_camera, track_video
 
-    base = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    base = load_protocol(BUNDLED_PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     rows = []
     for (w, h) in sizes:
         for nsub in (1, 8):

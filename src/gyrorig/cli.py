@@ -21,11 +21,10 @@ import numpy as np
 from . import _io
 from .physics import METHODS, SimulationError, exact_solution, exact_solution_applies, simulate
 from .physics.exact import ExactSolutionError
-from .protocols import Protocol, ProtocolError, load_protocol
+from .protocols import BUNDLED_PROTOCOL_DIR, Protocol, ProtocolError, load_protocol
 
 logger = logging.getLogger("gyrorig")
 
-PROTOCOL_DIR = Path(__file__).resolve().parents[2] / "protocols"
 DEMO_PROTOCOL = "air-cushion-heavy-top.toml"
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
@@ -277,7 +276,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from .tracking import load_camera, track_video
 
     out = Path(args.out)
-    path = PROTOCOL_DIR / DEMO_PROTOCOL
+    path = BUNDLED_PROTOCOL_DIR / DEMO_PROTOCOL
     if not path.exists():
         raise ProtocolError(f"bundled protocol {DEMO_PROTOCOL} not found at {path}: install gyrorig from a clone "
                             "of the repository with 'pip install -e .'")

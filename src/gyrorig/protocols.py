@@ -35,7 +35,12 @@ __all__ = [
     "load_protocol",
     "parse_protocol",
     "top_protocol",
+    "BUNDLED_PROTOCOL_DIR",
 ]
+
+
+#: the repository's bundled protocol files (present when gyrorig is installed from a clone with ``pip install -e .``)
+BUNDLED_PROTOCOL_DIR = Path(__file__).resolve().parents[2] / "protocols"
 
 
 class ProtocolError(ValueError):
@@ -210,6 +215,10 @@ class PaperDamping:
     gamma_per_s: float
     model: str = field(default="paper", init=False)
 
+    def coefficient(self, inertia_transverse_kg_m2: float) -> float:
+        """Transverse viscous coefficient ``c = gamma I``. [N m s]"""
+        return self.gamma_per_s * inertia_transverse_kg_m2
+
 
 @dataclass(frozen=True, slots=True)
 class MagnetInBallDamping:
@@ -223,6 +232,10 @@ class MagnetInBallDamping:
 
     coefficient_N_m_s: float
     model: str = field(default="magnet-in-ball", init=False)
+
+    def coefficient(self, inertia_transverse_kg_m2: float) -> float:
+        """Transverse viscous coefficient ``c`` (the scale of the damping torque). [N m s]"""
+        return self.coefficient_N_m_s
 
 
 @dataclass(frozen=True, slots=True)
@@ -248,6 +261,10 @@ class EddyFieldDamping:
     spin_compensated: bool
     model: str = field(default="eddy-field", init=False)
 
+    def coefficient(self, inertia_transverse_kg_m2: float) -> float:
+        """Transverse viscous coefficient ``c`` (the scale of the damping torque). [N m s]"""
+        return self.coefficient_N_m_s
+
 
 @dataclass(frozen=True, slots=True)
 class AirDamping:
@@ -267,6 +284,10 @@ class AirDamping:
     axial_coefficient_N_m_s: float = 0.0
     spin_compensated: bool = True
     model: str = field(default="air", init=False)
+
+    def coefficient(self, inertia_transverse_kg_m2: float) -> float:
+        """Transverse viscous coefficient ``c`` (the scale of the damping torque). [N m s]"""
+        return self.coefficient_N_m_s
 
 
 Damping = Union[PaperDamping, MagnetInBallDamping, EddyFieldDamping, AirDamping]

@@ -366,7 +366,7 @@ def _damping_gamma(protocol: Protocol) -> tuple[float, str]:
     gamma, laws = 0.0, []
     for d in protocol.pivot.damping:
         laws.append(d.model)
-        gamma += d.gamma_per_s if d.model == "paper" else d.coefficient_N_m_s / i_t
+        gamma += d.coefficient(i_t) / i_t
     return gamma, "+".join(laws)
 
 

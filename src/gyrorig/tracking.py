@@ -34,6 +34,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -83,11 +84,12 @@ class TrackingCamera:
         """True when the pose relative to the pivot is known."""
         return bool(np.all(np.isfinite(self.rvec)) and np.all(np.isfinite(self.tvec)))
 
-    @property
+    @cached_property
     def rotation(self) -> np.ndarray:
+        """World-to-camera rotation matrix ``R(rvec)`` (computed once per camera)."""
         return cv2.Rodrigues(self.rvec)[0]
 
-    @property
+    @cached_property
     def centre_m(self) -> np.ndarray:
         """Camera centre in the lab (pivot frame). [m]"""
         return -self.rotation.T @ self.tvec

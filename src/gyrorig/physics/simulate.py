@@ -129,9 +129,7 @@ def choose_method(protocol: Protocol) -> str:
     i_t = rig.inertia_transverse_kg_m2
     damping_rates = [0.0]
     for d in protocol.pivot.damping:
-        c = getattr(d, "coefficient_N_m_s", None)
-        if c is None:
-            c = d.gamma_per_s * i_t  # paper law
+        c = d.coefficient(i_t)
         damping_rates.append(c / i_t)
         if isinstance(d, EddyFieldDamping) and rig.is_gyrostat:
             damping_rates.append(c / (rig.frame_axial_inertia_kg_m2 or math.inf))
@@ -217,51 +215,48 @@ def _make_rhs(protocol: Protocol, formulation: str) -> Any:
     return rhs
 
 
-def _integrate(
-    rhs: Any, solver: str, y: NDArray[np.float64], t_eval: NDArray[np.float64], bounds: list[float],
-    states: NDArray[np.float64], rtol: float, atol: float, method: str,
-) -> int:
-    """Integrate segment by segment (restarting at breakpoints), filling ``states``; returns rhs calls."""
-    nfev = 0
-    for lo, hi in zip(bounds, bounds[1:]):
-        sel = (t_eval > lo) & (t_eval <= hi)
-        seg_t = t_eval[sel]
+def _scipy_segments(rhs: Any, solver: str, rtol: float, atol: float, method: str) -> Any:
+    """``run(y, lo, hi, t_out) -> (states at t_out, state at hi, rhs calls)`` with scipy's ``solve_ivp``."""
+
+    def run(y, lo, hi, t_out):
         # always end the segment exactly at its breakpoint, to restart from there
-        te = seg_t if len(seg_t) and seg_t[-1] == hi else np.append(seg_t, hi)
-        if isinstance(rhs, _JitStepper):
-            out, y, n_calls, status, t_reached = rhs.integrate(y, lo, hi, seg_t, rtol, atol)
-            nfev += n_calls
-            if status != 0:
-                raise SimulationError(f"{method} failed at t = {t_reached:.6g} s: {STATUS_MESSAGES[status]}")
-            states[sel] = out
-            continue
+        te = t_out if len(t_out) and t_out[-1] == hi else np.append(t_out, hi)
         sol = solve_ivp(rhs, (lo, hi), y, method=solver, t_eval=te, rtol=rtol, atol=atol)
-        nfev += int(sol.nfev)
         if not sol.success:
             t_fail = sol.t[-1] if len(sol.t) else lo
             raise SimulationError(f"{method} failed at t = {t_fail:.6g} s: {sol.message}")
         if not np.all(np.isfinite(sol.y)):
             raise SimulationError(f"{method} produced non-finite values")
-        states[sel] = sol.y[:, : len(seg_t)].T
-        y = sol.y[:, -1]
-    return nfev
+        return sol.y[:, : len(t_out)].T, sol.y[:, -1], int(sol.nfev)
+
+    return run
 
 
-class _JitStepper:
-    """Compiled DOP853 on the packed equations of one protocol (see ``_jit.py``)."""
-
-    def __init__(self, packed: tuple) -> None:
-        self.packed = packed
-
-    def integrate(self, y, lo, hi, t_out, rtol, atol):
-        return integrate_dop853(self.packed, y, lo, hi, t_out, rtol, atol)
-
-
-def _jit_stepper(protocol: Protocol, formulation: str) -> _JitStepper:
+def _jit_segments(protocol: Protocol, formulation: str, rtol: float, atol: float, method: str) -> Any:
+    """The same interface as :func:`_scipy_segments`, with the compiled DOP853 (``_jit.py``)."""
     rig = protocol.rig
-    return _JitStepper(pack_torques(torques_for(protocol), inertia_transverse=rig.inertia_transverse_kg_m2,
-                                    inertia_axial=rig.inertia_axial_kg_m2,
-                                    frame_axial=rig.frame_axial_inertia_kg_m2, body_frame=formulation == "body"))
+    packed = pack_torques(torques_for(protocol), inertia_transverse=rig.inertia_transverse_kg_m2,
+                          inertia_axial=rig.inertia_axial_kg_m2, frame_axial=rig.frame_axial_inertia_kg_m2,
+                          body_frame=formulation == "body")
+
+    def run(y, lo, hi, t_out):
+        out, y_end, n_calls, status, t_reached = integrate_dop853(packed, y, lo, hi, t_out, rtol, atol)
+        if status != 0:
+            raise SimulationError(f"{method} failed at t = {t_reached:.6g} s: {STATUS_MESSAGES[status]}")
+        return out, y_end, n_calls
+
+    return run
+
+
+def _integrate(run: Any, y: NDArray[np.float64], t_eval: NDArray[np.float64], bounds: list[float],
+               states: NDArray[np.float64]) -> int:
+    """Integrate segment by segment (restarting at breakpoints), filling ``states``; returns rhs calls."""
+    nfev = 0
+    for lo, hi in zip(bounds, bounds[1:]):
+        sel = (t_eval > lo) & (t_eval <= hi)
+        states[sel], y, n_calls = run(y, lo, hi, t_eval[sel])
+        nfev += n_calls
+    return nfev
 
 
 def _segments(protocol: Protocol, t_end: float) -> list[float]:
@@ -353,19 +348,19 @@ def simulate(
         t_end = float(t_eval[-1])
 
     if formulation == "phasor":
-        rhs, y = make_phasor_rhs(protocol), phasor_initial_state(protocol)
-    elif solver == "DOP853-jit":
-        rhs = _jit_stepper(protocol, formulation)
-        y = initial_state(protocol, formulation)
+        y = phasor_initial_state(protocol)
+        run = _scipy_segments(make_phasor_rhs(protocol), solver, rtol, atol, method)
     else:
-        rhs, y = _make_rhs(protocol, formulation), initial_state(protocol, formulation)
+        y = initial_state(protocol, formulation)
+        run = _jit_segments(protocol, formulation, rtol, atol, method) if solver == "DOP853-jit" else \
+            _scipy_segments(_make_rhs(protocol, formulation), solver, rtol, atol, method)
     states = np.empty((len(t_eval), len(y)))
     start = time.perf_counter()
     states[t_eval == 0.0] = y
     try:
         # a diverging solution overflows: report it as a failed run instead of warnings and NaN
         with np.errstate(over="raise", invalid="raise", divide="raise"):
-            nfev = _integrate(rhs, solver, y, t_eval, _segments(protocol, t_end), states, rtol, atol, method)
+            nfev = _integrate(run, y, t_eval, _segments(protocol, t_end), states)
     except FloatingPointError as exc:
         raise SimulationError(f"{method}: the solution diverged ({exc}); tighten rtol or choose another method") \
             from None
@@ -383,15 +378,13 @@ def simulate(
             f"{method}: quaternion norm drifted by {drift:.3g} (> {QUATERNION_NORM_TOLERANCE:g}); "
             "tighten rtol or choose another method"
         )
-    df = states_to_frame(protocol, formulation, t_eval, states)
+    df = states_to_frame(protocol, t_eval, states)
     info = SimulationInfo(method, formulation, solver, rtol, atol, nfev, wall, drift)
     logger.info("simulated %s with %s in %.3f s (%d rhs calls)", protocol.name, method, wall, nfev)
     return (df, info) if return_info else df
 
 
-def states_to_frame(
-    protocol: Protocol, formulation: str, t_s: NDArray[np.float64], states: NDArray[np.float64]
-) -> pd.DataFrame:
+def states_to_frame(protocol: Protocol, t_s: NDArray[np.float64], states: NDArray[np.float64]) -> pd.DataFrame:
     """Convert raw state rows (see the module docstring) to the trajectory DataFrame."""
     ref = quaternion_to_matrix(states[:, :4])
     chi = states[:, 7]

@@ -180,10 +180,8 @@ def torques_for(protocol: Protocol) -> tuple[Torque, ...]:
             )
         )
     for d in protocol.pivot.damping:
-        if isinstance(d, PaperDamping):
-            out.append(TransverseViscousTorque(d.gamma_per_s * rig.inertia_transverse_kg_m2))
-        elif isinstance(d, MagnetInBallDamping):
-            out.append(TransverseViscousTorque(d.coefficient_N_m_s))
+        if isinstance(d, (PaperDamping, MagnetInBallDamping)):
+            out.append(TransverseViscousTorque(d.coefficient(rig.inertia_transverse_kg_m2)))
         elif isinstance(d, AirDamping):
             out.append(TransverseViscousTorque(d.coefficient_N_m_s, d.axial_coefficient_N_m_s, d.spin_compensated))
         elif isinstance(d, EddyFieldDamping):
