@@ -1,0 +1,822 @@
+"""Least-squares fits of tracked angles against the scene's motion, compared with theory.
+
+**Data.**  The fit uses the *tracked* angles with the tracker's per-frame 2x2 covariance
+(``theta_sigma_rad, phi_sigma_rad, theta_phi_corr``), not the smoothed ones (smoothing
+correlates neighbouring samples, which would make the least-squares errors wrong).  Frames
+the smoother gated out as outliers are left out.
+
+**Model** (chosen by the scene; :func:`model_for_scene`).  The tip moves on a cone about an
+axis ``n``: the vertical under gravity; the *fitted* effective vertical when the pivot
+accelerates; the fitted angular-momentum direction for a free top.  In the frame whose z is
+``n``, with ``tau = t - t_ref`` (``t_ref`` the middle of the record):
+
+    theta'(tau) = exp(c0 + lambda tau) + exp(-mu tau) sum_k [a_k cos(k w tau) + b_k sin(k w tau)]
+    phi'(tau)   = phi0_s + Omega tau + (1/2) Omegadot tau^2
+                  + exp(-mu tau) sum_k [c_k cos(k w tau) + d_k sin(k w tau)]
+
+- ``lambda`` (tilt growth rate), ``mu`` (nutation decay) and ``Omegadot`` exist only with
+  damping; an undamped scene fits none of them (a heavy top's theta is then exactly periodic
+  and ``phi - Omega t`` has the same period, so the model is exact given enough harmonics).
+- The nutation terms exist only when the camera can resolve the nutation (frame rate above
+  twice its predicted frequency, record longer than two periods) and the data show it
+  (a chi-square test against the fit without it).  The number of harmonics is chosen by
+  the same test.  A free top has no nutation about ``L``.
+- ``phi0_s`` is one offset per segment: a gap longer than half a precession period splits
+  the record, since the turns made in the gap are not observed.
+
+Residuals are whitened with each frame's covariance; ``scipy.optimize.least_squares``
+minimises their sum of squares, and the parameter covariance is ``(J^T J)^-1`` (the
+Cramér-Rao bound of this model for these measurement errors).  Derived quantities get
+their standard error by the delta method.  The residuals are checked: reduced chi-square,
+and their lag-1 autocorrelation; where they are not white, a moving-block bootstrap gives
+the standard errors instead and the report says so.
+
+**Quantities** (``FitResult.quantities``): ``precession_rate_rad_s``,
+``nutation_frequency_rad_s``, ``nutation_amplitude_rad`` (half the peak-to-peak of the
+periodic tilt, at ``t_ref``), ``tilt_growth_rate_per_s`` and ``tilt_time_constant_s``
+(damping), ``equilibrium_tilt_rad``/``equilibrium_azimuth_rad`` (pivot acceleration),
+``cone_angle_rad``.  One the data cannot determine is reported as undetermined with the
+reason, never as a number.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import least_squares
+from scipy.stats import chi2
+
+from .protocols import Protocol
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["FitError", "ModelSpec", "Quantity", "FitResult", "FitData", "model_for_scene", "fit_data_from_angles",
+           "fit_angles", "fit_model", "QUANTITY_UNITS"]
+
+QUANTITY_UNITS = {
+    "precession_rate_rad_s": "rad/s",
+    "nutation_frequency_rad_s": "rad/s",
+    "nutation_amplitude_rad": "rad",
+    "tilt_growth_rate_per_s": "1/s",
+    "tilt_time_constant_s": "s",
+    "equilibrium_tilt_rad": "rad",
+    "equilibrium_azimuth_rad": "rad",
+    "cone_angle_rad": "rad",
+}
+#: significance for adding a model term (nutation, a harmonic): chi-square tail probability
+TERM_P_VALUE = 1e-3
+#: nutation counts as resolved by the camera below this fraction of the Nyquist frequency
+NYQUIST_FRACTION = 0.9
+MAX_HARMONICS = 6
+#: a parameter whose value is below this many standard errors is "not significant"
+SIGNIFICANCE_SE = 3.0
+
+
+class FitError(ValueError):
+    """The angles cannot be fitted (missing columns, too few frames for the model, no data)."""
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Which terms the fit model has (see the module docstring)."""
+
+    fit_axis: bool = False
+    damped: bool = False
+    harmonics: int = 0
+    segments: int = 1
+    persistent: bool = False
+
+    def names(self) -> list[str]:
+        n = []
+        if self.fit_axis:
+            n += ["axis_tilt_rad", "axis_azimuth_rad"]
+        n += ["log_cone_angle", "precession_rate_rad_s"]
+        if self.damped:
+            n += ["tilt_growth_rate_per_s", "tilt_growth_curvature_per_s2", "precession_acceleration_rad_s2"]
+        n += [f"azimuth_offset_{s}_rad" for s in range(self.segments)]
+        if self.harmonics:
+            n += ["nutation_frequency_rad_s"]
+            if self.damped:
+                n += ["nutation_decay_rate_per_s", "nutation_chirp_rad_s2", "tilt_decaying_offset_rad",
+                      "azimuth_decaying_offset_rad"]
+            for k in range(1, self.harmonics + 1):
+                n += [f"tilt_cos_{k}_rad", f"tilt_sin_{k}_rad", f"azimuth_cos_{k}_rad", f"azimuth_sin_{k}_rad"]
+        if self.persistent:
+            n += ["persistent_frequency_rad_s", "persistent_tilt_cos_rad", "persistent_tilt_sin_rad",
+                  "persistent_azimuth_cos_rad", "persistent_azimuth_sin_rad"]
+        return n
+
+
+@dataclass(frozen=True)
+class FitData:
+    """Measurements for the fit: times, angles and the whitening factor of each frame."""
+
+    frame: np.ndarray
+    t_s: np.ndarray
+    theta_rad: np.ndarray
+    phi_rad: np.ndarray
+    cov: np.ndarray  # (n, 2, 2)
+    segment: np.ndarray  # (n,) int
+    t_ref_s: float
+
+    @property
+    def n(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+    @property
+    def nyquist_rad_s(self) -> float:
+        dt = float(np.median(np.diff(self.t_s)))
+        return math.pi / dt
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One fitted quantity with what theory says about it."""
+
+    name: str
+    units: str
+    value: float | None
+    standard_error: float | None
+    status: str  # "determined" | "undetermined" | "not in scene"
+    reason: str = ""
+    paper: float | None = None
+    corrected: float | None = None
+    exact: float | None = None
+    exact_source: str = ""
+    diff_paper_se: float | None = None
+    diff_exact_se: float | None = None
+    truth: float | None = None
+    pull: float | None = None
+    note: str = ""
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Outcome of :func:`fit_angles`."""
+
+    spec: ModelSpec
+    params: dict[str, tuple[float, float]]
+    quantities: dict[str, Quantity]
+    chi2: float
+    dof: int
+    residuals: pd.DataFrame
+    model_curve: pd.DataFrame
+    t_ref_s: float
+    errors: str  # "formal" | "bootstrap" | "formal x sqrt(chi2_red)"
+    notes: tuple[str, ...] = ()
+    x: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    wall_time_s: float = 0.0
+
+    @property
+    def chi2_red(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+    def summary(self) -> dict:
+        return {
+            "model": {"fit_axis": self.spec.fit_axis, "damped": self.spec.damped,
+                      "nutation_harmonics": self.spec.harmonics, "azimuth_segments": self.spec.segments},
+            "t_ref_s": self.t_ref_s, "chi2": self.chi2, "dof": self.dof, "chi2_red": self.chi2_red,
+            "errors": self.errors, "notes": list(self.notes),
+            "quantities": {k: q.as_dict() for k, q in self.quantities.items()},
+            "parameters": {k: {"value": v, "standard_error": s} for k, (v, s) in self.params.items()},
+            "wall_time_s": self.wall_time_s,
+        }
+
+
+# ------------------------------------------------------------------------------------------ geometry
+def _axis_rotation(alpha: float, beta: float) -> np.ndarray:
+    """Rotation taking z to n = (sin a sin b, -sin a cos b, cos a): Rz(b) Rx(a)."""
+    ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
+    rx = np.array([[1.0, 0, 0], [0, ca, -sa], [0, sa, ca]])
+    rz = np.array([[cb, -sb, 0], [sb, cb, 0], [0, 0, 1.0]])
+    return rz @ rx
+
+
+def _tip(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    s = np.sin(theta)
+    return np.stack([s * np.sin(phi), -s * np.cos(phi), np.cos(theta)], axis=-1)
+
+
+def _angles(tip: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    x, y, z = tip[..., 0], tip[..., 1], tip[..., 2]
+    return np.arctan2(np.hypot(x, y), z), np.arctan2(x, -y)
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+# ---------------------------------------------------------------------------------------- the model
+class _Model:
+    """Evaluates the fit model of a :class:`ModelSpec` on given times."""
+
+    def __init__(self, spec: ModelSpec):
+        self.spec = spec
+        self.names = spec.names()
+        self.index = {n: i for i, n in enumerate(self.names)}
+
+    def axis_frame(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """theta', phi' in the axis frame."""
+        s, ix = self.spec, self.index
+        slow = p[ix["log_cone_angle"]]
+        if s.damped:
+            slow = slow + p[ix["tilt_growth_rate_per_s"]] * tau + p[ix["tilt_growth_curvature_per_s2"]] * tau**2
+        th = np.exp(slow) * np.ones_like(tau)
+        offsets = p[[ix[f"azimuth_offset_{k}_rad"] for k in range(s.segments)]]
+        ph = offsets[segment] + p[ix["precession_rate_rad_s"]] * tau
+        if s.damped:
+            ph = ph + 0.5 * p[ix["precession_acceleration_rad_s2"]] * tau**2
+        if s.harmonics:
+            w = p[ix["nutation_frequency_rad_s"]]
+            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * tau) if s.damped else np.ones_like(tau)
+            if s.damped:
+                # second order in the decaying amplitude: the mean tilt and the mean
+                # precession rate shift with amplitude^2, so these decay twice as fast
+                env2 = env1 * env1
+                th = th + p[ix["tilt_decaying_offset_rad"]] * env2
+                ph = ph + p[ix["azimuth_decaying_offset_rad"]] * env2
+            env = env1
+            psi = w * tau
+            if s.damped:
+                psi = psi + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2  # the frequency follows the tilt
+            for k in range(1, s.harmonics + 1):
+                c, sn = np.cos(k * psi), np.sin(k * psi)
+                th = th + env * (p[ix[f"tilt_cos_{k}_rad"]] * c + p[ix[f"tilt_sin_{k}_rad"]] * sn)
+                ph = ph + env * (p[ix[f"azimuth_cos_{k}_rad"]] * c + p[ix[f"azimuth_sin_{k}_rad"]] * sn)
+                if s.damped:
+                    env = env * env1  # harmonic k of a decaying oscillation decays k times as fast
+        if s.persistent:
+            # under damping the drifting slow mode keeps a small undamped oscillation near the
+            # nutation frequency alive (found in the simulator: B2 rig, ~3e-5 rad)
+            wp = p[ix["persistent_frequency_rad_s"]]
+            c, sn = np.cos(wp * tau), np.sin(wp * tau)
+            th = th + p[ix["persistent_tilt_cos_rad"]] * c + p[ix["persistent_tilt_sin_rad"]] * sn
+            ph = ph + p[ix["persistent_azimuth_cos_rad"]] * c + p[ix["persistent_azimuth_sin_rad"]] * sn
+        return th, ph
+
+    def lab(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        th, ph = self.axis_frame(p, tau, segment)
+        if not self.spec.fit_axis:
+            return th, ph
+        R = _axis_rotation(p[self.index["axis_tilt_rad"]], p[self.index["axis_azimuth_rad"]])
+        return _angles(_tip(th, ph) @ R.T)
+
+
+def _whitener(cov: np.ndarray) -> np.ndarray:
+    """Per-frame W with W^T W = cov^-1 (inverse Cholesky factor), shape (n, 2, 2)."""
+    a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    l00 = np.sqrt(a)
+    l10 = b / l00
+    l11 = np.sqrt(c - l10**2)
+    W = np.zeros_like(cov)
+    W[:, 0, 0] = 1 / l00
+    W[:, 1, 0] = -l10 / (l00 * l11)
+    W[:, 1, 1] = 1 / l11
+    return W
+
+
+def _residual_fn(model: _Model, data: FitData):
+    tau = data.t_s - data.t_ref_s
+    W = _whitener(data.cov)
+
+    def raw(p):
+        th, ph = model.lab(p, tau, data.segment)
+        return data.theta_rad - th, _wrap(data.phi_rad - ph)
+
+    def white(p):
+        r0, r1 = raw(p)
+        return np.concatenate([W[:, 0, 0] * r0, W[:, 1, 0] * r0 + W[:, 1, 1] * r1])
+
+    return raw, white
+
+
+# -------------------------------------------------------------------------------------------- inputs
+def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None,
+                         precession_hint_rad_s: float | None = None) -> FitData:
+    """Measured frames of an angle table (minus ``exclude``, e.g. the smoother's outliers)."""
+    need = ("t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad")
+    missing = [c for c in need if c not in angles.columns]
+    if missing:
+        raise FitError(f"angle table lacks column(s) {missing}; required: {list(need)}")
+    ok = np.isfinite(angles["theta_rad"].to_numpy(float)) & np.isfinite(angles["phi_rad"].to_numpy(float))
+    if exclude is not None:
+        ok &= ~np.asarray(exclude, bool)
+    a = angles.loc[ok]
+    if len(a) < 10:
+        raise FitError(f"only {len(a)} frames have usable angles; a fit needs at least 10")
+    sth = a["theta_sigma_rad"].to_numpy(float)
+    sph = a["phi_sigma_rad"].to_numpy(float)
+    if not (np.all(np.isfinite(sth)) and np.all(np.isfinite(sph)) and np.all(sth > 0) and np.all(sph > 0)):
+        raise FitError("theta_sigma_rad and phi_sigma_rad must be finite and > 0 wherever there are angles")
+    corr = a["theta_phi_corr"].to_numpy(float) if "theta_phi_corr" in a.columns else np.zeros(len(a))
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    cov = np.empty((len(a), 2, 2))
+    cov[:, 0, 0] = sth**2
+    cov[:, 1, 1] = sph**2
+    cov[:, 0, 1] = cov[:, 1, 0] = corr * sth * sph
+    t = a["t_s"].to_numpy(float)
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise FitError("t_s must be finite and non-decreasing")
+    frame = a["frame"].to_numpy() if "frame" in a.columns else np.arange(len(a))
+    segment = np.zeros(len(a), int)
+    if precession_hint_rad_s is not None and precession_hint_rad_s != 0:
+        half_period = math.pi / abs(precession_hint_rad_s)
+        segment = np.concatenate([[0], np.cumsum(np.diff(t) > half_period)])
+    return FitData(frame=frame, t_s=t, theta_rad=a["theta_rad"].to_numpy(float), phi_rad=a["phi_rad"].to_numpy(float),
+                   cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]))
+
+
+@dataclass(frozen=True)
+class SceneModel:
+    """What the scene says the fit should contain."""
+
+    spec: ModelSpec
+    nutation_expected: bool
+    nutation_frequency_hint_rad_s: float | None
+    precession_hint_rad_s: float | None
+    reasons: tuple[str, ...] = ()
+
+
+def model_for_scene(protocol: Protocol, prediction: dict | None = None) -> SceneModel:
+    """The fit model the scene calls for, with hints from theory (never used as fitted values)."""
+    gravity = bool(protocol.rig.gravity_m_s2)
+    acc = protocol.pivot.acceleration
+    accelerating = acc is not None and any(any(v != 0 for v in a) for a in acc.acceleration_m_s2)
+    damped = bool(protocol.pivot.damping)
+    pred = prediction or {}
+    reasons = []
+    if accelerating and not acc.is_constant:
+        reasons.append("the pivot acceleration varies in time: no fixed equilibrium direction to fit; the "
+                       "cone axis is fitted as if constant")
+    fit_axis = accelerating or not gravity
+    nut = pred.get("nutation_frequency_rad_s", {}).get("exact") if gravity else None
+    prec_key = "mean_precession_rate_rad_s" if gravity else "precession_rate_rad_s"
+    prec = pred.get(prec_key, {}).get("exact")
+    spec = ModelSpec(fit_axis=fit_axis, damped=damped, harmonics=1 if gravity else 0)
+    return SceneModel(spec=spec, nutation_expected=gravity, nutation_frequency_hint_rad_s=nut,
+                      precession_hint_rad_s=prec, reasons=tuple(reasons))
+
+
+# ------------------------------------------------------------------------------------ initial values
+def _linear_start(spec: ModelSpec, data: FitData, axis: tuple[float, float] | None) -> dict[str, float]:
+    tau = data.t_s - data.t_ref_s
+    if axis is not None:
+        R = _axis_rotation(*axis)
+        th, ph = _angles(_tip(data.theta_rad, data.phi_rad) @ R)
+    else:
+        th, ph = data.theta_rad, data.phi_rad
+    start: dict[str, float] = {}
+    if axis is not None:
+        start["axis_tilt_rad"], start["axis_azimuth_rad"] = axis
+    # azimuth: unwrap within segments, common slope (and curvature) with per-segment offsets
+    cols = [tau] + ([0.5 * tau**2] if spec.damped else [])
+    seg_cols = [(data.segment == s).astype(float) for s in range(spec.segments)]
+    phu = np.empty_like(ph)
+    for s in range(spec.segments):
+        m = data.segment == s
+        phu[m] = np.unwrap(ph[m])
+    A = np.column_stack(cols + seg_cols)
+    coef, *_ = np.linalg.lstsq(A, phu, rcond=None)
+    start["precession_rate_rad_s"] = coef[0]
+    if spec.damped:
+        start["precession_acceleration_rad_s2"] = coef[1]
+    for s in range(spec.segments):
+        start[f"azimuth_offset_{s}_rad"] = coef[len(cols) + s]
+    B = np.column_stack([np.ones_like(tau)] + ([tau] if spec.damped else []))
+    cth, *_ = np.linalg.lstsq(B, np.log(np.maximum(th, 1e-9)), rcond=None)
+    start["log_cone_angle"] = cth[0]
+    if spec.damped:
+        start["tilt_growth_rate_per_s"] = cth[1]
+    return start
+
+
+def _dominant_frequency(t: np.ndarray, y: np.ndarray, w_max: float, hint: float | None) -> float:
+    """Peak of the periodogram of y (resampled on a uniform grid), refined by interpolation."""
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1], dt)
+    yy = np.interp(grid, t, y)
+    yy = (yy - yy.mean()) * np.hanning(len(yy))
+    nfft = 1 << int(math.ceil(math.log2(len(yy) * 8)))
+    spec = np.abs(np.fft.rfft(yy, nfft))
+    w = 2 * np.pi * np.fft.rfftfreq(nfft, dt)
+    lo = 2 * np.pi * 1.5 / (t[-1] - t[0])
+    sel = (w > lo) & (w < w_max)
+    if not sel.any():
+        return hint or lo
+    i = np.flatnonzero(sel)[np.argmax(spec[sel])]
+    if 0 < i < len(spec) - 1:
+        a, b, c = np.log(spec[i - 1:i + 2] + 1e-300)
+        den = a - 2 * b + c
+        shift = 0.5 * (a - c) / den if den != 0 else 0.0
+        return float(w[i] + shift * (w[1] - w[0]))
+    return float(w[i])
+
+
+# ------------------------------------------------------------------------------------------ fitting
+@dataclass
+class _Solved:
+    spec: ModelSpec
+    x: np.ndarray
+    cov: np.ndarray
+    chi2: float
+    dof: int
+    ok: bool
+    message: str
+
+
+def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
+    model = _Model(spec)
+    x0 = np.array([start.get(n, 0.0) for n in model.names], float)
+    _, white = _residual_fn(model, data)
+    n_res = 2 * data.n
+    if n_res <= len(x0):
+        raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
+    res = least_squares(white, x0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                        max_nfev=200 * (len(x0) + 1))
+    J = res.jac
+    try:
+        JTJ = J.T @ J
+        cov = np.linalg.pinv(JTJ, rcond=1e-14, hermitian=True)
+    except np.linalg.LinAlgError:
+        cov = np.full((len(x0), len(x0)), np.nan)
+    chi2v = float(np.sum(res.fun**2))
+    return _Solved(spec, res.x, cov, chi2v, n_res - len(x0), bool(res.success), res.message)
+
+
+def _linear_harmonics(spec: ModelSpec, data: FitData, start: dict[str, float]) -> dict[str, float]:
+    """Given the nonlinear parameters, the harmonic amplitudes by linear least squares."""
+    base = replace(spec, harmonics=0)
+    model = _Model(base)
+    p = np.array([start.get(n, 0.0) for n in model.names])
+    tau = data.t_s - data.t_ref_s
+    th0, ph0 = model.axis_frame(p, tau, data.segment)
+    if spec.fit_axis:
+        R = _axis_rotation(start["axis_tilt_rad"], start["axis_azimuth_rad"])
+        th, ph = _angles(_tip(data.theta_rad, data.phi_rad) @ R)
+    else:
+        th, ph = data.theta_rad, data.phi_rad
+    rth, rph = th - th0, _wrap(ph - ph0)
+    w = start["nutation_frequency_rad_s"]
+    env = np.exp(-start.get("nutation_decay_rate_per_s", 0.0) * tau)
+    cols = []
+    for k in range(1, spec.harmonics + 1):
+        cols += [env * np.cos(k * w * tau), env * np.sin(k * w * tau)]
+    A = np.column_stack(cols)
+    at, *_ = np.linalg.lstsq(A, rth, rcond=None)
+    ap, *_ = np.linalg.lstsq(A, rph, rcond=None)
+    out = dict(start)
+    for k in range(1, spec.harmonics + 1):
+        out[f"tilt_cos_{k}_rad"], out[f"tilt_sin_{k}_rad"] = at[2 * k - 2], at[2 * k - 1]
+        out[f"azimuth_cos_{k}_rad"], out[f"azimuth_sin_{k}_rad"] = ap[2 * k - 2], ap[2 * k - 1]
+    return out
+
+
+def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONICS
+              ) -> tuple[_Solved, list[str], dict[str, str]]:
+    """Fit the scene's model; choose the nutation terms by the data.
+
+    Returns the solution, notes, and reasons for quantities that cannot be determined.
+    """
+    spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1)
+    notes: list[str] = list(scene.reasons)
+    undetermined: dict[str, str] = {}
+    axis = None
+    if spec0.fit_axis:
+        m = _tip(data.theta_rad, data.phi_rad).mean(axis=0)
+        m /= np.linalg.norm(m)
+        th_a, ph_a = _angles(m)
+        axis = (float(th_a), float(ph_a))
+    start = _linear_start(spec0, data, axis)
+    base = _solve(spec0, data, start)
+    if not base.ok:
+        raise FitError(f"the fit did not converge: {base.message}")
+    best = base
+    if scene.nutation_expected:
+        reason = None
+        hint = scene.nutation_frequency_hint_rad_s
+        nyq = data.nyquist_rad_s
+        periods = None
+        if hint is not None:
+            periods = data.duration_s * hint / (2 * np.pi)
+        if hint is not None and hint > NYQUIST_FRACTION * nyq:
+            reason = (f"the camera cannot resolve the nutation: predicted {hint / (2 * np.pi):.3g} Hz, frame rate "
+                      f"{nyq / np.pi:.3g} fps (Nyquist {nyq / (2 * np.pi):.3g} Hz)")
+        elif periods is not None and periods < 2:
+            reason = f"the record covers {periods:.2g} predicted nutation periods; at least 2 are needed"
+        if reason is None:
+            names0 = _Model(spec0).names
+            p0 = dict(zip(names0, base.x))
+            model0 = _Model(spec0)
+            tau = data.t_s - data.t_ref_s
+            th0, _ = model0.axis_frame(base.x, tau, data.segment)
+            if spec0.fit_axis:
+                R = _axis_rotation(p0["axis_tilt_rad"], p0["axis_azimuth_rad"])
+                th_obs, _ = _angles(_tip(data.theta_rad, data.phi_rad) @ R)
+            else:
+                th_obs = data.theta_rad
+            w0 = _dominant_frequency(data.t_s, th_obs - th0, NYQUIST_FRACTION * nyq, hint)
+            start1 = dict(p0, nutation_frequency_rad_s=w0)
+            if spec0.damped:
+                start1["nutation_decay_rate_per_s"] = 0.0
+            cur = None
+            for k in range(1, max_harmonics + 1):
+                if k * w0 > nyq:
+                    notes.append(f"harmonic {k} of the nutation is above the Nyquist frequency; not modelled")
+                    break
+                spec_k = replace(spec0, harmonics=k)
+                s_k = _linear_harmonics(spec_k, data, start1)
+                sol = _solve(spec_k, data, s_k)
+                ref = cur if cur is not None else base
+                dchi = ref.chi2 - sol.chi2
+                ddof = ref.dof - sol.dof
+                if not sol.ok or dchi < chi2.isf(TERM_P_VALUE, ddof):
+                    if cur is None:
+                        reason = (f"no significant nutation in the data (chi-square improves by {dchi:.3g} for "
+                                  f"{ddof} more parameters; {chi2.isf(TERM_P_VALUE, ddof):.3g} needed)")
+                    break
+                cur = sol
+                start1 = dict(zip(_Model(spec_k).names, sol.x))
+            if cur is not None:
+                best = cur
+                if spec0.damped:
+                    # a persistent oscillation near the nutation frequency, if the data show one
+                    p_cur = dict(zip(_Model(cur.spec).names, cur.x))
+                    w_n = p_cur["nutation_frequency_rad_s"]
+                    trial = []
+                    for dw in (2 * np.pi / data.duration_s, -2 * np.pi / data.duration_s):
+                        st = dict(p_cur, persistent_frequency_rad_s=w_n + dw)
+                        for key in ("persistent_tilt_cos_rad", "persistent_tilt_sin_rad", "persistent_azimuth_cos_rad",
+                                    "persistent_azimuth_sin_rad"):
+                            st[key] = 1e-3 * abs(p_cur["tilt_cos_1_rad"]) + 1e-9
+                        trial.append(_solve(replace(cur.spec, persistent=True), data, st))
+                    sol_p = min(trial, key=lambda s_: s_.chi2)
+                    if sol_p.ok and cur.chi2 - sol_p.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol_p.dof):
+                        best = sol_p
+                        notes.append("a persistent oscillation near the nutation frequency is significant and "
+                                     "is modelled")
+        if reason is not None:
+            undetermined["nutation_frequency_rad_s"] = reason
+            undetermined["nutation_amplitude_rad"] = reason
+    return best, notes, undetermined
+
+
+# --------------------------------------------------------------------------------- derived quantities
+def _nutation_amplitude(spec: ModelSpec, names: list[str], x: np.ndarray) -> float:
+    ix = {n: i for i, n in enumerate(names)}
+    psi = np.linspace(0, 2 * np.pi, 721)[:-1]
+    y = np.zeros_like(psi)
+    for k in range(1, spec.harmonics + 1):
+        y += x[ix[f"tilt_cos_{k}_rad"]] * np.cos(k * psi) + x[ix[f"tilt_sin_{k}_rad"]] * np.sin(k * psi)
+    # refine the extremes with a parabola through the grid's best points
+    def extreme(sign: float) -> float:
+        i = int(np.argmax(sign * y))
+        a, b, c = y[i - 1], y[i], y[(i + 1) % len(y)]
+        den = a - 2 * b + c
+        return b - 0.125 * (a - c) ** 2 / den if den != 0 else b
+    return 0.5 * (extreme(1.0) - extreme(-1.0))
+
+
+def _delta_se(f, x: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+    v = f(x)
+    g = np.zeros_like(x)
+    for i in range(len(x)):
+        h = 1e-6 * max(abs(x[i]), np.sqrt(max(cov[i, i], 0.0)), 1e-12)
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        g[i] = (f(xp) - f(xm)) / (2 * h)
+    return float(v), float(np.sqrt(max(g @ cov @ g, 0.0)))
+
+
+def _quantity_functions(spec: ModelSpec, names: list[str]):
+    ix = {n: i for i, n in enumerate(names)}
+    fns = {
+        "precession_rate_rad_s": lambda x: x[ix["precession_rate_rad_s"]],
+        "cone_angle_rad": lambda x: math.exp(x[ix["log_cone_angle"]]),
+    }
+    if spec.harmonics:
+        fns["nutation_frequency_rad_s"] = lambda x: x[ix["nutation_frequency_rad_s"]]
+        fns["nutation_amplitude_rad"] = lambda x: _nutation_amplitude(spec, names, x)
+    if spec.damped:
+        fns["tilt_growth_rate_per_s"] = lambda x: x[ix["tilt_growth_rate_per_s"]]
+    if spec.fit_axis:
+        fns["equilibrium_tilt_rad"] = lambda x: x[ix["axis_tilt_rad"]]
+        fns["equilibrium_azimuth_rad"] = lambda x: float(_wrap(np.array(x[ix["axis_azimuth_rad"]])))
+    return fns
+
+
+def _residual_check(model: _Model, data: FitData, x: np.ndarray) -> tuple[float, float]:
+    _, white = _residual_fn(model, data)
+    r = white(x).reshape(2, -1)
+    rho = [float(np.sum(ri[1:] * ri[:-1]) / np.sum(ri * ri)) for ri in r]
+    return rho[0], rho[1]
+
+
+def _block_bootstrap(sol: _Solved, data: FitData, fns: dict, rng: np.random.Generator, replicates: int,
+                     block: int) -> dict[str, float]:
+    """Moving-block bootstrap of the whitened residuals (refits start at the solution)."""
+    model = _Model(sol.spec)
+    raw, _ = _residual_fn(model, data)
+    r0, r1 = raw(sol.x)
+    th_fit, ph_fit = data.theta_rad - r0, data.phi_rad - r1
+    n = data.n
+    out = {k: [] for k in fns}
+    for _ in range(replicates):
+        starts = rng.integers(0, max(n - block, 1), size=int(math.ceil(n / block)))
+        idx = np.concatenate([np.arange(s, s + block) for s in starts])[:n]
+        idx = np.minimum(idx, n - 1)
+        d = replace(data, theta_rad=th_fit + r0[idx], phi_rad=ph_fit + r1[idx])
+        s = _solve(sol.spec, d, dict(zip(model.names, sol.x)))
+        for k, f in fns.items():
+            out[k].append(f(s.x))
+    return {k: float(np.std(v, ddof=1)) for k, v in out.items()}
+
+
+def _compare(q: Quantity, prediction: dict | None, key: str | None, comparable: bool, note: str = "") -> Quantity:
+    if not prediction or key is None or key not in prediction:
+        return q
+    p = prediction[key]
+    paper, corr, exact = p.get("paper"), p.get("corrected"), p.get("exact")
+    upd = dict(paper=paper, corrected=corr, exact=exact, exact_source=p.get("exact_source", ""), note=note)
+    if comparable and q.value is not None and q.standard_error:
+        def diff(ref: float) -> float:
+            d = q.value - ref
+            return float(_wrap(np.array(d))) if q.name.endswith("azimuth_rad") else d
+        if paper is not None and np.isfinite(paper):
+            upd["diff_paper_se"] = diff(paper) / q.standard_error
+        if exact is not None and np.isfinite(exact):
+            upd["diff_exact_se"] = diff(exact) / q.standard_error
+    return replace(q, **upd)
+
+
+def _theory_values(prediction: dict | None) -> dict:
+    """Theory predictions keyed by fit quantity (angles for the equilibrium direction)."""
+    if not prediction:
+        return {}
+    out = {}
+    for key in ("nutation_frequency_rad_s", "nutation_amplitude_rad", "tilt_growth_rate_per_s",
+                "tilt_time_constant_s"):
+        if key in prediction:
+            out[key] = prediction[key]
+    if "mean_precession_rate_rad_s" in prediction:
+        out["precession_rate_rad_s"] = prediction["mean_precession_rate_rad_s"]
+    elif "precession_rate_rad_s" in prediction:
+        out["precession_rate_rad_s"] = prediction["precession_rate_rad_s"]
+    if "equilibrium_tip" in prediction:
+        e = prediction["equilibrium_tip"]
+        tilts, azis = {}, {}
+        for k in ("paper", "exact"):
+            v = np.asarray(e[k], float)
+            th, ph = _angles(v / np.linalg.norm(v))
+            tilts[k], azis[k] = float(th), float(ph)
+        out["equilibrium_tilt_rad"] = {**tilts, "exact_source": e.get("exact_source", "")}
+        out["equilibrium_azimuth_rad"] = {**azis, "exact_source": e.get("exact_source", "")}
+    return out
+
+
+def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
+               exclude: np.ndarray | None = None, truth: pd.DataFrame | None = None,
+               rng: np.random.Generator | None = None, bootstrap_replicates: int = 100) -> FitResult:
+    """Fit an angle table with the scene's model and compare with theory (and truth, if given).
+
+    Parameters
+    ----------
+    angles : DataFrame
+        ``t_s, theta_rad, phi_rad, theta_sigma_rad, phi_sigma_rad[, theta_phi_corr, frame]``.
+    protocol : Protocol
+        The scene (decides the model).
+    prediction : dict, optional
+        :func:`gyrorig.theory.predict` output, for the comparison columns and for hints
+        (predicted nutation frequency: resolvable by the camera or not).
+    exclude : bool array, optional
+        Rows to leave out (the smoother's outliers).
+    truth : DataFrame, optional
+        Noiseless angles of a synthetic run (``t_s, theta_rad, phi_rad``), e.g. the tip rows of
+        a renderer's ``truth.csv``: the same model is fitted to them, giving the true value
+        of each quantity and the pull ``(fit - truth) / standard error``.
+    rng : numpy Generator, optional
+        For the block bootstrap (used only when residuals are not white).
+    """
+    start_time = time.perf_counter()
+    scene = model_for_scene(protocol, prediction)
+    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s)
+    sol, notes, undetermined = fit_model(data, scene)
+    names = _Model(sol.spec).names
+    fns = _quantity_functions(sol.spec, names)
+    chi2_red = sol.chi2 / max(sol.dof, 1)
+    rho = _residual_check(_Model(sol.spec), data, sol.x)
+    white_limit = 4.0 / math.sqrt(data.n)
+    errors = "formal"
+    se_override: dict[str, float] = {}
+    if max(abs(rho[0]), abs(rho[1])) > white_limit:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        block = max(2, int(math.ceil(1 + 2 * max(abs(rho[0]), abs(rho[1])) / (1 - min(0.99, max(abs(r) for r in rho)))
+                                     * 5)))
+        se_override = _block_bootstrap(sol, data, fns, rng, bootstrap_replicates, block)
+        errors = f"moving-block bootstrap ({bootstrap_replicates} replicates, block {block} frames)"
+        notes.append(f"residuals are not white (lag-1 autocorrelation {rho[0]:.3f} in theta, {rho[1]:.3f} in phi; "
+                     f"limit {white_limit:.3f}): standard errors from the bootstrap")
+    elif chi2.sf(sol.chi2, sol.dof) < 1e-3 and chi2_red > 1:
+        errors = "formal x sqrt(chi2_red)"
+        notes.append(f"reduced chi-square {chi2_red:.3f} is significantly above 1 (the tracker's error bars are too "
+                     "small or the model misses something): standard errors scaled by sqrt(chi2_red)")
+    values = {}
+    for k, f in fns.items():
+        v, se = _delta_se(f, sol.x, sol.cov)
+        if errors.startswith("formal x"):
+            se *= math.sqrt(chi2_red)
+        if k in se_override:
+            se = max(se, se_override[k])
+        values[k] = (v, se)
+
+    truth_values: dict[str, float] = {}
+    if truth is not None:
+        truth_values = _truth_values(truth, data, sol.spec, sol.x, fns)
+
+    theory = _theory_values(prediction)
+    quantities: dict[str, Quantity] = {}
+    for name, units in QUANTITY_UNITS.items():
+        in_scene = (name in fns or name in undetermined
+                    or (name == "tilt_time_constant_s" and "tilt_growth_rate_per_s" in fns))
+        if not in_scene:
+            continue
+        if name in undetermined:
+            q = Quantity(name, units, None, None, "undetermined", undetermined[name])
+        elif name == "tilt_time_constant_s":
+            lam, se = values["tilt_growth_rate_per_s"]
+            if abs(lam) < 2 * se:
+                q = Quantity(name, units, None, None, "undetermined",
+                             f"the tilt rate {lam:.3g} +- {se:.2g} 1/s is consistent with zero: |tau| > "
+                             f"{1 / (abs(lam) + 2 * se):.3g} s (2 standard errors)")
+            else:
+                q = Quantity(name, units, 1 / lam, se / lam**2, "determined",
+                             "" if lam < 0 else "negative growth rate would be decay; here the tilt grows: tau is "
+                             "an e-folding time of growth")
+                if lam > 0:
+                    q = replace(q, reason="", note="tilt grows: tau is an e-folding time of growth")
+        else:
+            v, se = values[name]
+            q = Quantity(name, units, v, se, "determined")
+        comparable = True
+        cnote = ""
+        if name == "nutation_amplitude_rad" and sol.spec.damped:
+            comparable = False
+            cnote = "prediction is for the undamped launch; the fitted amplitude has decayed to t_ref"
+        if name == "tilt_time_constant_s":
+            comparable = q.value is not None
+        q = _compare(q, theory, name, comparable and q.status == "determined", cnote)
+        if name in truth_values and q.status == "determined":
+            tv = truth_values[name]
+            pull = (q.value - tv) / q.standard_error if q.standard_error else None
+            if name == "equilibrium_azimuth_rad" and pull is not None:
+                pull = float(_wrap(np.array(q.value - tv))) / q.standard_error
+            q = replace(q, truth=tv, pull=pull)
+        quantities[name] = q
+
+    model = _Model(sol.spec)
+    raw, white = _residual_fn(model, data)
+    r0, r1 = raw(sol.x)
+    wr = white(sol.x).reshape(2, -1)
+    residuals = pd.DataFrame({"frame": data.frame, "t_s": data.t_s, "theta_resid_rad": r0, "phi_resid_rad": r1,
+                              "theta_resid_norm": wr[0], "phi_resid_norm": wr[1]})
+    tt = np.linspace(data.t_s[0], data.t_s[-1], min(20000, max(2000, 20 * data.n)))
+    seg = np.searchsorted(data.t_s, tt, side="right") - 1
+    th_c, ph_c = model.lab(sol.x, tt - data.t_ref_s, data.segment[np.clip(seg, 0, data.n - 1)])
+    curve = pd.DataFrame({"t_s": tt, "theta_rad": th_c, "phi_rad": ph_c})
+    params = {n: (float(v), float(np.sqrt(max(sol.cov[i, i], 0.0)))) for i, (n, v) in enumerate(zip(names, sol.x))}
+    return FitResult(spec=sol.spec, params=params, quantities=quantities, chi2=sol.chi2, dof=sol.dof,
+                     residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, errors=errors, notes=tuple(notes),
+                     x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time)
+
+
+def _truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndarray, fns: dict) -> dict[str, float]:
+    """The same model fitted to noiseless truth at the measured frame times."""
+    t = truth["t_s"].to_numpy(float)
+    order = np.argsort(t)
+    t = t[order]
+    th = truth["theta_rad"].to_numpy(float)[order]
+    ph = np.unwrap(truth["phi_rad"].to_numpy(float)[order])
+    lo, hi = data.t_s[0], data.t_s[-1]
+    if t[0] > lo + 1e-9 or t[-1] < hi - 1e-9:
+        raise FitError("the truth table does not cover the measured times")
+    th_i = np.interp(data.t_s, t, th)
+    ph_i = _wrap(np.interp(data.t_s, t, ph))
+    cov = np.zeros_like(data.cov)
+    cov[:, 0, 0] = cov[:, 1, 1] = 1e-12
+    d = replace(data, theta_rad=th_i, phi_rad=ph_i, cov=cov)
+    names = _Model(spec).names
+    sol = _solve(spec, d, dict(zip(names, x)))
+    return {k: float(f(sol.x)) for k, f in fns.items()}
