@@ -76,10 +76,12 @@ def test_bench_methods_prints_a_table(tmp_path, capsys):
 
 
 def test_demo_runs_the_chain_and_writes_its_plots(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--duration", "1"]) == 0
+    assert main(["demo", "--out", str(tmp_path), "--duration", "1", "--video-duration", "1.5"]) == 0
     for name in ("trajectory.png", "tracking.png"):
         assert (tmp_path / name).stat().st_size > 10_000
     text = capsys.readouterr().out
     assert "max tip error vs exact" in text and "WRONG SIGN" in text and "frames tracked" in text
-    for f in ("trajectory.csv", "theory.json", "manifest.json", "video/video.mkv", "track/angles.csv"):
+    assert "pull" in text and "Report:" in text
+    for f in ("trajectory.csv", "theory.json", "manifest.json", "video/video.mkv", "track/angles.csv", "fit.json",
+              "report.html", "smoothed.csv", "fit.png"):
         assert (tmp_path / f).exists(), f

@@ -285,7 +285,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"demo: {protocol.description}")
 
     # 1. simulate, and judge the simulator by the exact solution
-    print(f"[1/4] simulating {args.duration:g} s ...", flush=True)
+    print(f"[1/5] simulating {args.duration:g} s ...", flush=True)
     t0 = time.perf_counter()
     simulate(protocol, duration_s=0.01)  # compiles the integrator on first use (then cached on disk)
     if time.perf_counter() - t0 > 0.5:
@@ -305,7 +305,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
           f"{sol.nutation_frequency_rad_s / (2 * np.pi):.3f} Hz, mean precession {sol.mean_precession_rate_rad_s:.4f} rad/s")
 
     # 2. the paper's predictions for this rig, judged
-    print("[2/4] the paper's formulas for this rig (paper / exact):", flush=True)
+    print("[2/5] the paper's formulas for this rig (paper / exact):", flush=True)
     pred = predict(protocol, simulate_damping=False)
     _io.write_json(_json_safe(pred), out / "theory.json")
     for key in ("precession_rate_slow_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad",
@@ -316,14 +316,14 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"      fast-top ratio {pred['flags']['fast_top_ratio']:.2f} (the formulas want >= 10)")
 
     # 3. a short synthetic video through the rig's camera (640x480 here, for speed)
-    print("[3/4] rendering 1 s of video (640x480, 200 fps) ...", flush=True)
+    print(f"[3/5] rendering {args.video_duration:g} s of video (640x480, 200 fps) ...", flush=True)
     cam = dict(protocol.extra["camera"], width_px=640, height_px=480, pixel_size_um=3.45 * 2.25)
     video_protocol = replace(protocol, extra={**protocol.extra, "camera": cam})
-    rendered = render_video(video_protocol, out / "video", seed=0, duration_s=1.0, calibration_views=0,
+    rendered = render_video(video_protocol, out / "video", seed=0, duration_s=args.video_duration, calibration_views=0,
                             progress=_progress_printer("      render"))
 
     # 4. track it without looking at the truth, then compare
-    print("[4/4] tracking the tip marker ...", flush=True)
+    print("[4/5] tracking the tip marker ...", flush=True)
     tracked = track_video(rendered["video"], load_camera(out / "video" / "camera.json"), video_protocol,
                           out / "track", progress=_progress_printer("      track"))
     angles = pd.read_csv(out / "track" / "angles.csv").dropna(subset=["theta_rad"])
@@ -336,11 +336,101 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     print(f"      {tracked['tracked_fraction']:.1%} of {tracked['frames']} frames tracked; theta error "
           f"{np.sqrt(np.mean(e_th**2)):.2e} rad rms (reported sigma {angles.theta_sigma_rad.mean():.2e}), "
           f"phi error {np.sqrt(np.mean(e_ph**2)):.2e} rad rms (sigma {angles.phi_sigma_rad.mean():.2e})")
+    # 5. smooth, fit against theory, report
+    print("[5/5] smoothing, fitting and writing the report ...", flush=True)
+    from .analysis import fit_file, write_report
+    from .smooth import smooth_angles
+
+    raw = pd.read_csv(out / "track" / "angles.csv")
+    smooth = smooth_angles(raw)
+    _io.write_csv(smooth.table, out / "smoothed.csv")
+    full_pred = predict(protocol)
+    fit = fit_file(out / "track" / "angles.csv", video_protocol, out, truth_csv=out / "video" / "truth.csv",
+                   smooth=smooth, prediction=full_pred)
+    write_report(out / "report.html", protocol=video_protocol, fit=fit, angles=raw, smooth=smooth,
+                 prediction=full_pred, title=f"gyrorig demo: {protocol.name}")
+    print(f"      {'quantity':<26} {'paper':>11} {'exact':>11} {'fitted':>11} {'+- s.e.':>9} {'true':>11} {'pull':>6}")
+    for name, q in fit.quantities.items():
+        if q.status != "determined":
+            print(f"      {name:<26} undetermined: {q.reason}")
+            continue
+        f = lambda v: "-" if v is None else f"{v:.6g}"  # noqa: E731
+        pull = "-" if q.pull is None else f"{q.pull:+.2f}"
+        print(f"      {name:<26} {f(q.paper):>11} {f(q.exact):>11} {q.value:>11.6g} {q.standard_error:>9.2g} "
+              f"{f(q.truth):>11} {pull:>6}")
     _io.write_json({"command": "demo", "protocol": _protocol_summary(protocol), "simulation": asdict(info),
                     "max_tip_error_vs_exact_rad": err, "tracking": {k: v for k, v in tracked.items()},
-                    "versions": _io.versions()}, out / "manifest.json")
-    print(f"done in {time.perf_counter() - start:.0f} s. Look at {out / 'trajectory.png'} and {out / 'tracking.png'}; "
-          f"data in {out}/ (trajectory.csv, theory.json, video/, track/)")
+                    "fit": {k: q.as_dict() for k, q in fit.quantities.items()},
+                    "wall_time_s": time.perf_counter() - start, "versions": _io.versions()}, out / "manifest.json")
+    print(f"done in {time.perf_counter() - start:.0f} s. Report: {out / 'report.html'} (open it in a browser); "
+          f"plots {out / 'trajectory.png'}, {out / 'tracking.png'}, {out / 'fit.png'}; data in {out}/")
+    return EXIT_OK
+
+
+def _print_fit(fit, out: Path) -> None:
+    print(f"fit: {fit.spec.harmonics} nutation harmonic(s), axis {'fitted' if fit.spec.fit_axis else 'vertical'}, "
+          f"{'damped' if fit.spec.damped else 'undamped'}; chi2_red {fit.chi2_red:.3f}; errors {fit.errors}")
+    for name, q in fit.quantities.items():
+        if q.status != "determined":
+            print(f"  {name}: undetermined ({q.reason})")
+            continue
+        line = f"  {name}: {q.value:.7g} +- {q.standard_error:.2g} {q.units}"
+        if q.paper is not None and q.diff_paper_se is not None:
+            line += f"; paper {q.paper:.6g} ({q.diff_paper_se:+.1f} s.e.)"
+        if q.exact is not None and q.diff_exact_se is not None:
+            line += f"; exact {q.exact:.6g} ({q.diff_exact_se:+.1f} s.e.)"
+        if q.truth is not None:
+            line += f"; truth {q.truth:.7g} (pull {q.pull:+.2f})"
+        print(line)
+    for n in fit.notes:
+        print(f"  note: {n}")
+    print(f"-> {out / 'fit.json'}, {out / 'fit.png'}, {out / 'fit_residuals.csv'}")
+
+
+def _cmd_smooth(args: argparse.Namespace) -> int:
+    from .analysis import smooth_file
+
+    out = Path(args.out)
+    res = smooth_file(args.angles, out)
+    print(f"{len(res.table)} frames: {res.n_measured} used, {res.n_outliers} outliers gated, {res.n_resets} restarts; "
+          f"q_theta {res.q_theta_rad2_s3:.3g}, q_phi {res.q_phi_rad2_s3:.3g} rad^2/s^3 (maximum likelihood); "
+          f"mean NIS {res.nis_mean:.3f} (2 expected); {res.wall_time_s:.2f} s -> {out / 'smoothed.csv'}")
+    return EXIT_OK
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    from .analysis import fit_file
+
+    out = Path(args.out)
+    fit = fit_file(args.angles, load_protocol(args.protocol), out, truth_csv=args.truth)
+    _print_fit(fit, out)
+    return EXIT_OK
+
+
+def _cmd_analyze(args: argparse.Namespace) -> int:
+    from .analysis import analyze_batch, analyze_video
+    from .tracking import TrackingError
+
+    src = Path(args.video)
+    out = Path(args.out)
+    protocol = load_protocol(args.protocol) if args.protocol else None
+    if src.is_dir() or src.suffix.lower() == ".csv":
+        summary = analyze_batch(src, out, camera=args.camera, protocol=protocol, progress_line=print)
+        ok = int((summary.status == "ok").sum())
+        print(f"{ok} of {len(summary)} videos analysed -> {out / 'summary.csv'}")
+        return EXIT_OK if ok == len(summary) else EXIT_FAILED
+    if protocol is None or args.camera is None:
+        raise ValueError("analyze VIDEO needs --camera and --protocol")
+    try:
+        res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=_progress_printer("track"))
+    except TrackingError as exc:
+        print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    ts = res["time_s"]
+    print(f"{res['frames']} frames, {res['tracked_fraction']:.1%} tracked; track {ts['track']:.1f} s, smooth "
+          f"{ts['smooth']:.2f} s, fit {ts['fit']:.2f} s")
+    _print_fit(res["fit"], out)
+    print(f"report: {res['report']}")
     return EXIT_OK
 
 
@@ -505,9 +595,30 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", required=True, help="output directory")
     k.set_defaults(func=_cmd_track)
 
-    d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track")
+    sm = sub.add_parser("smooth", help="Kalman/RTS smoothing of angles.csv (noise levels by maximum likelihood)")
+    sm.add_argument("angles", help="angles.csv from 'gyrorig track'")
+    sm.add_argument("--out", required=True, help="output directory (smoothed.csv, smooth.json)")
+    sm.set_defaults(func=_cmd_smooth)
+
+    f = sub.add_parser("fit", help="least-squares fit of angles.csv with the scene's model, against theory")
+    f.add_argument("angles", help="angles.csv from 'gyrorig track'")
+    f.add_argument("--protocol", required=True, help="protocol TOML (decides the model)")
+    f.add_argument("--out", required=True, help="output directory (fit.json, fit.png, fit_residuals.csv)")
+    f.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
+    f.set_defaults(func=_cmd_fit)
+
+    an = sub.add_parser("analyze", help="track -> smooth -> fit -> report.html; a folder or manifest CSV for a batch")
+    an.add_argument("video", help="a video, a folder of videos, or a manifest CSV (video, protocol[, camera])")
+    an.add_argument("--camera", default=None, help="camera.json")
+    an.add_argument("--protocol", default=None, help="protocol TOML")
+    an.add_argument("--out", required=True, help="output directory")
+    an.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
+    an.set_defaults(func=_cmd_analyze)
+
+    d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track, smooth, fit, report")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")
     d.add_argument("--duration", type=float, default=10.0, help="simulated time [s] (default 10)")
+    d.add_argument("--video-duration", type=float, default=3.0, help="length of the rendered video [s] (default 3)")
     d.set_defaults(func=_cmd_demo)
     return p
 

@@ -1,6 +1,6 @@
 """Reports: plots (matplotlib, object API only, never ``plt.show``) and text summaries."""
 
-from .plots import plot_stability, plot_tracking, plot_trajectory, plot_validation, plot_work_precision
+from .plots import plot_fit, plot_stability, plot_tracking, plot_trajectory, plot_validation, plot_work_precision
 from .text import markdown_table
 
-__all__ = ["markdown_table", "plot_stability", "plot_tracking", "plot_trajectory", "plot_validation", "plot_work_precision"]
+__all__ = ["markdown_table", "plot_fit", "plot_stability", "plot_tracking", "plot_trajectory", "plot_validation", "plot_work_precision"]

@@ -156,3 +156,63 @@ def plot_tracking(angles: pd.DataFrame, truth: pd.DataFrame, *, title: str = "")
     if title:
         fig.suptitle(title)
     return fig
+
+
+def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title: str = "") -> Figure:
+    """Measured, smoothed and fitted angles; the tip path from above; normalised residuals.
+
+    Parameters
+    ----------
+    angles : DataFrame
+        Tracked angles (``t_s, theta_rad, phi_rad``).
+    smoothed : DataFrame, optional
+        Smoother output (``t_s, theta_rad, phi_rad, status``).
+    fit : gyrorig.fit.FitResult
+    """
+    fig = Figure(figsize=(11, 10), layout="constrained")
+    axes = fig.subplots(3, 2)
+    t = angles.t_s.to_numpy()
+    ok = np.isfinite(angles.theta_rad.to_numpy())
+    curve = fit.model_curve
+    ax = axes[0, 0]
+    ax.plot(t[ok], np.degrees(angles.theta_rad.to_numpy()[ok]), ".", ms=2, color="0.5", label="tracked")
+    if smoothed is not None:
+        ax.plot(smoothed.t_s, np.degrees(smoothed.theta_rad), lw=0.6, color="C0", label="smoothed (Kalman/RTS)")
+        out = smoothed.status.to_numpy() == "outlier"
+        if out.any():
+            ax.plot(t[out], np.degrees(angles.theta_rad.to_numpy()[out]), "rx", ms=5, label="outlier (gated)")
+    ax.plot(curve.t_s, np.degrees(curve.theta_rad), lw=0.8, color="C1", label="fit")
+    ax.set(xlabel="t [s]", ylabel="tilt theta [deg]", title="tilt")
+    ax.legend(fontsize=7, loc="best")
+    ax = axes[0, 1]
+    phi_meas = np.unwrap(angles.phi_rad.to_numpy()[ok])
+    phi_fit = np.interp(t[ok], curve.t_s, np.unwrap(curve.phi_rad))
+    phi_fit += 2 * np.pi * np.round((phi_meas[0] - phi_fit[0]) / (2 * np.pi))
+    ax.plot(t[ok], np.degrees(phi_meas), ".", ms=2, color="0.5", label="tracked")
+    ax.plot(t[ok], np.degrees(phi_fit), lw=0.8, color="C1", label="fit")
+    ax.set(xlabel="t [s]", ylabel="azimuth phi [deg] (unwrapped)", title="precession")
+    ax.legend(fontsize=7)
+    ax = axes[1, 0]
+    th, ph = angles.theta_rad.to_numpy()[ok], angles.phi_rad.to_numpy()[ok]
+    ax.plot(np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), ".", ms=1.5, color="0.5", label="tracked")
+    ct, cp = curve.theta_rad.to_numpy(), curve.phi_rad.to_numpy()
+    ax.plot(np.sin(ct) * np.sin(cp), -np.sin(ct) * np.cos(cp), lw=0.5, color="C1", label="fit")
+    ax.plot([0], [0], "k+")
+    ax.set(xlabel="tip x", ylabel="tip y", title="tip path seen from above (unit sphere)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=7)
+    ax = axes[1, 1]
+    res = fit.residuals
+    ax.hist(res.theta_resid_norm, bins=60, histtype="step", density=True, label="theta")
+    ax.hist(res.phi_resid_norm, bins=60, histtype="step", density=True, label="phi")
+    x = np.linspace(-5, 5, 200)
+    ax.plot(x, np.exp(-x**2 / 2) / np.sqrt(2 * np.pi), "k--", lw=0.8, label="N(0, 1)")
+    ax.set(xlabel="residual / sigma", ylabel="density", title=f"normalised residuals (chi2_red {fit.chi2_red:.3f})")
+    ax.legend(fontsize=7)
+    for ax, col, name in ((axes[2, 0], "theta_resid_rad", "tilt"), (axes[2, 1], "phi_resid_rad", "azimuth")):
+        ax.plot(res.t_s, res[col] * 1e3, ".", ms=1.5)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set(xlabel="t [s]", ylabel=f"{name} residual [mrad]", title=f"{name} residuals (data - fit)")
+    if title:
+        fig.suptitle(title)
+    return fig
