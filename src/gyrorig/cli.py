@@ -265,6 +265,27 @@ def _cmd_bench_track(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_bench_fit(args: argparse.Namespace) -> int:
+    from .bench import FIT_MC_SCENES, fit_monte_carlo, summarize_fit_monte_carlo
+
+    scenes = args.scenes or (FIT_MC_SCENES[:1] if args.quick else FIT_MC_SCENES)
+    seeds = args.seeds if args.seeds is not None else (4 if args.quick else 40)
+    start = time.perf_counter()
+    runs = fit_monte_carlo(scenes, seeds=seeds, duration_s=args.duration, workers=args.workers,
+                           progress=_progress_printer("runs"))
+    table = summarize_fit_monte_carlo(runs)
+    print(f"{len(scenes)} scene(s) x {seeds} seeds, {args.duration:g} s of 640x480 video each, "
+          f"{time.perf_counter() - start:.0f} s")
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    if table.attrs.get("failed_runs"):
+        print(f"{table.attrs['failed_runs']} run(s) failed: see runs.csv")
+    print("targets: |mean pull| <= 0.2, sd of pulls 0.9-1.1, sd / CRB <= 1.2")
+    if args.out:
+        _io.write_csv(runs, Path(args.out) / "runs.csv")
+        _io.write_csv(table, Path(args.out) / "fit.csv")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -561,6 +582,15 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--quick", action="store_true", help="640x480 only")
     bt.add_argument("--out", default=None, help="also write track.csv here")
     bt.set_defaults(func=_cmd_bench_track)
+
+    bf = bsub.add_parser("fit", help="Monte Carlo of render -> track -> smooth -> fit: pulls, bias, sd / CRB")
+    bf.add_argument("--scenes", nargs="+", default=None, help="bundled protocol names (default: three rigs)")
+    bf.add_argument("--seeds", type=int, default=None, help="runs per scene (default 40; 4 with --quick)")
+    bf.add_argument("--duration", type=float, default=2.0, help="video length [s] (default 2)")
+    bf.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    bf.add_argument("--quick", action="store_true", help="one scene, 4 seeds")
+    bf.add_argument("--out", default=None, help="also write runs.csv and fit.csv here")
+    bf.set_defaults(func=_cmd_bench_fit)
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
     t.add_argument("protocol", nargs="?", help="protocol TOML file")
