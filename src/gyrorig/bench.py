@@ -407,8 +407,8 @@ def _small_camera(protocol: Protocol, width_px: int, height_px: int) -> Protocol
     return replace(protocol, extra={**protocol.extra, "camera": cam})
 
 
-def fit_monte_carlo_run(scene: str, seed: int, duration_s: float, width_px: int = 640, height_px: int = 480,
-                        prediction: dict | None = None) -> list[dict]:
+def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
+                        camera_size: tuple[int, int] | None = (640, 480), prediction: dict | None = None) -> list[dict]:
     """One run of the full chain (render -> track -> smooth -> fit) with the truth unseen.
 
     Returns one row per fitted quantity: value, standard error, the truth (same model fitted to
@@ -422,7 +422,10 @@ def fit_monte_carlo_run(scene: str, seed: int, duration_s: float, width_px: int 
     from .smooth import smooth_angles
     from .tracking import load_camera, track_video
 
-    p = _small_camera(load_protocol(BUNDLED_PROTOCOL_DIR / f"{scene}.toml"), width_px, height_px)
+    p = scene if isinstance(scene, Protocol) else load_protocol(BUNDLED_PROTOCOL_DIR / f"{scene}.toml")
+    scene = p.name
+    if camera_size is not None:
+        p = _small_camera(p, *camera_size)
     if prediction is None:
         from .theory import predict
 
@@ -449,31 +452,53 @@ def fit_monte_carlo_run(scene: str, seed: int, duration_s: float, width_px: int 
     return rows
 
 
-def fit_monte_carlo(scenes: Sequence[str] = FIT_MC_SCENES, *, seeds: int = 40, duration_s: float = 2.0,
-                    workers: int | None = None, progress=None) -> pd.DataFrame:
-    """The fit benchmark: many seeds per scene, in parallel processes; one row per quantity and run."""
+def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: int = 40, duration_s: float = 2.0,
+                    workers: int | None = None, progress=None, scheduler: str | None = None,
+                    camera_size: tuple[int, int] | None = (640, 480)) -> pd.DataFrame:
+    """The fit benchmark: many seeds per scene, in parallel; one row per quantity and run.
+
+    Runs in local processes, or on a Dask cluster when ``scheduler`` is its address
+    (``pip install 'gyrorig[dask]'``).  Scenes are bundled protocol names or protocols.
+    """
     import os
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     from .protocols import load_protocol
     from .theory import predict
 
-    preds = {s: predict(load_protocol(BUNDLED_PROTOCOL_DIR / f"{s}.toml"), simulate_damping=False) for s in scenes}
-    jobs = [(s, seed) for s in scenes for seed in range(seeds)]
-    workers = workers or min(len(jobs), os.cpu_count() or 1)
+    protos = [s if isinstance(s, Protocol) else load_protocol(BUNDLED_PROTOCOL_DIR / f"{s}.toml") for s in scenes]
+    preds = [predict(p, simulate_damping=False) for p in protos]
+    jobs = [(i, seed) for i in range(len(protos)) for seed in range(seeds)]
     rows: list[dict] = []
-    if workers <= 1:
-        for i, (s, seed) in enumerate(jobs):
-            rows += fit_monte_carlo_run(s, seed, duration_s, prediction=preds[s])
-            if progress:
-                progress(i + 1, len(jobs))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = [pool.submit(fit_monte_carlo_run, s, seed, duration_s, prediction=preds[s]) for s, seed in jobs]
-            for i, f in enumerate(as_completed(futs)):
+    if scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError as exc:
+            raise ValueError("--scheduler needs Dask: pip install 'gyrorig[dask]'") from exc
+        with Client(scheduler) as client:
+            futs = [client.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i], pure=False)
+                    for i, seed in jobs]
+            from dask.distributed import as_completed as dask_completed
+
+            for k, f in enumerate(dask_completed(futs)):
                 rows += f.result()
                 if progress:
-                    progress(i + 1, len(jobs))
+                    progress(k + 1, len(jobs))
+        return pd.DataFrame(rows)
+    workers = workers or min(len(jobs), os.cpu_count() or 1)
+    if workers <= 1:
+        for k, (i, seed) in enumerate(jobs):
+            rows += fit_monte_carlo_run(protos[i], seed, duration_s, camera_size, preds[i])
+            if progress:
+                progress(k + 1, len(jobs))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futs = [pool.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i])
+                    for i, seed in jobs]
+            for k, f in enumerate(as_completed(futs)):
+                rows += f.result()
+                if progress:
+                    progress(k + 1, len(jobs))
     return pd.DataFrame(rows)
 
 

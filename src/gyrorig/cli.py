@@ -286,6 +286,81 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from .plan import monte_carlo_check, parse_sweep, plan_experiment, plot_sweep, sweep
+
+    out = Path(args.out) if args.out else None
+    if args.sweep:
+        if not args.protocol:
+            raise ValueError("plan --sweep needs a protocol file")
+        for spec in args.sweep:
+            key, values = parse_sweep(spec)
+            table = sweep(args.protocol, key, values, duration_s=args.duration, progress=_progress_printer("sweep"))
+            print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+            if out:
+                name = key.replace(".", "_")
+                _io.write_csv(table, out / f"sweep_{name}.csv")
+                with _io.atomic_path(out / f"sweep_{name}.png") as tmp:
+                    plot_sweep(table, key).savefig(tmp, format="png", dpi=100)
+                print(f"-> {out / f'sweep_{name}.csv'}, {out / f'sweep_{name}.png'}")
+        return EXIT_OK
+    if not args.protocol:
+        raise ValueError("plan needs a protocol file")
+    protocol = load_protocol(args.protocol)
+    plan = plan_experiment(protocol, duration_s=args.duration)
+    if args.monte_carlo:
+        table = monte_carlo_check(protocol, args.monte_carlo, duration_s=args.mc_duration, scheduler=args.scheduler,
+                                  progress=_progress_printer("monte carlo"))
+        plan["monte_carlo"] = {"duration_s": args.mc_duration, "runs": args.monte_carlo,
+                               "failed_runs": table.attrs.get("failed_runs", 0),
+                               "table": table.to_dict(orient="records")}
+    doc = _json_safe(plan)
+    if out:
+        _io.write_json(doc, out / "plan.json")
+    if args.json:
+        print(json.dumps(doc, indent=2, sort_keys=True))
+        return EXIT_OK
+    _print_plan(plan)
+    if out:
+        print(f"-> {out / 'plan.json'}")
+    return EXIT_OK
+
+
+def _print_plan(plan: dict) -> None:
+    print(f"plan for {plan['protocol']}")
+    cam = plan.get("camera")
+    if cam:
+        print(f"  camera: {cam['fps']:g} fps, {cam['exposure_s'] * 1e6:.0f} us; tip marker {cam['radius_px']:.1f} px "
+              f"radius, {cam['signal_adu']:.0f} ADU on {cam['background_adu']:.0f}; localisation bound "
+              f"{cam['sigma_px']:.4f} px -> theta {cam['theta_sigma_rad_median']:.2e} rad, phi "
+              f"{cam['phi_sigma_rad_median']:.2e} rad per frame")
+        if "nutation_hz" in cam:
+            print(f"  nutation {cam['nutation_hz']:.3g} Hz: {cam['frames_per_nutation_period']:.1f} frames per period, "
+                  f"amplitude {cam.get('nutation_amplitude_px', float('nan')):.2f} px "
+                  f"({cam.get('nutation_amplitude_over_sigma_px', float('nan')):.3g} x the bound)")
+        print(f"  motion blur {cam['motion_blur_px']:.2f} px; rolling-shutter skew {cam['rolling_shutter_skew_px']:.2f} px"
+              f"; saturates: {cam['saturates']}")
+        rec = plan["recording"]
+        print(f"  expected errors for a {rec['length_s']:g} s record (Cramer-Rao bound of the fit):")
+        for name, q in plan["quantities"].items():
+            if not q["resolvable"]:
+                print(f"    {name}: not resolvable: {q['reason']}")
+                continue
+            pe = q.get("paper_vs_exact_in_se")
+            print(f"    {name}: {q['simulated']:.6g} +- {q['expected_standard_error']:.2g} {q['units']}"
+                  + (f" (paper {q['predicted_paper']:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else ""))
+        print(f"  note: {plan['note']}")
+    for r in plan["recommendations"]:
+        print(f"  - {r}")
+    mc = plan.get("monte_carlo")
+    if mc:
+        import pandas as pd
+
+        print(f"  Monte Carlo of render -> track -> smooth -> fit ({mc['runs']} runs of {mc['duration_s']:g} s, "
+              f"{mc['failed_runs']} failed):")
+        print(pd.DataFrame(mc["table"]).to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -591,6 +666,19 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--quick", action="store_true", help="one scene, 4 seeds")
     bf.add_argument("--out", default=None, help="also write runs.csv and fit.csv here")
     bf.set_defaults(func=_cmd_bench_fit)
+
+    pl = sub.add_parser("plan", help="what a rig and camera will measure: resolution, expected errors, advice")
+    pl.add_argument("protocol", nargs="?", help="protocol TOML file")
+    pl.add_argument("--json", action="store_true", help="print JSON")
+    pl.add_argument("--out", default=None, help="write plan.json (and sweep tables/plots) here")
+    pl.add_argument("--duration", type=float, default=None, help="recording length [s] (default scene.duration_s)")
+    pl.add_argument("--monte-carlo", type=int, default=0, metavar="N",
+                    help="confirm the expected errors with N runs of render -> track -> smooth -> fit")
+    pl.add_argument("--mc-duration", type=float, default=2.0, help="video length of each Monte Carlo run [s]")
+    pl.add_argument("--scheduler", default=None, help="Dask scheduler address for the Monte Carlo (gyrorig[dask])")
+    pl.add_argument("--sweep", nargs="+", default=None, metavar="KEY=START:STOP:N",
+                    help="scan protocol keys, e.g. launch.spin_rate_rad_s=200:800:7 camera.fps=50:400:8")
+    pl.set_defaults(func=_cmd_plan)
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
     t.add_argument("protocol", nargs="?", help="protocol TOML file")

@@ -689,7 +689,8 @@ def _theory_values(prediction: dict | None) -> dict:
 
 def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
                exclude: np.ndarray | None = None, truth: pd.DataFrame | None = None,
-               rng: np.random.Generator | None = None, bootstrap_replicates: int = 100) -> FitResult:
+               rng: np.random.Generator | None = None, bootstrap_replicates: int = 100,
+               check_residuals: bool = True) -> FitResult:
     """Fit an angle table with the scene's model and compare with theory (and truth, if given).
 
     Parameters
@@ -709,6 +710,10 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         of each quantity and the pull ``(fit - truth) / standard error``.
     rng : numpy Generator, optional
         For the block bootstrap (used only when residuals are not white).
+    check_residuals : bool
+        Test the residuals (whiteness, chi-square) and fall back on the bootstrap or scaled
+        errors.  Off only for noiseless model data (planning: the formal errors are then the
+        Cramer-Rao bound for the stated per-frame errors).
     """
     start_time = time.perf_counter()
     scene = model_for_scene(protocol, prediction)
@@ -721,7 +726,9 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     white_limit = 4.0 / math.sqrt(data.n)
     errors = "formal"
     se_override: dict[str, float] = {}
-    if max(abs(rho[0]), abs(rho[1])) > white_limit:
+    if not check_residuals:
+        pass
+    elif max(abs(rho[0]), abs(rho[1])) > white_limit:
         rng = rng if rng is not None else np.random.default_rng(0)
         block = max(2, int(math.ceil(1 + 2 * max(abs(rho[0]), abs(rho[1])) / (1 - min(0.99, max(abs(r) for r in rho)))
                                      * 5)))

@@ -1,0 +1,346 @@
+"""Experiment planning: what a rig and camera will measure, before anyone builds them.
+
+:func:`plan_experiment` takes a protocol and answers, for the scene's quantities:
+
+- the predicted values (:func:`gyrorig.theory.predict`) and the validity flags;
+- whether the camera resolves each: the per-frame localisation bound of the tip marker
+  (exact Fisher matrix of the rendered spot model, :func:`gyrorig.bench.spot_crb_px`),
+  the nutation amplitude at the marker in pixels against it, frame rate against the
+  nutation frequency, motion blur during the exposure, rolling-shutter skew, saturation;
+- the expected standard error of every fitted quantity: the Cramér-Rao bound of the fit
+  model (:mod:`gyrorig.fit`) for the simulated motion sampled at the camera's frame times,
+  with the per-frame angle covariance propagated from the pixel bound through the camera
+  model (``(J^T J)^-1 sigma_px^2``, ``J = d(pixel)/d(theta, phi)``);
+- the recording length needed for a target relative precision (rates and frequencies
+  scale as T^-3/2, amplitudes as T^-1/2, at a fixed frame rate);
+- recommendations: minimum frame rate, maximum exposure, recording length, marker size and
+  placement, and which damping realisation tests which prediction.
+
+The synthetic motion comes from the simulator, never from the formulas being tested.
+``monte_carlo`` confirms the bounds with the full render -> track -> smooth -> fit chain
+(:func:`gyrorig.bench.fit_monte_carlo_run`), locally in processes or on a Dask cluster.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import time
+import tomllib
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+
+from .protocols import Protocol, ProtocolError, parse_protocol
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["plan_experiment", "monte_carlo_check", "sweep", "parse_sweep", "TARGET_RELATIVE_SE"]
+
+#: relative standard error a recording should reach, per quantity (recording-length advice)
+TARGET_RELATIVE_SE = {
+    "precession_rate_rad_s": 1e-3,
+    "nutation_frequency_rad_s": 1e-3,
+    "nutation_amplitude_rad": 1e-2,
+    "tilt_growth_rate_per_s": 0.1,
+    "equilibrium_tilt_rad": 1e-2,
+}
+_T_EXPONENT = {"nutation_amplitude_rad": 0.5, "cone_angle_rad": 0.5, "equilibrium_tilt_rad": 0.5,
+               "equilibrium_azimuth_rad": 0.5}
+
+
+def _tip_marker(protocol: Protocol):
+    from .camera import camera_setup
+
+    setup = camera_setup(protocol)
+    tips = [m for m in setup.markers if m.name == "tip"] or [m for m in setup.markers if m.body == "frame"]
+    if not tips:
+        raise ProtocolError("[markers]: the plan needs a marker on the top (named 'tip' or with body = 'frame')")
+    return setup, tips[0]
+
+
+def _pixel_bound(setup, marker, depth_m: float) -> dict:
+    """Spot size, signal and the localisation bound of the marker at a given depth."""
+    from .bench import spot_crb_px
+
+    cam, sensor = setup.camera, setup.camera.sensor
+    f_px = float(cam.camera_matrix[0, 0])
+    radius_px = marker.radius_m * f_px / depth_m
+    amp_e = marker.brightness_e_per_s * cam.exposure_s
+    bg_e = sensor.background_e_per_s * cam.exposure_s
+    amp, bg = amp_e / sensor.gain_e_per_adu, bg_e / sensor.gain_e_per_adu
+    sat = amp + bg >= sensor.max_adu
+    spot_cam = SimpleNamespace(psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=sensor.gain_e_per_adu,
+                               read_noise_e=sensor.read_noise_e)
+    sigma = spot_crb_px(0.3, 0.2, radius_px, min(amp, sensor.max_adu - bg), bg, spot_cam)
+    return {"radius_px": radius_px, "signal_adu": amp, "background_adu": bg, "saturates": bool(sat),
+            "sigma_px": sigma, "px_per_m": f_px / depth_m}
+
+
+def _project(setup, pts: np.ndarray) -> np.ndarray:
+    import cv2
+
+    cam = setup.camera
+    return cv2.projectPoints(pts.reshape(-1, 1, 3), cam.rvec, cam.tvec, cam.camera_matrix,
+                             cam.distortion)[0].reshape(-1, 2)
+
+
+def _angle_covariance(setup, lever_m: float, theta: np.ndarray, phi: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Per-frame covariance of (theta, phi) from an isotropic pixel error, through the camera."""
+    def tip(th, ph):
+        return lever_m * np.stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
+
+    h = 1e-6
+    p0 = _project(setup, tip(theta, phi))
+    jt = (_project(setup, tip(theta + h, phi)) - p0) / h
+    jp = (_project(setup, tip(theta, phi + h)) - p0) / h
+    J = np.stack([jt, jp], axis=-1)  # (n, 2 px, 2 angles)
+    JTJ = np.einsum("nki,nkj->nij", J, J)
+    return np.linalg.inv(JTJ) * sigma_px**2
+
+
+def _simulated_angles(protocol: Protocol, duration_s: float, fps: float) -> pd.DataFrame:
+    from .physics import simulate
+
+    n = int(math.floor(duration_s * fps)) + 1
+    return simulate(protocol, t_eval_s=np.arange(n) / fps)
+
+
+def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, prediction: dict | None = None,
+                    simulate_damping: bool = True) -> dict:
+    """What the rig and camera of ``protocol`` will measure (see the module docstring).
+
+    Returns a JSON-ready dict: ``prediction``, ``camera`` (resolution checks),
+    ``quantities`` (predicted value, expected standard error, resolvable, reason),
+    ``recording`` (length needed per quantity), ``recommendations`` (list of strings).
+    """
+    from .fit import fit_angles
+    from .theory import predict
+
+    start = time.perf_counter()
+    pred = prediction if prediction is not None else predict(protocol, simulate_damping=simulate_damping)
+    out: dict = {"protocol": protocol.name, "prediction": pred, "recommendations": []}
+    rec = out["recommendations"]
+    if "camera" not in protocol.extra:
+        out["camera"] = None
+        rec.append("no [camera] in the protocol: resolution and precision not assessed; add a camera section")
+        out["wall_time_s"] = time.perf_counter() - start
+        return out
+    setup, marker = _tip_marker(protocol)
+    cam = setup.camera
+    T = float(duration_s if duration_s is not None else protocol.scene.duration_s)
+    lever = float(np.linalg.norm(marker.position_m))
+    if marker.body == "frame" and np.hypot(*marker.position_m[:2]) > 1e-9:
+        rec.append(f"marker {marker.name} is off the symmetry axis: its spin smears it during the exposure; put the "
+                   "tip marker on the axis")
+    sim = _simulated_angles(protocol, T, cam.fps)
+    theta, phi = sim.theta_rad.to_numpy(), sim.phi_rad.to_numpy()
+    pos = lever * np.stack([np.sin(theta) * np.sin(phi), -np.sin(theta) * np.cos(phi), np.cos(theta)], axis=-1)
+    depth = float(np.median(np.linalg.norm(pos - cam.position_m, axis=1)))
+    spot = _pixel_bound(setup, marker, depth)
+    cov = _angle_covariance(setup, lever, theta, phi, spot["sigma_px"])
+    px = _project(setup, pos)
+    speed_px_s = np.linalg.norm(np.gradient(px, 1 / cam.fps, axis=0), axis=1)
+    blur_px = float(np.max(speed_px_s) * cam.exposure_s)
+    skew_px = float(np.max(speed_px_s) * cam.readout_time_s) if cam.shutter == "rolling" else 0.0
+    inside = (px[:, 0] >= 0) & (px[:, 0] < cam.width_px) & (px[:, 1] >= 0) & (px[:, 1] < cam.height_px)
+    camera = {"fps": cam.fps, "exposure_s": cam.exposure_s, "lever_arm_m": lever, "marker_depth_m": depth, **spot,
+              "theta_sigma_rad_median": float(np.median(np.sqrt(cov[:, 0, 0]))),
+              "phi_sigma_rad_median": float(np.median(np.sqrt(cov[:, 1, 1]))),
+              "max_marker_speed_px_s": float(np.max(speed_px_s)), "motion_blur_px": blur_px,
+              "rolling_shutter_skew_px": skew_px, "marker_in_view_fraction": float(inside.mean())}
+    out["camera"] = camera
+
+    # nutation against the camera
+    nut = pred.get("nutation_frequency_rad_s", {}).get("exact")
+    amp = pred.get("nutation_amplitude_rad", {}).get("exact")
+    if nut is not None:
+        nyq = math.pi * cam.fps
+        camera["nutation_hz"] = nut / (2 * math.pi)
+        camera["frames_per_nutation_period"] = 2 * math.pi * cam.fps / nut
+        if amp is not None:
+            camera["nutation_amplitude_px"] = amp * lever * spot["px_per_m"]
+            camera["nutation_amplitude_over_sigma_px"] = camera["nutation_amplitude_px"] / spot["sigma_px"]
+        if nut > 0.9 * nyq:
+            rec.append(f"frame rate {cam.fps:g} fps cannot resolve the nutation at {nut / (2 * math.pi):.3g} Hz: use at "
+                       f"least {4 * nut / (2 * math.pi):.0f} fps (4 frames per period)")
+        else:
+            rec.append(f"minimum frame rate: {4 * nut / (2 * math.pi):.0f} fps (4 frames per nutation period; this "
+                       f"camera has {camera['frames_per_nutation_period']:.1f})")
+    if not inside.all():
+        rec.append(f"the tip marker leaves the image in {1 - inside.mean():.0%} of the frames: widen the view")
+    if spot["saturates"]:
+        rec.append("the marker saturates the sensor: shorten the exposure or dim the marker (saturated pixels carry "
+                   "no position information)")
+    max_exposure = 0.5 / max(float(np.max(speed_px_s)), 1e-9)
+    rec.append(f"maximum exposure for under 0.5 px of motion blur: {max_exposure * 1e6:.0f} us (now "
+               f"{cam.exposure_s * 1e6:.0f} us, {blur_px:.2f} px)")
+    if skew_px > 0.5:
+        rec.append(f"rolling shutter moves the marker {skew_px:.2f} px during readout: per-row timing is applied by "
+                   "the tracker, but a global shutter is simpler")
+    if spot["radius_px"] < 2:
+        rec.append(f"the marker is only {spot['radius_px']:.1f} px in radius: make it larger "
+                   f"(>= {2 / spot['px_per_m'] * 1e3:.1f} mm radius) for a robust centroid")
+    rec.append(f"marker placement: on the symmetry axis, as far from the pivot as the rig allows (the angle error "
+               f"scales as 1/lever arm, now {lever * 1e3:.0f} mm); lab fiducials around the pivot fix the camera pose")
+
+    # the expected errors: Cramer-Rao bound of the fit model for this motion and camera
+    angles = pd.DataFrame({"frame": np.arange(len(sim)), "t_s": sim.t_s, "theta_rad": theta, "phi_rad": phi,
+                           "theta_sigma_rad": np.sqrt(cov[:, 0, 0]), "phi_sigma_rad": np.sqrt(cov[:, 1, 1]),
+                           "theta_phi_corr": cov[:, 0, 1] / np.sqrt(cov[:, 0, 0] * cov[:, 1, 1])})
+    fit = fit_angles(angles, protocol, prediction=pred, check_residuals=False)
+    quantities = {}
+    recording = {}
+    for name, q in fit.quantities.items():
+        entry = {"units": q.units, "resolvable": q.status == "determined", "reason": q.reason,
+                 "predicted_paper": q.paper, "predicted_exact": q.exact, "simulated": q.value,
+                 "expected_standard_error": q.standard_error}
+        if q.status == "determined" and q.value:
+            rel = q.standard_error / abs(q.value)
+            entry["expected_relative_error"] = rel
+            if q.paper is not None and q.exact is not None and q.standard_error:
+                entry["paper_vs_exact_in_se"] = (q.paper - q.exact) / q.standard_error
+            target = TARGET_RELATIVE_SE.get(name)
+            if target is not None:
+                k = _T_EXPONENT.get(name, 1.5)
+                need = T * (rel / target) ** (1 / k)
+                # the scaling holds only over whole cycles: at least one precession period,
+                # and two nutation periods for the nutation
+                prec_rate = abs(fit.quantities["precession_rate_rad_s"].value or 0.0)
+                floor = 2 * math.pi / prec_rate if prec_rate > 0 else 0.0
+                if name.startswith("nutation") and nut:
+                    floor = max(floor, 4 * math.pi / nut)
+                recording[name] = {"target_relative_error": target, "length_needed_s": max(need, floor),
+                                   "length_for_target_by_scaling_s": need}
+        quantities[name] = entry
+    lam = quantities.get("tilt_growth_rate_per_s", {}).get("simulated")
+    if lam:
+        recording["tilt_time_constants_in_record"] = T * abs(lam)
+    prec = quantities.get("precession_rate_rad_s", {}).get("simulated")
+    if prec:
+        recording["precession_periods_in_record"] = T * abs(prec) / (2 * math.pi)
+    out["quantities"] = quantities
+    out["note"] = ("expected errors are statistical (Cramer-Rao) bounds for the camera's per-frame localisation "
+                   "limit; camera-model systematics (calibration, pose: ~3e-4 rad with a 12-view calibration, see "
+                   "'gyrorig bench track') and marker blends add to them")
+    out["recording"] = {"length_s": T, **recording}
+    out["fit_model"] = fit.summary()["model"]
+    if recording:
+        longest = max((v["length_needed_s"], k) for k, v in recording.items() if isinstance(v, dict))
+        rec.append(f"recording length: {longest[0]:.3g} s for every quantity to reach its target precision "
+                   f"(set by {longest[1]}); precession periods in {T:g} s: "
+                   f"{recording.get('precession_periods_in_record', float('nan')):.2g}")
+    rec.extend(_damping_advice(protocol, pred))
+    out["wall_time_s"] = time.perf_counter() - start
+    return out
+
+
+def _damping_advice(protocol: Protocol, pred: dict) -> list[str]:
+    adv = []
+    models = [d.model for d in protocol.pivot.damping]
+    growth = pred.get("tilt_growth_rate_per_s", {})
+    if not models:
+        return ["no damping: this scene tests eqs. 12/20 (precession, nutation); eqs. 25a/26 need a damped pivot "
+                "(magnet in the ball, realisation B2)"]
+    if "eddy-field" in models and growth.get("exact") is not None and abs(growth["exact"]) < 1e-6:
+        adv.append("eddy-field damping (lab field) damps only theta': the simulated tilt drift is ~0, so this rig "
+                   "cannot test eqs. 25a/26 in either direction; use the magnet-in-ball realisation (B2)")
+    elif growth.get("exact") is not None:
+        adv.append(f"damping realisation {', '.join(models)} tests eqs. 25a/26: simulated tilt growth "
+                   f"{growth['exact']:+.3g} 1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s")
+    return adv
+
+
+# --------------------------------------------------------------------------------------- Monte Carlo
+def monte_carlo_check(protocol: Protocol, n: int, *, duration_s: float = 2.0, scheduler: str | None = None,
+                      workers: int | None = None, progress=None) -> pd.DataFrame:
+    """Confirm the plan's expected errors with N runs of render -> track -> smooth -> fit.
+
+    Returns, per quantity: the planned standard error for the same record, the Monte Carlo
+    spread of the estimates, their ratio, and the mean and SD of the pulls.
+    """
+    from .bench import fit_monte_carlo
+
+    runs = fit_monte_carlo([protocol], seeds=n, duration_s=duration_s, workers=workers, progress=progress,
+                           scheduler=scheduler, camera_size=None)
+    plan = plan_experiment(protocol, duration_s=duration_s, simulate_damping=False)
+    rows = []
+    ok = runs[runs["error"].fillna("") == ""] if "error" in runs else runs
+    for name, g in ok[ok.status == "determined"].groupby("quantity", sort=False):
+        planned = plan["quantities"].get(name, {}).get("expected_standard_error")
+        err = g.value.astype(float) - g.truth.astype(float)
+        sd = float(np.std(err, ddof=1)) if len(g) > 1 else math.nan
+        rows.append({"quantity": name, "runs": len(g), "planned_se": planned, "monte_carlo_sd": sd,
+                     "sd_over_planned": sd / planned if planned else math.nan,
+                     "median_fit_se": float(np.median(g.standard_error)), "mean_pull": float(g.pull.mean()),
+                     "sd_pull": float(g.pull.std(ddof=1)) if len(g) > 1 else math.nan})
+    table = pd.DataFrame(rows)
+    table.attrs["failed_runs"] = int((runs["error"].fillna("") != "").sum()) if "error" in runs else 0
+    return table
+
+
+# ------------------------------------------------------------------------------------------- sweeps
+def parse_sweep(spec: str) -> tuple[str, np.ndarray]:
+    """``KEY=START:STOP:N`` (KEY a dotted protocol path, e.g. ``launch.spin_rate_rad_s``)."""
+    try:
+        key, rng = spec.split("=", 1)
+        a, b, n = rng.split(":")
+        values = np.linspace(float(a), float(b), int(n))
+    except ValueError:
+        raise ValueError(f"--sweep {spec!r}: expected KEY=START:STOP:N, e.g. camera.fps=100:400:7") from None
+    if int(n) < 2:
+        raise ValueError(f"--sweep {spec!r}: N must be >= 2")
+    return key.strip(), values
+
+
+def _set_key(data: dict, key: str, value: float) -> None:
+    parts = key.split(".")
+    node = data
+    for p in parts[:-1]:
+        if p not in node or not isinstance(node[p], dict):
+            raise ValueError(f"--sweep key {key!r}: the protocol has no table [{'.'.join(parts[:parts.index(p) + 1])}]")
+        node = node[p]
+    if parts[-1] not in node:
+        raise ValueError(f"--sweep key {key!r}: the protocol has no key {parts[-1]!r} in [{'.'.join(parts[:-1])}]")
+    node[parts[-1]] = value
+
+
+def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s: float | None = None,
+          progress=None) -> pd.DataFrame:
+    """Expected relative error of every quantity as one protocol key is scanned."""
+    with open(protocol_path, "rb") as fh:
+        base = tomllib.load(fh)
+    rows = []
+    for i, v in enumerate(values):
+        data = copy.deepcopy(base)
+        _set_key(data, key, float(v))
+        p = parse_protocol(data, source=str(protocol_path))
+        plan = plan_experiment(p, duration_s=duration_s, simulate_damping=False)
+        row = {key: float(v)}
+        for name, q in plan.get("quantities", {}).items():
+            row[f"{name}_relative_error"] = q.get("expected_relative_error", math.nan) if q["resolvable"] else math.nan
+        cam = plan.get("camera") or {}
+        row["motion_blur_px"] = cam.get("motion_blur_px", math.nan)
+        row["sigma_px"] = cam.get("sigma_px", math.nan)
+        rows.append(row)
+        if progress:
+            progress(i + 1, len(values))
+    return pd.DataFrame(rows)
+
+
+def plot_sweep(table: pd.DataFrame, key: str):
+    """Expected relative errors against the scanned key (log scale)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 5), layout="constrained")
+    ax = fig.subplots()
+    for c in table.columns:
+        if c.endswith("_relative_error") and np.isfinite(table[c]).any():
+            ax.semilogy(table[key], table[c], "o-", label=c.removesuffix("_relative_error"))
+    ax.set(xlabel=key, ylabel="expected relative standard error", title=f"precision against {key}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig

@@ -1,0 +1,79 @@
+"""Planning: camera checks, expected errors from the Cramer-Rao bound, advice, sweeps."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from gyrorig.cli import main
+from gyrorig.plan import parse_sweep, plan_experiment, sweep
+from gyrorig.protocols import load_protocol
+
+from conftest import PROTOCOL_DIR
+
+
+def _with_camera(p, **kw):
+    return replace(p, extra={**p.extra, "camera": dict(p.extra["camera"], **kw)})
+
+
+def test_plan_of_the_air_cushion_rig():
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    plan = plan_experiment(p, duration_s=4.0, simulate_damping=False)
+    cam = plan["camera"]
+    assert 10 < cam["radius_px"] < 30 and not cam["saturates"]
+    assert 0 < cam["sigma_px"] < 0.05
+    assert cam["frames_per_nutation_period"] == pytest.approx(200 / 9.4714, rel=1e-3)
+    q = plan["quantities"]
+    for name in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
+        assert q[name]["resolvable"] and 0 < q[name]["expected_standard_error"] < 1e-3 * abs(q[name]["simulated"])
+    # the simulated value, not a formula, is what the camera would see
+    assert q["precession_rate_rad_s"]["simulated"] == pytest.approx(q["precession_rate_rad_s"]["predicted_exact"],
+                                                                    rel=1e-8)
+    assert "tilt_growth_rate_per_s" not in q  # undamped
+    assert any("minimum frame rate" in r for r in plan["recommendations"])
+
+
+def test_slow_camera_cannot_resolve_nutation_and_says_so():
+    p = _with_camera(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), fps=15.0)
+    plan = plan_experiment(p, duration_s=6.0, simulate_damping=False)
+    q = plan["quantities"]["nutation_amplitude_rad"]
+    assert not q["resolvable"] and "cannot resolve" in q["reason"]
+    assert any("cannot resolve the nutation" in r for r in plan["recommendations"])
+    assert plan["quantities"]["precession_rate_rad_s"]["resolvable"]
+
+
+def test_expected_error_shrinks_with_record_length_as_t_to_the_three_halves():
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    a = plan_experiment(p, duration_s=4.0, simulate_damping=False)["quantities"]["precession_rate_rad_s"]
+    b = plan_experiment(p, duration_s=16.0, simulate_damping=False)["quantities"]["precession_rate_rad_s"]
+    ratio = a["expected_standard_error"] / b["expected_standard_error"]
+    assert ratio == pytest.approx(4**1.5, rel=0.2)
+
+
+def test_no_camera_means_no_resolution_claims():
+    p = load_protocol(PROTOCOL_DIR / "free-top.toml")
+    plan = plan_experiment(p)
+    assert plan["camera"] is None and "no [camera]" in plan["recommendations"][0]
+
+
+def test_eddy_field_realisation_is_flagged_as_unable_to_test_eq_25a():
+    p = load_protocol(PROTOCOL_DIR / "eddy-damped-top.toml")
+    plan = plan_experiment(p, duration_s=3.0)
+    assert any("cannot test eqs. 25a/26" in r for r in plan["recommendations"])
+
+
+def test_sweep_parsing_and_a_small_sweep(tmp_path, capsys):
+    with pytest.raises(ValueError, match="KEY=START:STOP:N"):
+        parse_sweep("camera.fps=100")
+    key, values = parse_sweep("camera.fps=100:200:2")
+    assert key == "camera.fps" and np.allclose(values, [100, 200])
+    table = sweep(PROTOCOL_DIR / "air-cushion-heavy-top.toml", key, values, duration_s=3.0)
+    e = table["precession_rate_rad_s_relative_error"].to_numpy()
+    assert e[1] < e[0]  # more frames, smaller error
+    with pytest.raises(ValueError, match="no key"):
+        sweep(PROTOCOL_DIR / "air-cushion-heavy-top.toml", "camera.fsp", values)
+    assert main(["plan", str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--duration", "3", "--out",
+                 str(tmp_path)]) == 0
+    assert (tmp_path / "plan.json").exists() and "expected errors" in capsys.readouterr().out
