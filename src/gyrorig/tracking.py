@@ -256,9 +256,17 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
     fisher = (jf * wgt.reshape(-1, 1)).T @ jf
     dof = max(int(use.sum()) - len(p), 1)
     chi2_red = float(((win - mu) ** 2 * wgt).sum() / dof)
+    scale_chi2 = chi2_red
+    if blended:
+        # judge the fit where the tip's own light is: a neighbour's imperfect model elsewhere
+        # in the window says nothing about the tip's position error
+        near = use & (np.hypot(xx - p[0], yy - p[1]) <= p[2] + 3 * sigma)
+        n_near = int(near.sum())
+        if n_near > 10:
+            scale_chi2 = float(((win - mu) ** 2 * wgt)[near].sum() / max(n_near - 5, 1))
     try:
         # a known noise model: inflate only when the fit is worse than the noise; else scale to the residuals
-        cov = np.linalg.inv(fisher)[:2, :2] * (max(1.0, chi2_red) if known else chi2_red)
+        cov = np.linalg.inv(fisher)[:2, :2] * (max(1.0, scale_chi2) if known else scale_chi2)
     except np.linalg.LinAlgError:
         return None
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[-1]), cov, chi2_red,
