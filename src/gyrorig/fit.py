@@ -106,6 +106,9 @@ class ModelSpec:
                       "azimuth_decaying_offset_rad"]
             for k in range(1, self.harmonics + 1):
                 n += [f"tilt_cos_{k}_rad", f"tilt_sin_{k}_rad", f"azimuth_cos_{k}_rad", f"azimuth_sin_{k}_rad"]
+        if self.damped and self.fit_axis:
+            n += ["tilt_precession_cos_rad", "tilt_precession_sin_rad", "azimuth_precession_cos_rad",
+                  "azimuth_precession_sin_rad"]
         if self.persistent:
             n += ["persistent_frequency_rad_s", "persistent_tilt_cos_rad", "persistent_tilt_sin_rad",
                   "persistent_azimuth_cos_rad", "persistent_azimuth_sin_rad"]
@@ -258,6 +261,12 @@ class _Model:
                 ph = ph + env * (p[ix[f"azimuth_cos_{k}_rad"]] * c + p[ix[f"azimuth_sin_{k}_rad"]] * sn)
                 if s.damped:
                     env = env * env1  # harmonic k of a decaying oscillation decays k times as fast
+        if s.damped and s.fit_axis:
+            # damping that is symmetric about the lab vertical, not about the tilted cone axis,
+            # makes the cone uneven: terms locked to the precession phase
+            cp, sp = np.cos(p[ix["precession_rate_rad_s"]] * tau), np.sin(p[ix["precession_rate_rad_s"]] * tau)
+            th = th + p[ix["tilt_precession_cos_rad"]] * cp + p[ix["tilt_precession_sin_rad"]] * sp
+            ph = ph + p[ix["azimuth_precession_cos_rad"]] * cp + p[ix["azimuth_precession_sin_rad"]] * sp
         if s.persistent:
             # under damping the drifting slow mode keeps a small undamped oscillation near the
             # nutation frequency alive (found in the simulator: B2 rig, ~3e-5 rad)
@@ -532,7 +541,9 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
             if spec0.damped:
                 start1["nutation_decay_rate_per_s"] = 0.0
             cur = None
-            for k in range(1, max_harmonics + 1):
+            # harmonic k of a damped nutation decays k times as fast: a few suffice
+            k_max = min(max_harmonics, 3) if spec0.damped else max_harmonics
+            for k in range(1, k_max + 1):
                 if k * w0 > nyq:
                     notes.append(f"harmonic {k} of the nutation is above the Nyquist frequency; not modelled")
                     break
@@ -689,7 +700,7 @@ def _theory_values(prediction: dict | None) -> dict:
 
 def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
                exclude: np.ndarray | None = None, truth: pd.DataFrame | None = None,
-               rng: np.random.Generator | None = None, bootstrap_replicates: int = 100,
+               rng: np.random.Generator | None = None, bootstrap_replicates: int = 50,
                check_residuals: bool = True) -> FitResult:
     """Fit an angle table with the scene's model and compare with theory (and truth, if given).
 
