@@ -4,6 +4,7 @@ Timings are reported, never asserted (shared, noisy machines); what is asserted 
 accuracy and the verdicts.
 """
 
+import numpy as np
 import pandas as pd
 
 from gyrorig.bench import speed_ratio, work_precision, benchmark_top
@@ -47,3 +48,14 @@ def test_bench_stability_quick_cli(tmp_path, capsys):
     assert phasor_pole.status.startswith("FAIL") and "singular" in phasor_pole.status
     assert "stiff" in table[table.case == "damping-faster-than-nutation"].description.iloc[0]
     assert auto.set_index("case").loc["damping-faster-than-spin", "resolved_method"] == "gyro-radau"
+
+
+def test_fit_monte_carlo_runs_the_chain_and_summarises():
+    from gyrorig.bench import fit_monte_carlo, summarize_fit_monte_carlo
+
+    runs = fit_monte_carlo(["air-cushion-heavy-top"], seeds=2, duration_s=1.0, workers=1)
+    assert (runs.error.fillna("") == "").all()
+    table = summarize_fit_monte_carlo(runs)
+    row = table[table.quantity == "precession_rate_rad_s"].iloc[0]
+    assert row.runs == 2 and np.isfinite(row.sd_pull) and row.median_se > 0
+    assert (runs.truth.notna() & runs.pull.notna()).all()

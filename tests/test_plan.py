@@ -77,3 +77,16 @@ def test_sweep_parsing_and_a_small_sweep(tmp_path, capsys):
     assert main(["plan", str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--duration", "3", "--out",
                  str(tmp_path)]) == 0
     assert (tmp_path / "plan.json").exists() and "expected errors" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-pivot"])
+def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
+    from gyrorig.plan import monte_carlo_check
+
+    p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
+    table = monte_carlo_check(p, 12, duration_s=1.5)
+    assert table.attrs["failed_runs"] == 0
+    # 12 runs estimate a spread to ~20 %; blends and blur add to the pixel bound
+    for row in table.itertuples():
+        assert 0.5 < row.sd_over_planned < 1.8, row

@@ -470,20 +470,22 @@ def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: 
     preds = [predict(p, simulate_damping=False) for p in protos]
     jobs = [(i, seed) for i in range(len(protos)) for seed in range(seeds)]
     rows: list[dict] = []
+
+    def collect(futures, completed) -> None:
+        for k, f in enumerate(completed(futures)):
+            rows.extend(f.result())
+            if progress:
+                progress(k + 1, len(jobs))
+
     if scheduler is not None:
         try:
             from dask.distributed import Client
+            from dask.distributed import as_completed as dask_completed
         except ImportError as exc:
             raise ValueError("--scheduler needs Dask: pip install 'gyrorig[dask]'") from exc
         with Client(scheduler) as client:
-            futs = [client.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i], pure=False)
-                    for i, seed in jobs]
-            from dask.distributed import as_completed as dask_completed
-
-            for k, f in enumerate(dask_completed(futs)):
-                rows += f.result()
-                if progress:
-                    progress(k + 1, len(jobs))
+            collect([client.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i], pure=False)
+                     for i, seed in jobs], dask_completed)
         return pd.DataFrame(rows)
     workers = workers or min(len(jobs), os.cpu_count() or 1)
     if workers <= 1:
@@ -493,12 +495,8 @@ def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: 
                 progress(k + 1, len(jobs))
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = [pool.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i])
-                    for i, seed in jobs]
-            for k, f in enumerate(as_completed(futs)):
-                rows += f.result()
-                if progress:
-                    progress(k + 1, len(jobs))
+            collect([pool.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i])
+                     for i, seed in jobs], as_completed)
     return pd.DataFrame(rows)
 
 

@@ -197,6 +197,21 @@ def _predict(x, P, dt, qt, qp, xo, Po, tmp):
 
 
 @njit(cache=True)
+def _init_state(x, P, z, R, k):
+    """State at measurement k: the measured angles, flat prior on the rates."""
+    x[:] = 0.0
+    x[0] = z[k, 0]
+    x[2] = z[k, 1]
+    P[:, :] = 0.0
+    P[0, 0] = R[k, 0, 0]
+    P[0, 2] = R[k, 0, 1]
+    P[2, 0] = R[k, 1, 0]
+    P[2, 2] = R[k, 1, 1]
+    P[1, 1] = _INITIAL_RATE_VAR
+    P[3, 3] = _INITIAL_RATE_VAR
+
+
+@njit(cache=True)
 def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
     """Forward pass; fills filtered (xf, Pf) and predicted (xp, Pp); returns the log-likelihood."""
     tmp = np.zeros((4, 4))
@@ -213,16 +228,7 @@ def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
     for k in range(n):
         if not started:
             if has[k]:
-                x[:] = 0.0
-                x[0] = z[k, 0]
-                x[2] = z[k, 1]
-                P[:, :] = 0.0
-                P[0, 0] = R[k, 0, 0]
-                P[0, 2] = R[k, 0, 1]
-                P[2, 0] = R[k, 1, 0]
-                P[2, 2] = R[k, 1, 1]
-                P[1, 1] = 1.0e2
-                P[3, 3] = 1.0e2
+                _init_state(x, P, z, R, k)
                 started = True
                 status[k] = 1
             else:
@@ -257,16 +263,7 @@ def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
                 rej += 1
             elif dd > gate:
                 # restart at this measurement: a persistent jump is not an outlier
-                x[:] = 0.0
-                x[0] = z[k, 0]
-                x[2] = z[k, 1]
-                P[:, :] = 0.0
-                P[0, 0] = R[k, 0, 0]
-                P[0, 2] = R[k, 0, 1]
-                P[2, 0] = R[k, 1, 0]
-                P[2, 2] = R[k, 1, 1]
-                P[1, 1] = 1.0e2
-                P[3, 3] = 1.0e2
+                _init_state(x, P, z, R, k)
                 status[k] = 3
                 rej = 0
             else:
