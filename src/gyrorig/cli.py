@@ -671,7 +671,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("protocol", nargs="?", help="protocol TOML file")
     pl.add_argument("--json", action="store_true", help="print JSON")
     pl.add_argument("--out", default=None, help="write plan.json (and sweep tables/plots) here")
-    pl.add_argument("--duration", type=float, default=None, help="recording length [s] (default scene.duration_s)")
+    pl.add_argument("--duration", type=float, default=None, help="recording length [s] (default: scene.duration_s, at most 20)")
     pl.add_argument("--monte-carlo", type=int, default=0, metavar="N",
                     help="confirm the expected errors with N runs of render -> track -> smooth -> fit")
     pl.add_argument("--mc-duration", type=float, default=2.0, help="video length of each Monte Carlo run [s]")

@@ -793,6 +793,16 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         if name == "nutation_amplitude_rad" and sol.spec.damped:
             comparable = False
             cnote = "prediction is for the undamped launch; the fitted amplitude has decayed to t_ref"
+        elif name in ("precession_rate_rad_s", "nutation_frequency_rad_s") and sol.spec.damped:
+            comparable = False
+            cnote = ("predictions are for the undamped top at the launch tilt; under damping the tilt, and with it "
+                     "this quantity, drift: no difference in standard errors is given")
+        elif name in ("tilt_growth_rate_per_s", "tilt_time_constant_s"):
+            launch = protocol.launch.tilt_rad
+            cone = values["cone_angle_rad"][0]
+            if abs(cone - launch) > 1e-3:
+                cnote = (f"theory is for steady precession at the launch tilt {launch:.4g} rad; the fitted cone is at "
+                         f"{cone:.4g} rad at t_ref, and the rate depends on the tilt")
         if name == "tilt_time_constant_s":
             comparable = q.value is not None
         q = _compare(q, theory, name, comparable and q.status == "determined", cnote)

@@ -40,6 +40,8 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["plan_experiment", "monte_carlo_check", "sweep", "parse_sweep", "TARGET_RELATIVE_SE"]
 
+#: record length assessed by default (longer scenes: the advice extrapolates; --duration overrides)
+DEFAULT_PLAN_LENGTH_S = 20.0
 #: relative standard error a recording should reach, per quantity (recording-length advice)
 TARGET_RELATIVE_SE = {
     "precession_rate_rad_s": 1e-3,
@@ -131,7 +133,7 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         return out
     setup, marker = _tip_marker(protocol)
     cam = setup.camera
-    T = float(duration_s if duration_s is not None else protocol.scene.duration_s)
+    T = float(duration_s if duration_s is not None else min(protocol.scene.duration_s, DEFAULT_PLAN_LENGTH_S))
     lever = float(np.linalg.norm(marker.position_m))
     if marker.body == "frame" and np.hypot(*marker.position_m[:2]) > 1e-9:
         rec.append(f"marker {marker.name} is off the symmetry axis: its spin smears it during the exposure; put the "
