@@ -10,7 +10,7 @@ axis ``n``: the vertical under gravity; the *fitted* effective vertical when the
 accelerates; the fitted angular-momentum direction for a free top.  In the frame whose z is
 ``n``, with ``tau = t - t_ref`` (``t_ref`` the middle of the record):
 
-    theta'(tau) = exp(c0 + lambda tau) + exp(-mu tau) sum_k [a_k cos(k w tau) + b_k sin(k w tau)]
+    theta'(tau) = exp(c0 + lambda tau) + exp(-mu (tau - tau0)) sum_k [a_k cos(k w tau) + b_k sin(k w tau)]
     phi'(tau)   = phi0_s + Omega tau + (1/2) Omegadot tau^2
                   + exp(-mu tau) sum_k [c_k cos(k w tau) + d_k sin(k w tau)]
 
@@ -33,7 +33,7 @@ the standard errors instead and the report says so.
 
 **Quantities** (``FitResult.quantities``): ``precession_rate_rad_s``,
 ``nutation_frequency_rad_s``, ``nutation_amplitude_rad`` (half the peak-to-peak of the
-periodic tilt, at ``t_ref``), ``tilt_growth_rate_per_s`` and ``tilt_time_constant_s``
+periodic tilt; under damping, at the first frame), ``tilt_growth_rate_per_s`` and ``tilt_time_constant_s``
 (damping), ``equilibrium_tilt_rad``/``equilibrium_azimuth_rad`` (pivot acceleration),
 ``cone_angle_rad``.  One the data cannot determine is reported as undetermined with the
 reason, never as a number.
@@ -90,6 +90,8 @@ class ModelSpec:
     harmonics: int = 0
     segments: int = 1
     persistent: bool = False
+    #: tau at which a damped nutation's envelope is 1 (the first frame): amplitudes are quoted there
+    nutation_origin_s: float = 0.0
 
     def names(self) -> list[str]:
         n = []
@@ -244,7 +246,8 @@ class _Model:
             ph = ph + 0.5 * p[ix["precession_acceleration_rad_s2"]] * tau**2
         if s.harmonics:
             w = p[ix["nutation_frequency_rad_s"]]
-            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * tau) if s.damped else np.ones_like(tau)
+            env1 = (np.exp(-p[ix["nutation_decay_rate_per_s"]] * (tau - s.nutation_origin_s)) if s.damped
+                    else np.ones_like(tau))
             if s.damped:
                 # second order in the decaying amplitude: the mean tilt and the mean
                 # precession rate shift with amplitude^2, so these decay twice as fast
@@ -479,7 +482,7 @@ def _linear_harmonics(spec: ModelSpec, data: FitData, start: dict[str, float]) -
         th, ph = data.theta_rad, data.phi_rad
     rth, rph = th - th0, _wrap(ph - ph0)
     w = start["nutation_frequency_rad_s"]
-    env = np.exp(-start.get("nutation_decay_rate_per_s", 0.0) * tau)
+    env = np.exp(-start.get("nutation_decay_rate_per_s", 0.0) * (tau - spec.nutation_origin_s))
     cols = []
     for k in range(1, spec.harmonics + 1):
         cols += [env * np.cos(k * w * tau), env * np.sin(k * w * tau)]
@@ -499,7 +502,8 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
 
     Returns the solution, notes, and reasons for quantities that cannot be determined.
     """
-    spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1)
+    spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1,
+                    nutation_origin_s=float(data.t_s[0] - data.t_ref_s) if scene.spec.damped else 0.0)
     notes: list[str] = list(scene.reasons)
     undetermined: dict[str, str] = {}
     axis = None
@@ -560,6 +564,11 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                     break
                 cur = sol
                 start1 = dict(zip(_Model(spec_k).names, sol.x))
+            if cur is not None:
+                w_fit = dict(zip(_Model(cur.spec).names, cur.x))["nutation_frequency_rad_s"]
+                if not 0 < w_fit < nyq:
+                    reason = (f"the fit did not settle on a nutation frequency inside (0, Nyquist): {w_fit:.4g} rad/s")
+                    cur = None
             if cur is not None:
                 best = cur
                 if spec0.damped:
@@ -792,7 +801,8 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         cnote = ""
         if name == "nutation_amplitude_rad" and sol.spec.damped:
             comparable = False
-            cnote = "prediction is for the undamped launch; the fitted amplitude has decayed to t_ref"
+            cnote = ("prediction is for the undamped launch; under damping the fitted amplitude is the one at the "
+                     "first frame of the record")
         elif name in ("precession_rate_rad_s", "nutation_frequency_rad_s") and sol.spec.damped:
             comparable = False
             cnote = ("predictions are for the undamped top at the launch tilt; under damping the tilt, and with it "
