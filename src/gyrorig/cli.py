@@ -361,6 +361,20 @@ def _print_plan(plan: dict) -> None:
         print(pd.DataFrame(mc["table"]).to_string(index=False, float_format=lambda v: f"{v:.3g}"))
 
 
+def _cmd_bench_smooth(args: argparse.Namespace) -> int:
+    from .bench import smooth_benchmark
+
+    r = smooth_benchmark(args.frames, args.filterpy_frames)
+    print(f"compiled smoother (filter + RTS), {r['frames']:,} frames: {r['fast_s']:.3f} s "
+          f"({r['fast_us_per_frame']:.2f} us/frame; target < 0.2 s)")
+    print(f"filterpy 2.0 KalmanFilter + rts_smoother, same model, {r['filterpy_frames']:,} frames: {r['filterpy_s']:.2f} s "
+          f"({r['filterpy_us_per_frame']:.0f} us/frame): {r['speedup']:.0f}x slower per frame")
+    print(f"agreement: states {r['max_state_diff_in_sigma']:.1e} sigma; covariances {r['max_cov_diff_rel_after_first']:.1e} "
+          f"of sqrt(P_ii P_jj) (first frame {r['max_cov_diff_rel_first']:.1e}); same gating: {r['same_gating']}")
+    print(f"maximum-likelihood noise levels: {r['ml_noise_s']:.2f} s ({r['ml_evaluations']} filter passes)")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -658,6 +672,10 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--out", default=None, help="also write track.csv here")
     bt.set_defaults(func=_cmd_bench_track)
 
+    bsm = bsub.add_parser("smooth", help="compiled smoother against filterpy: speed and agreement")
+    bsm.add_argument("--frames", type=int, default=100_000, help="frames for the compiled path (default 100000)")
+    bsm.add_argument("--filterpy-frames", type=int, default=20_000, help="frames for filterpy (default 20000)")
+    bsm.set_defaults(func=_cmd_bench_smooth)
     bf = bsub.add_parser("fit", help="Monte Carlo of render -> track -> smooth -> fit: pulls, bias, sd / CRB")
     bf.add_argument("--scenes", nargs="+", default=None, help="bundled protocol names (default: three rigs)")
     bf.add_argument("--seeds", type=int, default=None, help="runs per scene (default 40; 4 with --quick)")
