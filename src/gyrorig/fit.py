@@ -162,6 +162,9 @@ class Quantity:
     truth: float | None = None
     pull: float | None = None
     note: str = ""
+    #: the Cramer-Rao bound of the fit model for the tracker's errors ((J^T J)^-1, before any
+    #: chi-square scaling or bootstrap)
+    formal_standard_error: float | None = None
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -761,8 +764,10 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         notes.append(f"reduced chi-square {chi2_red:.3f} is significantly above 1 (the tracker's error bars are too "
                      "small or the model misses something): standard errors scaled by sqrt(chi2_red)")
     values = {}
+    formal = {}
     for k, f in fns.items():
         v, se = _delta_se(f, sol.x, sol.cov)
+        formal[k] = se
         if errors.startswith("formal x"):
             se *= math.sqrt(chi2_red)
         if k in se_override:
@@ -796,7 +801,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
                     q = replace(q, reason="", note="tilt grows: tau is an e-folding time of growth")
         else:
             v, se = values[name]
-            q = Quantity(name, units, v, se, "determined")
+            q = Quantity(name, units, v, se, "determined", formal_standard_error=formal[name])
         comparable = True
         cnote = ""
         if name == "nutation_amplitude_rad" and sol.spec.damped:
