@@ -233,8 +233,13 @@ standard errors: {html.escape(fit.errors)}. Differences are in standard errors o
 # ------------------------------------------------------------------------------------- whole chain
 def analyze_video(video: str | Path, camera: str | Path, protocol: Protocol, out: str | Path, *,
                   truth_csv: str | Path | None = None, progress: Progress | None = None,
-                  rng: np.random.Generator | None = None) -> dict:
-    """Track, smooth, fit and report one video; returns a summary dict."""
+                  rng: np.random.Generator | None = None, stage: Callable[[str], None] | None = None) -> dict:
+    """Track, smooth, fit and report one video; returns a summary dict.
+
+    ``progress(done, total)`` follows the tracking frame by frame; ``stage(message)`` is told
+    when each later stage starts (fits of long damped records take minutes).
+    """
+    say = stage or (lambda msg: logger.info(msg))
     from .theory import predict
     from .tracking import load_camera, track_video
 
@@ -243,14 +248,17 @@ def analyze_video(video: str | Path, camera: str | Path, protocol: Protocol, out
     tracked = track_video(video, load_camera(camera, require_pose=False), protocol, out / "track", progress=progress)
     angles = pd.read_csv(out / "track" / "angles.csv")
     t1 = time.perf_counter()
+    say(f"smoothing {len(angles)} frames (noise levels by maximum likelihood) ...")
     smooth = smooth_angles(angles)
     _io.write_csv(smooth.table, out / "smoothed.csv")
     _io.write_json({"input": str(out / "track" / "angles.csv"), **smooth.summary()}, out / "smooth.json")
     t2 = time.perf_counter()
+    say("theory predictions and the fit ...")
     prediction = predict(protocol)
     fit = fit_file(out / "track" / "angles.csv", protocol, out, truth_csv=truth_csv, smooth=smooth,
                    prediction=prediction, rng=rng)
     t3 = time.perf_counter()
+    say("writing the report ...")
     counts = angles["quality"].fillna("").str.split(",").explode().value_counts().to_dict()
     tracking = {"frames": tracked["frames"], "tracked_fraction": tracked["tracked_fraction"], "quality_counts": counts}
     write_report(out / "report.html", protocol=protocol, fit=fit, angles=angles, smooth=smooth, prediction=prediction,

@@ -532,7 +532,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if protocol is None or args.camera is None:
         raise ValueError("analyze VIDEO needs --camera and --protocol")
     try:
-        res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=_progress_printer("track"))
+        res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=_progress_printer("track"),
+                            stage=lambda msg: print(msg, flush=True))
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
