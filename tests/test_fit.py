@@ -120,6 +120,7 @@ def test_gap_longer_than_half_a_precession_period_splits_the_azimuth():
     angles.loc[(angles.t_s > 1.0) & (angles.t_s < 3.5), ["theta_rad", "phi_rad"]] = np.nan
     r = fit_angles(angles, p, prediction=predict(p, simulate_damping=False))
     assert r.spec.segments == 2
+    assert any("split the azimuth into 2 segments" in n for n in r.notes)
     q = r.quantities["precession_rate_rad_s"]
     assert abs(q.value - exact_solution(p).mean_precession_rate_rad_s) < 4 * q.standard_error
 

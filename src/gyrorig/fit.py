@@ -509,6 +509,11 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                     nutation_origin_s=float(data.t_s[0] - data.t_ref_s) if scene.spec.damped else 0.0)
     notes: list[str] = list(scene.reasons)
     undetermined: dict[str, str] = {}
+    if spec0.segments > 1:
+        gaps = np.diff(data.t_s)[np.diff(data.segment) > 0]
+        notes.append(f"{len(gaps)} gap(s) longer than half a precession period ({', '.join(f'{g:.3g} s' for g in gaps)}) "
+                     f"split the azimuth into {spec0.segments} segments with their own offsets: the turns made in a "
+                     "gap are not counted, and the precession rate comes from within the segments")
     axis = None
     if spec0.fit_axis:
         m = _tip(data.theta_rad, data.phi_rad).mean(axis=0)
