@@ -89,3 +89,15 @@ def test_bad_tables_are_refused_by_name(mutate, match):
     df, *_ = _angles(n=50)
     with pytest.raises(SmoothingError, match=match):
         smooth_angles(mutate(df))
+
+
+def test_azimuth_stays_continuous_across_a_gap_longer_than_half_a_turn():
+    n, rate = 2000, 200.0
+    t = np.arange(n) / rate
+    phi = 2.5 * t  # a turn in 2.5 s
+    df = pd.DataFrame({"frame": np.arange(n), "t_s": t, "theta_rad": 0.6, "phi_rad": np.angle(np.exp(1j * phi)),
+                       "theta_sigma_rad": 1e-4, "phi_sigma_rad": 1e-4, "theta_phi_corr": 0.0})
+    df.loc[(t > 2.0) & (t < 3.8), ["theta_rad", "phi_rad"]] = np.nan  # 1.8 s: 0.7 of a turn
+    r = smooth_angles(df)
+    assert r.n_resets == 0 and r.n_outliers == 0
+    assert np.max(np.abs(r.table.phi_rad - phi)) < 1e-2

@@ -13,7 +13,8 @@ so uneven frame intervals and gaps are exact (no resampling).  The spectral dens
 ``q_theta, q_phi`` [rad^2/s^3] come from the data: they maximise the innovation
 log-likelihood (``estimate_noise``), never tuned per video.  The measurement covariance of
 each frame is the tracker's own (sigmas and correlation), so the filter weighs each frame as
-the tracker says it deserves.
+the tracker says it deserves.  Each azimuth measurement is taken on the 2 pi branch nearest
+the prediction, so the smoothed azimuth stays continuous across gaps longer than half a turn.
 
 **What it is for, and what it is not for.**  The smoother gives rates, covariances, gap
 bridging, an unwrapped azimuth, and outlier rejection by innovation gating (a frame whose
@@ -247,8 +248,10 @@ def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
         status[k] = 0
         if has[k]:
             # innovation y = z - H x, S = H P H' + R (H picks states 0 and 2)
+            # the azimuth on the 2 pi branch nearest the prediction (gaps longer than half a turn)
+            z1 = z[k, 1] + 2.0 * math.pi * np.round((x[2] - z[k, 1]) / (2.0 * math.pi))
             y0 = z[k, 0] - x[0]
-            y1 = z[k, 1] - x[2]
+            y1 = z1 - x[2]
             s00 = P[0, 0] + R[k, 0, 0]
             s01 = P[0, 2] + R[k, 0, 1]
             s11 = P[2, 2] + R[k, 1, 1]
@@ -448,8 +451,10 @@ def _run_filterpy(m: Measurements, q_theta: float, q_phi: float, gate_d2: float,
         Fs[k], Qs[k] = F, Q
         kf.predict(F=F, Q=Q)
         if m.has[k]:
+            zk = m.z[k].copy()
+            zk[1] += 2 * np.pi * np.round((kf.x[2] - zk[1]) / (2 * np.pi))  # branch nearest the prediction
             S = H @ kf.P @ H.T + m.R[k]
-            y = m.z[k] - H @ kf.x
+            y = zk - H @ kf.x
             dd = float(y @ np.linalg.solve(S, y))
             d2[k] = dd
             if dd > gate_d2 and rej < max_rejections:
@@ -462,7 +467,7 @@ def _run_filterpy(m: Measurements, q_theta: float, q_phi: float, gate_d2: float,
                 status[k] = _RESET
                 rej = 0
             else:
-                kf.update(m.z[k], R=m.R[k])
+                kf.update(zk, R=m.R[k])
                 ll += float(kf.log_likelihood)
                 status[k] = _MEASURED
                 rej = 0
