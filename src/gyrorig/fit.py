@@ -48,6 +48,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
+from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
@@ -73,6 +74,8 @@ TERM_P_VALUE = 1e-3
 #: nutation counts as resolved by the camera below this fraction of the Nyquist frequency
 NYQUIST_FRACTION = 0.9
 MAX_HARMONICS = 6
+#: above this reduced chi-square the residuals are dominated by a systematic, and the report says so
+SYSTEMATIC_CHI2_RED = 10.0
 #: a parameter whose value is below this many standard errors is "not significant"
 SIGNIFICANCE_SE = 3.0
 
@@ -760,6 +763,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         rng = rng if rng is not None else np.random.default_rng(0)
         block = max(2, int(math.ceil(1 + 2 * max(abs(rho[0]), abs(rho[1])) / (1 - min(0.99, max(abs(r) for r in rho)))
                                      * 5)))
+        block = min(block, max(2, data.n // 10))  # at least ten blocks, or the bootstrap has nothing to resample
         se_override = _block_bootstrap(sol, data, fns, rng, bootstrap_replicates, block)
         errors = f"moving-block bootstrap ({bootstrap_replicates} replicates, block {block} frames)"
         notes.append(f"residuals are not white (lag-1 autocorrelation {rho[0]:.3f} in theta, {rho[1]:.3f} in phi; "
@@ -768,6 +772,10 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         errors = "formal x sqrt(chi2_red)"
         notes.append(f"reduced chi-square {chi2_red:.3f} is significantly above 1 (the tracker's error bars are too "
                      "small or the model misses something): standard errors scaled by sqrt(chi2_red)")
+    if chi2_red > SYSTEMATIC_CHI2_RED:
+        notes.append(f"the residuals are far larger than the tracker's errors (reduced chi-square {chi2_red:.3g}): a "
+                     "systematic error dominates (camera calibration or pose, or a motion the model does not describe);"
+                     " the standard errors cover the statistical part only and understate the true error")
     values = {}
     formal = {}
     for k, f in fns.items():
@@ -858,10 +866,14 @@ def _truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.nda
     th = truth["theta_rad"].to_numpy(float)[order]
     ph = np.unwrap(truth["phi_rad"].to_numpy(float)[order])
     lo, hi = data.t_s[0], data.t_s[-1]
-    if t[0] > lo + 1e-9 or t[-1] < hi - 1e-9:
-        raise FitError("the truth table does not cover the measured times")
-    th_i = np.interp(data.t_s, t, th)
-    ph_i = _wrap(np.interp(data.t_s, t, ph))
+    # container timestamps are rounded (to 1 ms, say): allow half a frame at either end
+    slack = 0.5 * float(np.median(np.diff(data.t_s))) if data.n > 1 else 0.0
+    if t[0] > lo + slack or t[-1] < hi - slack:
+        raise FitError(f"the truth table ({t[0]:.6g}..{t[-1]:.6g} s) does not cover the measured times "
+                       f"({lo:.6g}..{hi:.6g} s)")
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    th_i = CubicSpline(t[keep], th[keep])(data.t_s)
+    ph_i = _wrap(CubicSpline(t[keep], ph[keep])(data.t_s))
     cov = np.zeros_like(data.cov)
     cov[:, 0, 0] = cov[:, 1, 1] = 1e-12
     d = replace(data, theta_rad=th_i, phi_rad=ph_i, cov=cov)
