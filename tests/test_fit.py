@@ -132,3 +132,33 @@ def test_bad_input_is_refused_by_name():
         fit_angles(angles.drop(columns=["phi_sigma_rad"]), p)
     with pytest.raises(FitError, match="at least 10"):
         fit_angles(angles.iloc[:5], p)
+
+
+@pytest.mark.parametrize("spec_kw", [dict(harmonics=3), dict(fit_axis=True, damped=True, harmonics=3, segments=2,
+                                                              persistent=True, nutation_origin_s=-1.0),
+                                      dict(fit_axis=True)])
+def test_analytic_jacobian_matches_finite_differences(spec_kw):
+    from scipy.optimize._numdiff import approx_derivative
+
+    from gyrorig.fit import FitData, ModelSpec, _Model, _residual_fn
+
+    spec = ModelSpec(**spec_kw)
+    m = _Model(spec)
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=len(m.names)) * 0.1
+    ix = m.index
+    p[ix["log_cone_angle"]], p[ix["precession_rate_rad_s"]] = np.log(0.5), 1.7
+    for name, v in (("nutation_frequency_rad_s", 59.0), ("persistent_frequency_rad_s", 59.5), ("axis_tilt_rad", 0.05),
+                    ("axis_azimuth_rad", 1.5)):
+        if name in ix:
+            p[ix[name]] = v
+    n = 400
+    t = np.arange(n) / 200.0
+    seg = (t > 1.0).astype(int) if spec.segments == 2 else np.zeros(n, int)
+    cov = np.zeros((n, 2, 2))
+    cov[:, 0, 0], cov[:, 1, 1] = 1e-8, 2e-8
+    cov[:, 0, 1] = cov[:, 1, 0] = 3e-9
+    _, white = _residual_fn(m, FitData(np.arange(n), t, np.full(n, 0.5), np.zeros(n), cov, seg, 1.0))
+    jn = approx_derivative(white, p, method="3-point")
+    ja = white.jac(p)
+    assert np.max(np.abs(ja - jn).max(axis=0) / np.abs(jn).max(axis=0)) < 1e-5

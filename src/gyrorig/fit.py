@@ -285,6 +285,108 @@ class _Model:
             ph = ph + p[ix["persistent_azimuth_cos_rad"]] * c + p[ix["persistent_azimuth_sin_rad"]] * sn
         return th, ph
 
+    def axis_frame_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """d(theta')/dp and d(phi')/dp, each (n, P), analytic (axis columns zero)."""
+        s, ix = self.spec, self.index
+        n, P = len(tau), len(p)
+        dth = np.zeros((n, P))
+        dph = np.zeros((n, P))
+        slow = p[ix["log_cone_angle"]]
+        if s.damped:
+            slow = slow + p[ix["tilt_growth_rate_per_s"]] * tau + p[ix["tilt_growth_curvature_per_s2"]] * tau**2
+        e = np.exp(slow) * np.ones_like(tau)
+        dth[:, ix["log_cone_angle"]] = e
+        dph[:, ix["precession_rate_rad_s"]] = tau
+        for k in range(s.segments):
+            dph[:, ix[f"azimuth_offset_{k}_rad"]] = segment == k
+        if s.damped:
+            dth[:, ix["tilt_growth_rate_per_s"]] = tau * e
+            dth[:, ix["tilt_growth_curvature_per_s2"]] = tau**2 * e
+            dph[:, ix["precession_acceleration_rad_s2"]] = 0.5 * tau**2
+        if s.harmonics:
+            w = p[ix["nutation_frequency_rad_s"]]
+            dt0 = tau - s.nutation_origin_s
+            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * dt0) if s.damped else np.ones_like(tau)
+            psi = w * tau
+            if s.damped:
+                psi = psi + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
+                env2 = env1 * env1
+                a0, c0 = p[ix["tilt_decaying_offset_rad"]], p[ix["azimuth_decaying_offset_rad"]]
+                dth[:, ix["tilt_decaying_offset_rad"]] = env2
+                dph[:, ix["azimuth_decaying_offset_rad"]] = env2
+                dth[:, ix["nutation_decay_rate_per_s"]] += -2 * dt0 * env2 * a0
+                dph[:, ix["nutation_decay_rate_per_s"]] += -2 * dt0 * env2 * c0
+            env = env1
+            for k in range(1, s.harmonics + 1):
+                c, sn = np.cos(k * psi), np.sin(k * psi)
+                a, b = p[ix[f"tilt_cos_{k}_rad"]], p[ix[f"tilt_sin_{k}_rad"]]
+                cc, dd = p[ix[f"azimuth_cos_{k}_rad"]], p[ix[f"azimuth_sin_{k}_rad"]]
+                dth[:, ix[f"tilt_cos_{k}_rad"]] = env * c
+                dth[:, ix[f"tilt_sin_{k}_rad"]] = env * sn
+                dph[:, ix[f"azimuth_cos_{k}_rad"]] = env * c
+                dph[:, ix[f"azimuth_sin_{k}_rad"]] = env * sn
+                dpsi_t = env * k * (-a * sn + b * c)  # d/d psi of the tilt term
+                dpsi_p = env * k * (-cc * sn + dd * c)
+                dth[:, ix["nutation_frequency_rad_s"]] += dpsi_t * tau
+                dph[:, ix["nutation_frequency_rad_s"]] += dpsi_p * tau
+                if s.damped:
+                    dth[:, ix["nutation_chirp_rad_s2"]] += dpsi_t * 0.5 * tau**2
+                    dph[:, ix["nutation_chirp_rad_s2"]] += dpsi_p * 0.5 * tau**2
+                    dth[:, ix["nutation_decay_rate_per_s"]] += -k * dt0 * env * (a * c + b * sn)
+                    dph[:, ix["nutation_decay_rate_per_s"]] += -k * dt0 * env * (cc * c + dd * sn)
+                    env = env * env1
+        if s.damped and s.fit_axis:
+            om = p[ix["precession_rate_rad_s"]]
+            cp, sp = np.cos(om * tau), np.sin(om * tau)
+            e1, f1 = p[ix["tilt_precession_cos_rad"]], p[ix["tilt_precession_sin_rad"]]
+            e2, f2 = p[ix["azimuth_precession_cos_rad"]], p[ix["azimuth_precession_sin_rad"]]
+            dth[:, ix["tilt_precession_cos_rad"]] = cp
+            dth[:, ix["tilt_precession_sin_rad"]] = sp
+            dph[:, ix["azimuth_precession_cos_rad"]] = cp
+            dph[:, ix["azimuth_precession_sin_rad"]] = sp
+            dth[:, ix["precession_rate_rad_s"]] += tau * (-e1 * sp + f1 * cp)
+            dph[:, ix["precession_rate_rad_s"]] += tau * (-e2 * sp + f2 * cp)
+        if s.persistent:
+            wp = p[ix["persistent_frequency_rad_s"]]
+            c, sn = np.cos(wp * tau), np.sin(wp * tau)
+            e1, f1 = p[ix["persistent_tilt_cos_rad"]], p[ix["persistent_tilt_sin_rad"]]
+            e2, f2 = p[ix["persistent_azimuth_cos_rad"]], p[ix["persistent_azimuth_sin_rad"]]
+            dth[:, ix["persistent_tilt_cos_rad"]] = c
+            dth[:, ix["persistent_tilt_sin_rad"]] = sn
+            dph[:, ix["persistent_azimuth_cos_rad"]] = c
+            dph[:, ix["persistent_azimuth_sin_rad"]] = sn
+            dth[:, ix["persistent_frequency_rad_s"]] = tau * (-e1 * sn + f1 * c)
+            dph[:, ix["persistent_frequency_rad_s"]] = tau * (-e2 * sn + f2 * c)
+        return dth, dph
+
+    def lab_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """d(theta, phi)_lab / dp, each (n, P): analytic in the axis frame, chain rule to the lab."""
+        dth, dph = self.axis_frame_jacobian(p, tau, segment)
+        if not self.spec.fit_axis:
+            return dth, dph
+        ix = self.index
+        th, ph = self.axis_frame(p, tau, segment)
+        a, b = p[ix["axis_tilt_rad"]], p[ix["axis_azimuth_rad"]]
+
+        def conv(t_, p_, a_=a, b_=b):
+            return _angles(_tip(t_, p_) @ _axis_rotation(a_, b_).T)
+
+        h = 1e-7
+        tp, pp = conv(th + h, ph)
+        tm, pm = conv(th - h, ph)
+        g00, g10 = (tp - tm) / (2 * h), _wrap(pp - pm) / (2 * h)
+        tp, pp = conv(th, ph + h)
+        tm, pm = conv(th, ph - h)
+        g01, g11 = (tp - tm) / (2 * h), _wrap(pp - pm) / (2 * h)
+        jt = g00[:, None] * dth + g01[:, None] * dph
+        jp = g10[:, None] * dth + g11[:, None] * dph
+        for name, da, db in (("axis_tilt_rad", h, 0.0), ("axis_azimuth_rad", 0.0, h)):
+            tp, pp = conv(th, ph, a + da, b + db)
+            tm, pm = conv(th, ph, a - da, b - db)
+            jt[:, ix[name]] = (tp - tm) / (2 * h)
+            jp[:, ix[name]] = _wrap(pp - pm) / (2 * h)
+        return jt, jp
+
     def lab(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
         th, ph = self.axis_frame(p, tau, segment)
         if not self.spec.fit_axis:
@@ -317,6 +419,12 @@ def _residual_fn(model: _Model, data: FitData):
     def white(p):
         r0, r1 = raw(p)
         return np.concatenate([W[:, 0, 0] * r0, W[:, 1, 0] * r0 + W[:, 1, 1] * r1])
+
+    def white_jac(p):
+        jt, jp = model.lab_jacobian(p, tau, data.segment)
+        return -np.concatenate([W[:, 0, 0, None] * jt, W[:, 1, 0, None] * jt + W[:, 1, 1, None] * jp])
+
+    white.jac = white_jac
 
     return raw, white
 
@@ -462,7 +570,7 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
     n_res = 2 * data.n
     if n_res <= len(x0):
         raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
-    res = least_squares(white, x0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+    res = least_squares(white, x0, jac=white.jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
                         max_nfev=200 * (len(x0) + 1))
     J = res.jac
     try:
