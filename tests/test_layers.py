@@ -1,4 +1,4 @@
-"""Import boundaries: the tracker can never see the truth; the physics core stays free of I/O libraries.
+"""Import boundaries: the tracker, smoother and fit can never see the truth (the simulator); the physics core stays free of I/O libraries.
 
 Checked statically over each module's own imports, followed through gyrorig's modules
 (the package ``__init__`` is not followed: importing a submodule runs it, but the
@@ -58,7 +58,7 @@ def closure(module: str) -> set[str]:
     return seen
 
 
-@pytest.mark.parametrize("module", ["gyrorig.tracking", "gyrorig.calibration"])
+@pytest.mark.parametrize("module", ["gyrorig.tracking", "gyrorig.calibration", "gyrorig.smooth", "gyrorig.fit"])
 def test_tracking_cannot_reach_the_truth(module):
     reached = closure(module)
     forbidden = {m for m in reached if m.startswith(("gyrorig.physics", "gyrorig.render", "gyrorig.theory",
@@ -74,6 +74,7 @@ def test_physics_core_has_no_video_filtering_or_plotting(module):
 
 
 @pytest.mark.parametrize("module", ["gyrorig.bench", "gyrorig.theory", "gyrorig.validation", "gyrorig.stability",
-                                    "gyrorig.render", "gyrorig.tracking", "gyrorig.physics.simulate"])
+                                    "gyrorig.render", "gyrorig.tracking", "gyrorig.physics.simulate", "gyrorig.smooth",
+                                    "gyrorig.fit", "gyrorig.analysis", "gyrorig.plan"])
 def test_library_modules_do_not_import_the_command_line(module):
     assert "gyrorig.cli" not in closure(module)
