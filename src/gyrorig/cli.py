@@ -457,8 +457,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     full_pred = predict(protocol)
     fit = fit_file(out / "track" / "angles.csv", video_protocol, out, truth_csv=out / "video" / "truth.csv",
                    smooth=smooth, prediction=full_pred)
+    counts = raw["quality"].fillna("").str.split(",").explode().value_counts().to_dict()
     write_report(out / "report.html", protocol=video_protocol, fit=fit, angles=raw, smooth=smooth,
-                 prediction=full_pred, title=f"gyrorig demo: {protocol.name}")
+                 prediction=full_pred, title=f"gyrorig demo: {protocol.name}",
+                 tracking={"frames": tracked["frames"], "quality_counts": counts})
     print(f"      {'quantity':<26} {'paper':>11} {'exact':>11} {'fitted':>11} {'+- s.e.':>9} {'true':>11} {'pull':>6}")
     for name, q in fit.quantities.items():
         if q.status != "determined":
