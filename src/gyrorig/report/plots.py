@@ -159,32 +159,39 @@ def plot_tracking(angles: pd.DataFrame, truth: pd.DataFrame, *, title: str = "")
 
 
 def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title: str = "") -> Figure:
-    """Measured, smoothed and fitted angles; the tip path from above; normalised residuals.
+    """Measured, smoothed and fitted angles; a zoom on the nutation; the tip path from above;
+    the smoother's rates; normalised residuals.
 
     Parameters
     ----------
     angles : DataFrame
         Tracked angles (``t_s, theta_rad, phi_rad``).
     smoothed : DataFrame, optional
-        Smoother output (``t_s, theta_rad, phi_rad, status``).
+        Smoother output (``t_s, theta_rad, theta_rate_rad_s, phi_rate_rad_s, status``).
     fit : gyrorig.fit.FitResult
     """
-    fig = Figure(figsize=(11, 10), layout="constrained")
-    axes = fig.subplots(3, 2)
+    fig = Figure(figsize=(11, 13), layout="constrained")
+    axes = fig.subplots(4, 2)
     t = angles.t_s.to_numpy()
     ok = np.isfinite(angles.theta_rad.to_numpy())
     curve = fit.model_curve
-    ax = axes[0, 0]
-    ax.plot(t[ok], np.degrees(angles.theta_rad.to_numpy()[ok]), ".", ms=2, color="0.5", label="tracked")
-    if smoothed is not None:
-        ax.plot(smoothed.t_s, np.degrees(smoothed.theta_rad), lw=0.6, color="C0", label="smoothed (Kalman/RTS)")
-        out = smoothed.status.to_numpy() == "outlier"
-        if out.any():
-            ax.plot(t[out], np.degrees(angles.theta_rad.to_numpy()[out]), "rx", ms=5, label="outlier (gated)")
-    ax.plot(curve.t_s, np.degrees(curve.theta_rad), lw=0.8, color="C1", label="fit")
-    ax.set(xlabel="t [s]", ylabel="tilt theta [deg]", title="tilt")
-    ax.legend(fontsize=7, loc="best")
-    ax = axes[0, 1]
+    th_deg = np.degrees(angles.theta_rad.to_numpy())
+    t0 = t[ok][0] if ok.any() else 0.0
+    for ax, zoom in ((axes[0, 0], False), (axes[0, 1], True)):
+        sel = ok & ((t <= t0 + 1.0) if zoom else True)
+        csel = (curve.t_s <= t0 + 1.0) if zoom else np.ones(len(curve), bool)
+        ax.plot(t[sel], th_deg[sel], ".", ms=2 if not zoom else 4, color="0.5", label="tracked")
+        if smoothed is not None:
+            ssel = (smoothed.t_s <= t0 + 1.0) if zoom else np.ones(len(smoothed), bool)
+            ax.plot(smoothed.t_s[ssel], np.degrees(smoothed.theta_rad[ssel]), lw=0.6, color="C0",
+                    label="smoothed (Kalman/RTS)")
+            out = (smoothed.status.to_numpy() == "outlier") & sel
+            if out.any():
+                ax.plot(t[out], th_deg[out], "rx", ms=5, label="outlier (gated)")
+        ax.plot(curve.t_s[csel], np.degrees(curve.theta_rad[csel]), lw=0.8, color="C1", label="fit")
+        ax.set(xlabel="t [s]", ylabel="tilt theta [deg]", title="tilt, first second" if zoom else "tilt")
+        ax.legend(fontsize=7, loc="best")
+    ax = axes[1, 0]
     phi_meas = np.unwrap(angles.phi_rad.to_numpy()[ok])
     phi_fit = np.interp(t[ok], curve.t_s, np.unwrap(curve.phi_rad))
     phi_fit += 2 * np.pi * np.round((phi_meas[0] - phi_fit[0]) / (2 * np.pi))
@@ -192,7 +199,7 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
     ax.plot(t[ok], np.degrees(phi_fit), lw=0.8, color="C1", label="fit")
     ax.set(xlabel="t [s]", ylabel="azimuth phi [deg] (unwrapped)", title="precession")
     ax.legend(fontsize=7)
-    ax = axes[1, 0]
+    ax = axes[1, 1]
     th, ph = angles.theta_rad.to_numpy()[ok], angles.phi_rad.to_numpy()[ok]
     ax.plot(np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), ".", ms=1.5, color="0.5", label="tracked")
     ct, cp = curve.theta_rad.to_numpy(), curve.phi_rad.to_numpy()
@@ -201,7 +208,13 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
     ax.set(xlabel="tip x", ylabel="tip y", title="tip path seen from above (unit sphere)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.legend(fontsize=7)
-    ax = axes[1, 1]
+    ax = axes[2, 0]
+    if smoothed is not None and "theta_rate_rad_s" in smoothed:
+        ax.plot(smoothed.t_s, smoothed.theta_rate_rad_s, lw=0.6, label="theta' (tilt rate)")
+        ax.plot(smoothed.t_s, smoothed.phi_rate_rad_s, lw=0.6, label="phi' (precession rate)")
+        ax.legend(fontsize=7)
+    ax.set(xlabel="t [s]", ylabel="rate [rad/s]", title="smoothed rates")
+    ax = axes[2, 1]
     res = fit.residuals
     ax.hist(res.theta_resid_norm, bins=60, histtype="step", density=True, label="theta")
     ax.hist(res.phi_resid_norm, bins=60, histtype="step", density=True, label="phi")
@@ -209,7 +222,7 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
     ax.plot(x, np.exp(-x**2 / 2) / np.sqrt(2 * np.pi), "k--", lw=0.8, label="N(0, 1)")
     ax.set(xlabel="residual / sigma", ylabel="density", title=f"normalised residuals (chi2_red {fit.chi2_red:.3f})")
     ax.legend(fontsize=7)
-    for ax, col, name in ((axes[2, 0], "theta_resid_rad", "tilt"), (axes[2, 1], "phi_resid_rad", "azimuth")):
+    for ax, col, name in ((axes[3, 0], "theta_resid_rad", "tilt"), (axes[3, 1], "phi_resid_rad", "azimuth")):
         ax.plot(res.t_s, res[col] * 1e3, ".", ms=1.5)
         ax.axhline(0, color="k", lw=0.5)
         ax.set(xlabel="t [s]", ylabel=f"{name} residual [mrad]", title=f"{name} residuals (data - fit)")
