@@ -336,28 +336,27 @@ class _Model:
                     dph[:, ix["nutation_decay_rate_per_s"]] += -k * dt0 * env * (cc * c + dd * sn)
                     env = env * env1
         if s.damped and s.fit_axis:
-            om = p[ix["precession_rate_rad_s"]]
-            cp, sp = np.cos(om * tau), np.sin(om * tau)
-            e1, f1 = p[ix["tilt_precession_cos_rad"]], p[ix["tilt_precession_sin_rad"]]
-            e2, f2 = p[ix["azimuth_precession_cos_rad"]], p[ix["azimuth_precession_sin_rad"]]
-            dth[:, ix["tilt_precession_cos_rad"]] = cp
-            dth[:, ix["tilt_precession_sin_rad"]] = sp
-            dph[:, ix["azimuth_precession_cos_rad"]] = cp
-            dph[:, ix["azimuth_precession_sin_rad"]] = sp
-            dth[:, ix["precession_rate_rad_s"]] += tau * (-e1 * sp + f1 * cp)
-            dph[:, ix["precession_rate_rad_s"]] += tau * (-e2 * sp + f2 * cp)
+            self._sinusoid_columns(p, tau, dth, dph, "precession_rate_rad_s", "precession")
         if s.persistent:
-            wp = p[ix["persistent_frequency_rad_s"]]
-            c, sn = np.cos(wp * tau), np.sin(wp * tau)
-            e1, f1 = p[ix["persistent_tilt_cos_rad"]], p[ix["persistent_tilt_sin_rad"]]
-            e2, f2 = p[ix["persistent_azimuth_cos_rad"]], p[ix["persistent_azimuth_sin_rad"]]
-            dth[:, ix["persistent_tilt_cos_rad"]] = c
-            dth[:, ix["persistent_tilt_sin_rad"]] = sn
-            dph[:, ix["persistent_azimuth_cos_rad"]] = c
-            dph[:, ix["persistent_azimuth_sin_rad"]] = sn
-            dth[:, ix["persistent_frequency_rad_s"]] = tau * (-e1 * sn + f1 * c)
-            dph[:, ix["persistent_frequency_rad_s"]] = tau * (-e2 * sn + f2 * c)
+            self._sinusoid_columns(p, tau, dth, dph, "persistent_frequency_rad_s", "persistent")
         return dth, dph
+
+    def _sinusoid_columns(self, p, tau, dth, dph, freq: str, stem: str) -> None:
+        """Columns of a pair of sinusoids ``X_cos cos(w tau) + X_sin sin(w tau)`` in tilt and azimuth.
+
+        ``stem`` names the amplitudes (``tilt_<stem>_cos_rad`` ..., or ``<stem>_tilt_cos_rad``
+        ...); their derivative with respect to the frequency parameter ``freq`` is added.
+        """
+        ix = self.index
+        names = ([f"tilt_{stem}_cos_rad", f"tilt_{stem}_sin_rad", f"azimuth_{stem}_cos_rad", f"azimuth_{stem}_sin_rad"]
+                 if f"tilt_{stem}_cos_rad" in ix else
+                 [f"{stem}_tilt_cos_rad", f"{stem}_tilt_sin_rad", f"{stem}_azimuth_cos_rad", f"{stem}_azimuth_sin_rad"])
+        w = p[ix[freq]]
+        c, sn = np.cos(w * tau), np.sin(w * tau)
+        for d, (nc, ns) in ((dth, names[:2]), (dph, names[2:])):
+            d[:, ix[nc]] = c
+            d[:, ix[ns]] = sn
+            d[:, ix[freq]] += tau * (-p[ix[nc]] * sn + p[ix[ns]] * c)
 
     def lab_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
         """d(theta, phi)_lab / dp, each (n, P): analytic in the axis frame, chain rule to the lab."""

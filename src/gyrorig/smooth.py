@@ -198,6 +198,28 @@ def _predict(x, P, dt, qt, qp, xo, Po, tmp):
 
 
 @njit(cache=True)
+def _mul4(A, B, out):
+    """out = A B for 4x4 matrices (no allocation)."""
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for m in range(4):
+                s += A[i, m] * B[m, j]
+            out[i, j] = s
+
+
+@njit(cache=True)
+def _mul4_bt(A, B, out):
+    """out = A B' for 4x4 matrices (no allocation)."""
+    for i in range(4):
+        for j in range(4):
+            s = 0.0
+            for m in range(4):
+                s += A[i, m] * B[j, m]
+            out[i, j] = s
+
+
+@njit(cache=True)
 def _init_state(x, P, z, R, k):
     """State at measurement k: the measured angles, flat prior on the rates."""
     x[:] = 0.0
@@ -285,18 +307,11 @@ def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
                         A[i, j] = 1.0 if i == j else 0.0
                     A[i, 0] -= K[i, 0]
                     A[i, 2] -= K[i, 1]
+                _mul4(A, P, AP)
+                _mul4_bt(AP, A, Pn)
                 for i in range(4):
                     for j in range(4):
-                        s = 0.0
-                        for m in range(4):
-                            s += A[i, m] * P[m, j]
-                        AP[i, j] = s
-                for i in range(4):
-                    for j in range(4):
-                        s = 0.0
-                        for m in range(4):
-                            s += AP[i, m] * A[j, m]
-                        Pn[i, j] = s + (K[i, 0] * (R[k, 0, 0] * K[j, 0] + R[k, 0, 1] * K[j, 1])
+                        Pn[i, j] += (K[i, 0] * (R[k, 0, 0] * K[j, 0] + R[k, 0, 1] * K[j, 1])
                                      + K[i, 1] * (R[k, 1, 0] * K[j, 0] + R[k, 1, 1] * K[j, 1]))
                 for i in range(4):
                     for j in range(i, 4):
@@ -347,6 +362,7 @@ def _rts(t, xf, Pf, xp, Pp, status, xs, Ps):
     G = np.zeros((4, 4))
     D = np.zeros((4, 4))
     GD = np.zeros((4, 4))
+    GDG = np.zeros((4, 4))
     dx = np.zeros(4)
     for k in range(n - 2, -1, -1):
         if status[k + 1] == 3:
@@ -362,12 +378,7 @@ def _rts(t, xf, Pf, xp, Pp, status, xs, Ps):
             C[i, 2] = P[i, 2] + dt * P[i, 3]
             C[i, 3] = P[i, 3]
         _spd_inverse(Pp[k + 1], L, inv)
-        for i in range(4):
-            for j in range(4):
-                s = 0.0
-                for m in range(4):
-                    s += C[i, m] * inv[m, j]
-                G[i, j] = s
+        _mul4(C, inv, G)
         for i in range(4):
             dx[i] = xs[k + 1, i] - xp[k + 1, i]
             for j in range(4):
@@ -377,17 +388,11 @@ def _rts(t, xf, Pf, xp, Pp, status, xs, Ps):
             for m in range(4):
                 s += G[i, m] * dx[m]
             xs[k, i] = s
-            for j in range(4):
-                s = 0.0
-                for m in range(4):
-                    s += G[i, m] * D[m, j]
-                GD[i, j] = s
+        _mul4(G, D, GD)
+        _mul4_bt(GD, G, GDG)
         for i in range(4):
             for j in range(i, 4):
-                s = 0.0
-                for m in range(4):
-                    s += GD[i, m] * G[j, m]
-                v = P[i, j] + s
+                v = P[i, j] + 0.5 * (GDG[i, j] + GDG[j, i])
                 Ps[k, i, j] = v
                 Ps[k, j, i] = v
 
