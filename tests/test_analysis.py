@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
-
 import numpy as np
 import pandas as pd
 import pytest
 
+from gyrorig.camera import with_image_size
 from gyrorig.cli import main
 from gyrorig.protocols import load_protocol
 from gyrorig.render import render_video
@@ -17,9 +16,7 @@ from conftest import PROTOCOL_DIR
 
 
 def _small(name: str):
-    p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
-    cam = dict(p.extra["camera"], width_px=640, height_px=480, pixel_size_um=3.45 * 2.25)
-    return replace(p, extra={**p.extra, "camera": cam})
+    return with_image_size(load_protocol(PROTOCOL_DIR / f"{name}.toml"), 640, 480)
 
 
 @pytest.fixture(scope="module")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import tempfile
@@ -11,9 +12,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
-__all__ = ["atomic_path", "write_csv", "write_json", "versions"]
+__all__ = ["atomic_path", "write_csv", "write_json", "json_safe", "versions"]
 
 
 @contextmanager
@@ -57,6 +59,21 @@ def write_json(obj: Any, path: str | Path) -> Path:
         p.write_text(json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
 
     return _write(path, writer)
+
+
+def json_safe(obj: Any) -> Any:
+    """Strict-JSON form: NaN and inf become null; numpy scalars and arrays become Python ones."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 def versions() -> dict[str, str]:

@@ -34,9 +34,14 @@ from .smooth import SmoothResult, smooth_angles
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["load_truth", "smooth_file", "fit_file", "analyze_video", "analyze_batch", "write_report", "fit_document"]
+__all__ = ["load_truth", "quality_counts", "smooth_file", "fit_file", "analyze_video", "analyze_batch", "write_report", "fit_document"]
 
 Progress = Callable[[int, int], None]
+
+
+def quality_counts(angles: pd.DataFrame) -> dict[str, int]:
+    """How many frames carry each tracking ``quality`` flag (a frame may carry several)."""
+    return angles["quality"].fillna("").str.split(",").explode().value_counts().to_dict()
 
 
 def load_truth(path: str | Path, marker: str = "tip") -> pd.DataFrame:
@@ -80,21 +85,7 @@ def fit_document(fit: FitResult, protocol: Protocol, prediction: dict | None, sm
         doc["smoother"] = smooth.summary()
     if extra:
         doc.update(extra)
-    return _json_safe(doc)
-
-
-def _json_safe(obj):
-    if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    return obj
+    return _io.json_safe(doc)
 
 
 def fit_file(angles_csv: str | Path, protocol: Protocol, out: str | Path, *, truth_csv: str | Path | None = None,
@@ -259,8 +250,8 @@ def analyze_video(video: str | Path, camera: str | Path, protocol: Protocol, out
                    prediction=prediction, rng=rng)
     t3 = time.perf_counter()
     say("writing the report ...")
-    counts = angles["quality"].fillna("").str.split(",").explode().value_counts().to_dict()
-    tracking = {"frames": tracked["frames"], "tracked_fraction": tracked["tracked_fraction"], "quality_counts": counts}
+    tracking = {"frames": tracked["frames"], "tracked_fraction": tracked["tracked_fraction"],
+                "quality_counts": quality_counts(angles)}
     write_report(out / "report.html", protocol=protocol, fit=fit, angles=angles, smooth=smooth, prediction=prediction,
                  tracking=tracking, title=f"{protocol.name}: {Path(video).name}")
     return {"video": str(video), "out": str(out), "report": str(out / "report.html"), "fit": fit,

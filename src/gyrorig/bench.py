@@ -399,14 +399,6 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
 FIT_MC_SCENES = ("air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-pivot")
 
 
-def _small_camera(protocol: Protocol, width_px: int, height_px: int) -> Protocol:
-    from dataclasses import replace
-
-    cam = dict(protocol.extra["camera"])
-    cam.update(width_px=width_px, height_px=height_px, pixel_size_um=cam["pixel_size_um"] * cam["width_px"] / width_px)
-    return replace(protocol, extra={**protocol.extra, "camera": cam})
-
-
 def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
                         camera_size: tuple[int, int] | None = (640, 480), prediction: dict | None = None) -> list[dict]:
     """One run of the full chain (render -> track -> smooth -> fit) with the truth unseen.
@@ -416,6 +408,7 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
     """
     import tempfile
 
+    from .camera import with_image_size
     from .fit import fit_angles
     from .protocols import load_protocol
     from .render import render_video
@@ -425,7 +418,7 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
     p = scene if isinstance(scene, Protocol) else load_protocol(BUNDLED_PROTOCOL_DIR / f"{scene}.toml")
     scene = p.name
     if camera_size is not None:
-        p = _small_camera(p, *camera_size)
+        p = with_image_size(p, *camera_size)
     if prediction is None:
         from .theory import predict
 

@@ -32,14 +32,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from .protocols import Protocol, ProtocolError, _check_keys, _number, _vector3
 
-__all__ = ["Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose"]
+__all__ = ["Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose", "with_image_size"]
 
 
 @dataclass(frozen=True)
@@ -253,6 +253,21 @@ def _parse_markers(t: Mapping[str, Any]) -> tuple[tuple[Marker, ...], tuple[Occl
 
 def _finite_z(section: str, key: str, value: Any) -> float:
     return _number(section, key, value, lo=-1.0, hi=1.0)
+
+
+def with_image_size(protocol: Protocol, width_px: int, height_px: int) -> Protocol:
+    """The protocol with its camera's sensor cropped or binned to ``width_px x height_px``.
+
+    The pixel pitch scales with the width, so the field of view and the optics stay the same
+    (a 640x480 stand-in for a 1440x1080 camera sees the same scene, 2.25x coarser).
+    """
+    if "camera" not in protocol.extra:
+        raise ProtocolError("the protocol has no [camera] section")
+    cam = dict(protocol.extra["camera"])
+    if "pixel_size_um" in cam:
+        cam["pixel_size_um"] = cam["pixel_size_um"] * cam["width_px"] / width_px
+    cam.update(width_px=width_px, height_px=height_px)
+    return replace(protocol, extra={**protocol.extra, "camera": cam})
 
 
 def camera_setup(protocol: Protocol) -> CameraSetup:

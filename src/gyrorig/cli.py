@@ -314,7 +314,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         plan["monte_carlo"] = {"duration_s": args.mc_duration, "runs": args.monte_carlo,
                                "failed_runs": table.attrs.get("failed_runs", 0),
                                "table": table.to_dict(orient="records")}
-    doc = _json_safe(plan)
+    doc = _io.json_safe(plan)
     if out:
         _io.write_json(doc, out / "plan.json")
     if args.json:
@@ -376,10 +376,9 @@ def _cmd_bench_smooth(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     import pandas as pd
 
+    from .camera import with_image_size
     from .render import render_video
     from .report import plot_tracking, plot_trajectory
     from .theory import predict
@@ -417,7 +416,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     # 2. the paper's predictions for this rig, judged
     print("[2/5] the paper's formulas for this rig (paper / exact):", flush=True)
     pred = predict(protocol, simulate_damping=False)
-    _io.write_json(_json_safe(pred), out / "theory.json")
+    _io.write_json(_io.json_safe(pred), out / "theory.json")
     for key in ("precession_rate_slow_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad",
                 "mean_precession_rate_rad_s"):
         v = pred[key]
@@ -427,8 +426,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
     # 3. a short synthetic video through the rig's camera (640x480 here, for speed)
     print(f"[3/5] rendering {args.video_duration:g} s of video (640x480, 200 fps) ...", flush=True)
-    cam = dict(protocol.extra["camera"], width_px=640, height_px=480, pixel_size_um=3.45 * 2.25)
-    video_protocol = replace(protocol, extra={**protocol.extra, "camera": cam})
+    video_protocol = with_image_size(protocol, 640, 480)
     rendered = render_video(video_protocol, out / "video", seed=0, duration_s=args.video_duration, calibration_views=0,
                             progress=_progress_printer("      render"))
 
@@ -448,7 +446,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
           f"phi error {np.sqrt(np.mean(e_ph**2)):.2e} rad rms (sigma {angles.phi_sigma_rad.mean():.2e})")
     # 5. smooth, fit against theory, report
     print("[5/5] smoothing, fitting and writing the report ...", flush=True)
-    from .analysis import fit_file, write_report
+    from .analysis import fit_file, quality_counts, write_report
     from .smooth import smooth_angles
 
     raw = pd.read_csv(out / "track" / "angles.csv")
@@ -457,10 +455,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     full_pred = predict(protocol)
     fit = fit_file(out / "track" / "angles.csv", video_protocol, out, truth_csv=out / "video" / "truth.csv",
                    smooth=smooth, prediction=full_pred)
-    counts = raw["quality"].fillna("").str.split(",").explode().value_counts().to_dict()
     write_report(out / "report.html", protocol=video_protocol, fit=fit, angles=raw, smooth=smooth,
                  prediction=full_pred, title=f"gyrorig demo: {protocol.name}",
-                 tracking={"frames": tracked["frames"], "quality_counts": counts})
+                 tracking={"frames": tracked["frames"], "quality_counts": quality_counts(raw)})
     print(f"      {'quantity':<26} {'paper':>11} {'exact':>11} {'fitted':>11} {'+- s.e.':>9} {'true':>11} {'pull':>6}")
     for name, q in fit.quantities.items():
         if q.status != "determined":
@@ -547,19 +544,6 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _json_safe(obj):
-    """NaN and inf become null so the output is strict JSON."""
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
-
-
 def _print_prediction(pred: dict) -> None:
     print(f"{pred['protocol']}: theory for this scene (paper as printed / corrected / exact or simulated)")
     for k, v in pred["flags"].items():
@@ -595,7 +579,7 @@ def _cmd_theory(args: argparse.Namespace) -> int:
         raise ValueError("give a PROTOCOL, or --validate")
     pred = theory.predict(load_protocol(args.protocol), simulate_damping=not args.no_simulate)
     if args.json:
-        print(json.dumps(_json_safe(pred), indent=2))
+        print(json.dumps(_io.json_safe(pred), indent=2))
     else:
         _print_prediction(pred)
     return EXIT_OK

@@ -53,6 +53,7 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2
 
 from .protocols import Protocol
+from .smooth import measurement_covariance
 
 logger = logging.getLogger(__name__)
 
@@ -446,12 +447,7 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
     sph = a["phi_sigma_rad"].to_numpy(float)
     if not (np.all(np.isfinite(sth)) and np.all(np.isfinite(sph)) and np.all(sth > 0) and np.all(sph > 0)):
         raise FitError("theta_sigma_rad and phi_sigma_rad must be finite and > 0 wherever there are angles")
-    corr = a["theta_phi_corr"].to_numpy(float) if "theta_phi_corr" in a.columns else np.zeros(len(a))
-    corr = np.where(np.isfinite(corr), corr, 0.0)
-    cov = np.empty((len(a), 2, 2))
-    cov[:, 0, 0] = sth**2
-    cov[:, 1, 1] = sph**2
-    cov[:, 0, 1] = cov[:, 1, 0] = corr * sth * sph
+    cov = measurement_covariance(sth, sph, a["theta_phi_corr"] if "theta_phi_corr" in a.columns else None)
     t = a["t_s"].to_numpy(float)
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
         raise FitError("t_s must be finite and non-decreasing")
@@ -490,7 +486,7 @@ def model_for_scene(protocol: Protocol, prediction: dict | None = None) -> Scene
     nut = pred.get("nutation_frequency_rad_s", {}).get("exact") if gravity else None
     prec_key = "mean_precession_rate_rad_s" if gravity else "precession_rate_rad_s"
     prec = pred.get(prec_key, {}).get("exact")
-    spec = ModelSpec(fit_axis=fit_axis, damped=damped, harmonics=1 if gravity else 0)
+    spec = ModelSpec(fit_axis=fit_axis, damped=damped)  # nutation terms: chosen by the data in fit_model
     return SceneModel(spec=spec, nutation_expected=gravity, nutation_frequency_hint_rad_s=nut,
                       precession_hint_rad_s=prec, reasons=tuple(reasons))
 
@@ -788,7 +784,8 @@ def _compare(q: Quantity, prediction: dict | None, key: str | None, comparable: 
         return q
     p = prediction[key]
     paper, corr, exact = p.get("paper"), p.get("corrected"), p.get("exact")
-    upd = dict(paper=paper, corrected=corr, exact=exact, exact_source=p.get("exact_source", ""), note=note)
+    upd = dict(paper=paper, corrected=corr, exact=exact, exact_source=p.get("exact_source", ""),
+               note="; ".join(n for n in (q.note, note) if n))
     if comparable and q.value is not None and q.standard_error:
         def diff(ref: float) -> float:
             d = q.value - ref
@@ -864,9 +861,8 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     white_limit = 4.0 / math.sqrt(data.n)
     errors = "formal"
     se_override: dict[str, float] = {}
-    if not check_residuals:
-        pass
-    elif max(abs(rho[0]), abs(rho[1])) > white_limit:
+    not_white = check_residuals and max(abs(rho[0]), abs(rho[1])) > white_limit
+    if not_white:
         rng = rng if rng is not None else np.random.default_rng(0)
         block = max(2, int(math.ceil(1 + 2 * max(abs(rho[0]), abs(rho[1])) / (1 - min(0.99, max(abs(r) for r in rho)))
                                      * 5)))
@@ -875,11 +871,11 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         errors = f"moving-block bootstrap ({bootstrap_replicates} replicates, block {block} frames)"
         notes.append(f"residuals are not white (lag-1 autocorrelation {rho[0]:.3f} in theta, {rho[1]:.3f} in phi; "
                      f"limit {white_limit:.3f}): standard errors from the bootstrap")
-    elif chi2.sf(sol.chi2, sol.dof) < 1e-3 and chi2_red > 1:
+    elif check_residuals and chi2.sf(sol.chi2, sol.dof) < 1e-3 and chi2_red > 1:
         errors = "formal x sqrt(chi2_red)"
         notes.append(f"reduced chi-square {chi2_red:.3f} is significantly above 1 (the tracker's error bars are too "
                      "small or the model misses something): standard errors scaled by sqrt(chi2_red)")
-    if chi2_red > SYSTEMATIC_CHI2_RED:
+    if check_residuals and chi2_red > SYSTEMATIC_CHI2_RED:
         notes.append(f"the residuals are far larger than the tracker's errors (reduced chi-square {chi2_red:.3g}): a "
                      "systematic error dominates (camera calibration or pose, or a motion the model does not describe);"
                      " the standard errors cover the statistical part only and understate the true error")
@@ -915,10 +911,9 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
                              f"{1 / (abs(lam) + 2 * se):.3g} s (2 standard errors)")
             else:
                 q = Quantity(name, units, 1 / lam, se / lam**2, "determined",
-                             "" if lam < 0 else "negative growth rate would be decay; here the tilt grows: tau is "
-                             "an e-folding time of growth")
-                if lam > 0:
-                    q = replace(q, reason="", note="tilt grows: tau is an e-folding time of growth")
+                             formal_standard_error=formal["tilt_growth_rate_per_s"] / lam**2,
+                             note=("tilt grows: tau is an e-folding time of growth" if lam > 0
+                                   else "tilt decays: tau is an e-folding time of decay"))
         else:
             v, se = values[name]
             q = Quantity(name, units, v, se, "determined", formal_standard_error=formal[name])

@@ -47,7 +47,7 @@ from scipy.stats import chi2
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SmoothResult", "SmoothingError", "prepare_measurements", "smooth_angles", "estimate_noise",
+__all__ = ["SmoothResult", "SmoothingError", "prepare_measurements", "measurement_covariance", "smooth_angles", "estimate_noise",
            "kalman_smooth", "SMOOTH_COLUMNS", "REQUIRED_COLUMNS", "DEFAULT_GATE_D2"]
 
 REQUIRED_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad")
@@ -147,14 +147,27 @@ def prepare_measurements(angles: pd.DataFrame) -> Measurements:
     z = np.full((len(t), 2), np.nan)
     z[has, 0] = th[has]
     z[has, 1] = np.unwrap(ph[has])
-    R = np.zeros((len(t), 2, 2))
-    R[:, 0, 0] = np.where(has, sth**2, 1.0)
-    R[:, 1, 1] = np.where(has, sph**2, 1.0)
-    off = np.where(has, corr * sth * sph, 0.0)
-    R[:, 0, 1] = off
-    R[:, 1, 0] = off
+    # frames without a measurement get a placeholder the filter never reads
+    R = measurement_covariance(np.where(has, sth, 1.0), np.where(has, sph, 1.0), np.where(has, corr, 0.0))
     frame = angles["frame"].to_numpy()
     return Measurements(frame=frame, t_s=t, z=z, R=R, has=has)
+
+
+def measurement_covariance(theta_sigma_rad: np.ndarray, phi_sigma_rad: np.ndarray,
+                           theta_phi_corr: np.ndarray | None = None) -> np.ndarray:
+    """Per-frame 2x2 covariance of ``(theta, phi)`` from the tracker's sigmas and correlation.
+
+    A missing or NaN correlation counts as 0.  Shape ``(n, 2, 2)``.
+    """
+    sth = np.asarray(theta_sigma_rad, float)
+    sph = np.asarray(phi_sigma_rad, float)
+    corr = np.zeros_like(sth) if theta_phi_corr is None else np.asarray(theta_phi_corr, float)
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    cov = np.empty((len(sth), 2, 2))
+    cov[:, 0, 0] = sth**2
+    cov[:, 1, 1] = sph**2
+    cov[:, 0, 1] = cov[:, 1, 0] = corr * sth * sph
+    return cov
 
 
 def transition(dt: float, q_theta: float, q_phi: float) -> tuple[np.ndarray, np.ndarray]:
@@ -253,9 +266,9 @@ def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
             if has[k]:
                 _init_state(x, P, z, R, k)
                 started = True
-                status[k] = 1
+                status[k] = _MEASURED
             else:
-                status[k] = 0
+                status[k] = _GAP
             d2[k] = np.nan
             xp[k, :] = x
             Pp[k, :, :] = P
@@ -267,7 +280,7 @@ def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
         x[:] = xp[k]
         P[:, :] = Pp[k]
         d2[k] = np.nan
-        status[k] = 0
+        status[k] = _GAP
         if has[k]:
             # innovation y = z - H x, S = H P H' + R (H picks states 0 and 2)
             # the azimuth on the 2 pi branch nearest the prediction (gaps longer than half a turn)
@@ -284,16 +297,16 @@ def _filter(t, z, R, has, qt, qp, gate, max_rej, xf, Pf, xp, Pp, d2, status):
             dd = y0 * (i00 * y0 + i01 * y1) + y1 * (i01 * y0 + i11 * y1)
             d2[k] = dd
             if dd > gate and rej < max_rej:
-                status[k] = 2
+                status[k] = _OUTLIER
                 rej += 1
             elif dd > gate:
                 # restart at this measurement: a persistent jump is not an outlier
                 _init_state(x, P, z, R, k)
-                status[k] = 3
+                status[k] = _RESET
                 rej = 0
             else:
                 rej = 0
-                status[k] = 1
+                status[k] = _MEASURED
                 ll += -0.5 * (dd + math.log(det)) - math.log(2.0 * math.pi)
                 # K = P H' S^-1  (4x2)
                 for i in range(4):
@@ -365,7 +378,7 @@ def _rts(t, xf, Pf, xp, Pp, status, xs, Ps):
     GDG = np.zeros((4, 4))
     dx = np.zeros(4)
     for k in range(n - 2, -1, -1):
-        if status[k + 1] == 3:
+        if status[k + 1] == _RESET:
             # across a restart the two segments are independent
             xs[k, :] = xf[k]
             Ps[k, :, :] = Pf[k]

@@ -68,23 +68,21 @@ def plot_validation(table: pd.DataFrame) -> Figure:
     ax[0].set(xlabel="fast-top ratio (Io Omega)^2 / (4 I Mgh)", ylabel="|relative error| vs simulator",
               title="(a) closed forms at tilt <= 0.3 rad")
     ax[0].legend(fontsize=6)
-    slow = table[table.quantity == "precession_rate_slow_rad_s"]
-    x = np.arange(len(slow))
-    ax[1].plot(x, slow.simulator, "ko", label="simulator")
-    ax[1].plot(x, slow.paper, "rx", label="paper eq. 20 as printed")
-    ax[1].plot(x, slow.corrected, "g+", ms=10, label="eq. 20, Mgh sign corrected")
-    ax[1].axhline(0, color="0.7", lw=0.5)
-    ax[1].set(xlabel="sweep point (spin, tilt)", ylabel="slow precession [rad/s]", title="(b) steady slow precession")
-    ax[1].legend(fontsize=7)
-    damp = table[table.quantity == "tilt_growth_rate_per_s"]
-    x = np.arange(len(damp))
-    ax[2].plot(x, damp.simulator, "ko", label="simulator")
-    ax[2].plot(x, damp.paper, "rx", label="paper eq. 25a")
-    ax[2].plot(x, damp.corrected, "g+", ms=10, label="sign corrected")
-    ax[2].axhline(0, color="0.7", lw=0.5)
-    ax[2].set(xlabel="sweep point (spin, gamma)", ylabel="d ln(theta)/dt [1/s] (>0: tilt grows)",
-              title="(c) damped compensated top")
-    ax[2].legend(fontsize=7)
+    for a, quantity, paper, corrected, labels in (
+            (ax[1], "precession_rate_slow_rad_s", "paper eq. 20 as printed", "eq. 20, Mgh sign corrected",
+             dict(xlabel="sweep point (spin, tilt)", ylabel="slow precession [rad/s]",
+                  title="(b) steady slow precession")),
+            (ax[2], "tilt_growth_rate_per_s", "paper eq. 25a", "sign corrected",
+             dict(xlabel="sweep point (spin, gamma)", ylabel="d ln(theta)/dt [1/s] (>0: tilt grows)",
+                  title="(c) damped compensated top"))):
+        rows = table[table.quantity == quantity]
+        x = np.arange(len(rows))
+        a.plot(x, rows.simulator, "ko", label="simulator")
+        a.plot(x, rows.paper, "rx", label=paper)
+        a.plot(x, rows.corrected, "g+", ms=10, label=corrected)
+        a.axhline(0, color="0.7", lw=0.5)
+        a.set(**labels)
+        a.legend(fontsize=7)
     acc = table[table.quantity == "equilibrium_tip_x"]
     a = acc.params.str.extract(r"a_m_s2=([0-9.e+-]+)")[0].astype(float)
     ax[3].plot(a, acc.simulator, "ko", label="simulator (cone axis)")
