@@ -16,7 +16,7 @@ import pytest
 
 from conftest import PROTOCOL_DIR
 from gyrorig import parse_protocol, simulate
-from gyrorig.calibration import CalibrationError, calibrate_camera
+from gyrorig.calibration import INTRINSIC_PARAMETERS, CalibrationError, calibrate_camera
 from gyrorig.cli import main
 from gyrorig.render import render_video
 from gyrorig.tracking import TrackingError, load_camera, track_video
@@ -116,6 +116,26 @@ def test_calibration_recovers_the_rendered_camera(tmp_path, capsys):
     assert res.camera_matrix[0, 0] == pytest.approx(cam.camera_matrix[0, 0], rel=5e-3)
     assert res.camera_matrix[1, 1] == pytest.approx(cam.camera_matrix[1, 1], rel=5e-3)
     assert np.hypot(*(res.camera_matrix[:2, 2] - cam.camera_matrix[:2, 2])) < 5.0
+    # the intrinsics covariance: its standard deviations agree with OpenCV's own (an independent
+    # computation), and the true camera lies within it
+    obj = np.zeros((54, 3), np.float32)
+    obj[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2) * 0.02
+    pts = []
+    for f in sorted((tmp_path / "cal").glob("*.png")):
+        img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        ok, c = cv2.findChessboardCorners(img, (9, 6))
+        if not ok:
+            continue
+        pts.append(cv2.cornerSubPix(img, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER,
+                                                                 50, 1e-4)).reshape(-1, 1, 2))
+    std_cv = cv2.calibrateCameraExtended([obj.reshape(-1, 1, 3)] * len(pts), pts, res.image_size, None, None,
+                                         flags=cv2.CALIB_FIX_K3)[5].ravel()[:8]
+    std = np.sqrt(np.diag(res.intrinsics_covariance))
+    np.testing.assert_allclose(std, std_cv, rtol=0.05)
+    true = np.r_[cam.camera_matrix[0, 0], cam.camera_matrix[1, 1], cam.camera_matrix[:2, 2], cam.distortion[:4]]
+    est = np.r_[res.camera_matrix[0, 0], res.camera_matrix[1, 1], res.camera_matrix[:2, 2], res.dist_coeffs[:4]]
+    assert np.all(np.abs(est - true) < 4 * std)
+    assert json.loads(json.dumps(res.to_json()))["intrinsics_parameters"] == list(INTRINSIC_PARAMETERS)
     assert main(["calibrate", str(tmp_path / "cal"), "--board", "9x6", "--square-mm", "20",
                  "--out", str(tmp_path / "c.json")]) == 0
     assert "RMS reprojection error" in capsys.readouterr().out

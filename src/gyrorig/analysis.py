@@ -130,7 +130,10 @@ def _fmt(v, digits: int = 6) -> str:
 def _value_cell(q) -> str:
     if q.status != "determined":
         return f"<em>undetermined</em><br><small>{html.escape(q.reason)}</small>"
-    return f"{_fmt(q.value)} ± {_fmt(q.standard_error, 2)}"
+    cell = f"{_fmt(q.value)} ± {_fmt(q.standard_error, 2)}"
+    if q.camera_standard_error:
+        cell += f"<br><small>camera model: {_fmt(q.camera_standard_error, 2)} of it</small>"
+    return cell
 
 
 def _diff_cell(d) -> str:
@@ -307,6 +310,7 @@ def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | N
             for name, q in res["fit"].quantities.items():
                 row[name] = q.value
                 row[f"{name}_se"] = q.standard_error
+                row[f"{name}_camera_se"] = q.camera_standard_error
         except Exception as exc:  # one bad video must not stop the batch; the summary says why
             logger.exception("analysis of %s failed", video)
             row.update(status="failed", error=f"{type(exc).__name__}: {exc}")

@@ -12,10 +12,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["CalibrationError", "CalibrationResult", "calibrate_camera", "MIN_VIEWS", "MAX_RMS_PX"]
+__all__ = ["CalibrationError", "CalibrationResult", "calibrate_camera", "intrinsics_covariance", "MIN_VIEWS",
+           "MAX_RMS_PX", "INTRINSIC_PARAMETERS"]
 
 MIN_VIEWS = 6
 MAX_RMS_PX = 1.0
+#: the intrinsics ``calibrate`` fits (k3 is held at 0), in the order of the covariance
+INTRINSIC_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2")
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 
 
@@ -33,12 +36,17 @@ class CalibrationResult:
     rms_px: float
     per_image_rms_px: dict[str, float]
     not_found: tuple[str, ...]
+    #: covariance of ``INTRINSIC_PARAMETERS`` (fx, fy, cx, cy in px; k1, k2, p1, p2)
+    intrinsics_covariance: np.ndarray | None = None
 
     def to_json(self) -> dict:
         """OpenCV-convention camera file (no pose: add rvec/tvec of the camera relative to the pivot)."""
         return {"camera_matrix": self.camera_matrix.tolist(), "dist_coeffs": self.dist_coeffs.ravel().tolist(),
                 "image_size": list(self.image_size), "calibration_rms_px": self.rms_px,
-                "per_image_rms_px": self.per_image_rms_px, "board_not_found_in": list(self.not_found)}
+                "per_image_rms_px": self.per_image_rms_px, "board_not_found_in": list(self.not_found),
+                **({} if self.intrinsics_covariance is None else
+                   {"intrinsics_parameters": list(INTRINSIC_PARAMETERS),
+                    "intrinsics_covariance": self.intrinsics_covariance.tolist()})}
 
 
 def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: float) -> CalibrationResult:
@@ -88,4 +96,39 @@ def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: 
         worst = max(per, key=per.get)
         raise CalibrationError(f"reprojection error {rms:.3g} px exceeds {MAX_RMS_PX} px (worst image {worst}: "
                                f"{per[worst]:.3g} px); check the board size and square size, or remove bad images")
-    return CalibrationResult(k, dist.ravel(), size, float(rms), per, tuple(not_found))
+    cov = intrinsics_covariance(objpoints, imgpoints, k, dist, rvecs, tvecs)
+    return CalibrationResult(k, dist.ravel(), size, float(rms), per, tuple(not_found), cov)
+
+
+def intrinsics_covariance(objpoints, imgpoints, camera_matrix, dist_coeffs, rvecs, tvecs) -> np.ndarray:
+    """Covariance of the fitted intrinsics (``INTRINSIC_PARAMETERS``), with their correlations.
+
+    The calibration is a least-squares problem in the intrinsics and each view's pose; its
+    Jacobian (from ``cv2.projectPoints``) gives the full covariance ``s^2 (J^T J)^-1``, with
+    ``s^2`` the residual variance per coordinate.  The intrinsic block is the uncertainty of
+    the camera model that tracking propagates into the angles.  (OpenCV's
+    ``calibrateCameraExtended`` reports only the standard deviations; the correlations, e.g.
+    between fx and fy or the principal point and the pose, matter for the propagation.)
+    """
+    n_views = len(objpoints)
+    n_int = len(INTRINSIC_PARAMETERS)
+    dist5 = np.zeros(5)
+    d = np.asarray(dist_coeffs, float).ravel()
+    dist5[:min(5, d.size)] = d[:5]
+    blocks, resid = [], []
+    for o, ip, rv, tv in zip(objpoints, imgpoints, rvecs, tvecs):
+        proj, jac = cv2.projectPoints(o, rv, tv, camera_matrix, dist5)
+        resid.append((ip.reshape(-1, 2) - proj.reshape(-1, 2)).ravel())
+        # columns: rvec(3), tvec(3), fx, fy, cx, cy, k1, k2, p1, p2, k3
+        blocks.append((jac[:, 6:6 + n_int], jac[:, :6]))
+    rows = sum(b[0].shape[0] for b in blocks)
+    J = np.zeros((rows, n_int + 6 * n_views))
+    r0 = 0
+    for v, (ji, je) in enumerate(blocks):
+        J[r0:r0 + ji.shape[0], :n_int] = ji
+        J[r0:r0 + ji.shape[0], n_int + 6 * v:n_int + 6 * v + 6] = je
+        r0 += ji.shape[0]
+    r = np.concatenate(resid)
+    s2 = float(r @ r) / max(rows - J.shape[1], 1)
+    cov = s2 * np.linalg.pinv(J.T @ J, hermitian=True)
+    return cov[:n_int, :n_int]

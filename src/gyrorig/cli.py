@@ -249,6 +249,12 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print(f"camera pose from {len(pose['fiducials_matched'])} fiducials ({', '.join(pose['fiducials_matched'])}), "
               f"reprojection error {pose['pose_rms_px']:.3f} px: rvec {np.round(summary['rvec'], 5).tolist()}, "
               f"tvec {np.round(summary['tvec'], 5).tolist()} m")
+    if summary["camera_modes"]:
+        sth, sph = summary["camera_sigma_rad"]
+        print(f"camera model uncertainty: {summary['camera_modes']} modes, RMS {sth:.2g} rad in theta, {sph:.2g} rad in "
+              "phi, common to all frames (columns theta_cam_k_rad, phi_cam_k_rad; the fit includes them)")
+    else:
+        print("camera model taken as exact (camera.json has no intrinsics_covariance or pose_covariance)")
     print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; "
           f"{n / (summary['track_s'] + summary['decode_s']):.0f} frames/s -> {summary['angles']}, {summary['markers']}")
     return EXIT_OK
@@ -484,6 +490,8 @@ def _print_fit(fit, out: Path) -> None:
             print(f"  {name}: undetermined ({q.reason})")
             continue
         line = f"  {name}: {q.value:.7g} +- {q.standard_error:.2g} {q.units}"
+        if q.camera_standard_error:
+            line += f" (camera model {q.camera_standard_error:.2g} of it)"
         if q.paper is not None and q.diff_paper_se is not None:
             line += f"; paper {q.paper:.6g} ({q.diff_paper_se:+.1f} s.e.)"
         if q.exact is not None and q.diff_exact_se is not None:

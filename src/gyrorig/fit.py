@@ -24,6 +24,13 @@ accelerates; the fitted angular-momentum direction for a free top.  In the frame
 - ``phi0_s`` is one offset per segment: a gap longer than half a precession period splits
   the record, since the turns made in the gap are not observed.
 
+**Camera model.**  When the tracker propagated the camera model's uncertainty (columns
+``theta_cam_k_rad, phi_cam_k_rad``: each frame's angle shift for a one-sigma move of camera
+mode ``k``), the model adds ``sum_k a_k * shift_k`` with one nuisance parameter ``a_k`` per mode
+and a unit Gaussian prior on each (an extra residual ``a_k``).  The data may then refine the
+camera (a cone seen through a wrong lens model is not a cone), and every standard error
+includes the camera's share; ``Quantity.camera_standard_error`` says how much.
+
 Residuals are whitened with each frame's covariance; ``scipy.optimize.least_squares``
 minimises their sum of squares, and the parameter covariance is ``(J^T J)^-1`` (the
 Cramér-Rao bound of this model for these measurement errors).  Derived quantities get
@@ -96,6 +103,8 @@ class ModelSpec:
     persistent: bool = False
     #: tau at which a damped nutation's envelope is 1 (the first frame): amplitudes are quoted there
     nutation_origin_s: float = 0.0
+    #: nuisance parameters for the camera model's uncertainty (one per mode, unit prior)
+    camera_modes: int = 0
 
     def names(self) -> list[str]:
         n = []
@@ -118,6 +127,7 @@ class ModelSpec:
         if self.persistent:
             n += ["persistent_frequency_rad_s", "persistent_tilt_cos_rad", "persistent_tilt_sin_rad",
                   "persistent_azimuth_cos_rad", "persistent_azimuth_sin_rad"]
+        n += [f"camera_mode_{k + 1}" for k in range(self.camera_modes)]  # always last
         return n
 
 
@@ -132,6 +142,12 @@ class FitData:
     cov: np.ndarray  # (n, 2, 2)
     segment: np.ndarray  # (n,) int
     t_ref_s: float
+    #: (m, n, 2) angle shifts (theta, phi) of each frame for a one-sigma move of camera mode k
+    camera_shift: np.ndarray | None = None
+
+    @property
+    def camera_modes(self) -> int:
+        return 0 if self.camera_shift is None else int(self.camera_shift.shape[0])
 
     @property
     def n(self) -> int:
@@ -169,6 +185,8 @@ class Quantity:
     #: the Cramer-Rao bound of the fit model for the tracker's errors ((J^T J)^-1, before any
     #: chi-square scaling or bootstrap)
     formal_standard_error: float | None = None
+    #: the camera model's share of the standard error (in quadrature; 0 for an exact camera)
+    camera_standard_error: float | None = None
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -409,20 +427,40 @@ def _whitener(cov: np.ndarray) -> np.ndarray:
 
 
 def _residual_fn(model: _Model, data: FitData):
+    """Raw residuals (theta, phi) and whitened ones (2n, then one prior residual per camera mode)."""
     tau = data.t_s - data.t_ref_s
     W = _whitener(data.cov)
+    m = model.spec.camera_modes
+    if m and data.camera_modes != m:
+        raise FitError(f"the model has {m} camera modes, the data {data.camera_modes}")
+    S = data.camera_shift if m else None
 
     def raw(p):
         th, ph = model.lab(p, tau, data.segment)
+        if m:
+            a = p[-m:]
+            th = th + np.tensordot(a, S[:, :, 0], axes=1)
+            ph = ph + np.tensordot(a, S[:, :, 1], axes=1)
         return data.theta_rad - th, _wrap(data.phi_rad - ph)
 
     def white(p):
         r0, r1 = raw(p)
-        return np.concatenate([W[:, 0, 0] * r0, W[:, 1, 0] * r0 + W[:, 1, 1] * r1])
+        parts = [W[:, 0, 0] * r0, W[:, 1, 0] * r0 + W[:, 1, 1] * r1]
+        if m:
+            parts.append(p[-m:])  # unit Gaussian prior on each camera mode
+        return np.concatenate(parts)
 
     def white_jac(p):
         jt, jp = model.lab_jacobian(p, tau, data.segment)
-        return -np.concatenate([W[:, 0, 0, None] * jt, W[:, 1, 0, None] * jt + W[:, 1, 1, None] * jp])
+        if m:
+            jt[:, -m:] = S[:, :, 0].T
+            jp[:, -m:] = S[:, :, 1].T
+        J = -np.concatenate([W[:, 0, 0, None] * jt, W[:, 1, 0, None] * jt + W[:, 1, 1, None] * jp])
+        if m:
+            prior = np.zeros((m, J.shape[1]))
+            prior[:, -m:] = np.eye(m)
+            J = np.vstack([J, prior])
+        return J
 
     white.jac = white_jac
 
@@ -452,12 +490,21 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
         raise FitError("t_s must be finite and non-decreasing")
     frame = a["frame"].to_numpy() if "frame" in a.columns else np.arange(len(a))
+    shift = None
+    k_modes = 0
+    while f"theta_cam_{k_modes + 1}_rad" in a.columns and f"phi_cam_{k_modes + 1}_rad" in a.columns:
+        k_modes += 1
+    if k_modes:
+        shift = np.stack([np.column_stack([a[f"theta_cam_{k}_rad"].to_numpy(float), a[f"phi_cam_{k}_rad"].to_numpy(float)])
+                          for k in range(1, k_modes + 1)])
+        if not np.all(np.isfinite(shift)):
+            raise FitError("theta_cam_k_rad / phi_cam_k_rad (camera modes) must be finite wherever there are angles")
     segment = np.zeros(len(a), int)
     if precession_hint_rad_s is not None and precession_hint_rad_s != 0:
         half_period = math.pi / abs(precession_hint_rad_s)
         segment = np.concatenate([[0], np.cumsum(np.diff(t) > half_period)])
     return FitData(frame=frame, t_s=t, theta_rad=a["theta_rad"].to_numpy(float), phi_rad=a["phi_rad"].to_numpy(float),
-                   cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]))
+                   cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]), camera_shift=shift)
 
 
 @dataclass(frozen=True)
@@ -562,7 +609,7 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
     model = _Model(spec)
     x0 = np.array([start.get(n, 0.0) for n in model.names], float)
     _, white = _residual_fn(model, data)
-    n_res = 2 * data.n
+    n_res = 2 * data.n + spec.camera_modes  # the priors add a residual per camera mode
     if n_res <= len(x0):
         raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
     res = least_squares(white, x0, jac=white.jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
@@ -611,7 +658,7 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
 
     Returns the solution, notes, and reasons for quantities that cannot be determined.
     """
-    spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1,
+    spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1, camera_modes=data.camera_modes,
                     nutation_origin_s=float(data.t_s[0] - data.t_ref_s) if scene.spec.damped else 0.0)
     notes: list[str] = list(scene.reasons)
     undetermined: dict[str, str] = {}
@@ -754,7 +801,7 @@ def _quantity_functions(spec: ModelSpec, names: list[str]):
 
 def _residual_check(model: _Model, data: FitData, x: np.ndarray) -> tuple[float, float]:
     _, white = _residual_fn(model, data)
-    r = white(x).reshape(2, -1)
+    r = white(x)[:2 * data.n].reshape(2, -1)
     rho = [float(np.sum(ri[1:] * ri[:-1]) / np.sum(ri * ri)) for ri in r]
     return rho[0], rho[1]
 
@@ -881,14 +928,26 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
                      " the standard errors cover the statistical part only and understate the true error")
     values = {}
     formal = {}
+    camera_se = {}
+    cov_stat = _statistical_covariance(sol, data)
     for k, f in fns.items():
         v, se = _delta_se(f, sol.x, sol.cov)
         formal[k] = se
+        se_stat = se
+        if cov_stat is not None:
+            se_stat = _delta_se(f, sol.x, cov_stat)[1]
+            camera_se[k] = math.sqrt(max(se * se - se_stat * se_stat, 0.0))
         if errors.startswith("formal x"):
-            se *= math.sqrt(chi2_red)
+            se_stat *= math.sqrt(chi2_red)
         if k in se_override:
-            se = max(se, se_override[k])
-        values[k] = (v, se)
+            se_stat = max(se_stat, se_override[k])
+        values[k] = (v, math.hypot(se_stat, camera_se.get(k, 0.0)))
+    if cov_stat is not None:
+        notes.append(f"the camera model's uncertainty ({data.camera_modes} modes from the tracker) is in the fit as "
+                     "nuisance parameters with their priors: every standard error includes it (camera share: "
+                     + ", ".join(f"{k} {camera_se[k]:.2g}" for k in ("precession_rate_rad_s", "nutation_amplitude_rad",
+                                                                       "tilt_growth_rate_per_s", "equilibrium_tilt_rad")
+                                 if k in camera_se) + ")")
 
     truth_values: dict[str, float] = {}
     if truth is not None:
@@ -916,7 +975,8 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
                                    else "tilt decays: tau is an e-folding time of decay"))
         else:
             v, se = values[name]
-            q = Quantity(name, units, v, se, "determined", formal_standard_error=formal[name])
+            q = Quantity(name, units, v, se, "determined", formal_standard_error=formal[name],
+                         camera_standard_error=camera_se.get(name))
         comparable = True
         cnote = ""
         if name == "nutation_amplitude_rad" and sol.spec.damped:
@@ -947,7 +1007,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     model = _Model(sol.spec)
     raw, white = _residual_fn(model, data)
     r0, r1 = raw(sol.x)
-    wr = white(sol.x).reshape(2, -1)
+    wr = white(sol.x)[:2 * data.n].reshape(2, -1)
     residuals = pd.DataFrame({"frame": data.frame, "t_s": data.t_s, "theta_resid_rad": r0, "phi_resid_rad": r1,
                               "theta_resid_norm": wr[0], "phi_resid_norm": wr[1]})
     tt = np.linspace(data.t_s[0], data.t_s[-1], min(20000, max(2000, 20 * data.n)))
@@ -958,6 +1018,24 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     return FitResult(spec=sol.spec, params=params, quantities=quantities, chi2=sol.chi2, dof=sol.dof,
                      residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, errors=errors, notes=tuple(notes),
                      x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time)
+
+
+def _statistical_covariance(sol: _Solved, data: FitData) -> np.ndarray | None:
+    """Parameter covariance with the camera modes held at their fitted values (None without modes).
+
+    Padded with zeros for the modes, so that the difference from the full covariance is the
+    camera model's share.
+    """
+    m = sol.spec.camera_modes
+    if not m:
+        return None
+    model = _Model(sol.spec)
+    _, white = _residual_fn(model, data)
+    nb = len(sol.x) - m
+    J = white.jac(sol.x)[:2 * data.n, :nb]
+    cov = np.zeros_like(sol.cov)
+    cov[:nb, :nb] = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
+    return cov
 
 
 def _truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndarray, fns: dict) -> dict[str, float]:
@@ -978,7 +1056,8 @@ def _truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.nda
     ph_i = _wrap(CubicSpline(t[keep], ph[keep])(data.t_s))
     cov = np.zeros_like(data.cov)
     cov[:, 0, 0] = cov[:, 1, 1] = 1e-12
-    d = replace(data, theta_rad=th_i, phi_rad=ph_i, cov=cov)
+    d = replace(data, theta_rad=th_i, phi_rad=ph_i, cov=cov, camera_shift=None)
+    spec = replace(spec, camera_modes=0)
     names = _Model(spec).names
     sol = _solve(spec, d, dict(zip(names, x)))
     return {k: float(f(sol.x)) for k, f in fns.items()}

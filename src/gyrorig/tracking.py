@@ -20,10 +20,20 @@ Per frame:
    radius about the pivot (the nearer intersection); ``theta, phi`` follow, with their
    covariance propagated through the numerical Jacobian.
 
+4. **camera model** (after the loop): the per-frame covariance holds the localisation
+   error only.  The camera model's own uncertainty (the intrinsics covariance that
+   ``gyrorig calibrate`` writes, the pose found from the fiducials, or a
+   ``pose_covariance`` in ``camera.json``) moves every frame's angles together.  It is
+   propagated as independent one-sigma *modes*: for mode ``k`` the columns
+   ``theta_cam_k_rad, phi_cam_k_rad`` give each frame's angle shift (the pose re-solved
+   from the fiducials when the intrinsics move).  The fit turns these into nuisance
+   parameters with unit Gaussian priors.  An exact camera (the renderer's) has none.
+
 Outputs (``track_video``): ``angles.csv`` (``frame, t_s, theta_rad, phi_rad,
-theta_sigma_rad, phi_sigma_rad, theta_phi_corr, tip_x, tip_y, tip_z, quality``) and
-``markers.csv`` (raw detections: ``frame, t_s, marker, x_px, y_px, sigma_x_px,
-sigma_y_px, radius_px, amplitude_adu, background_adu, chi2_red, quality``).
+theta_sigma_rad, phi_sigma_rad, theta_phi_corr, tip_x, tip_y, tip_z, quality``, then
+``theta_cam_k_rad, phi_cam_k_rad`` for each camera mode) and ``markers.csv`` (raw
+detections: ``frame, t_s, marker, x_px, y_px, sigma_x_px, sigma_y_px, radius_px,
+amplitude_adu, background_adu, chi2_red, quality``).
 """
 
 from __future__ import annotations
@@ -47,8 +57,13 @@ from .protocols import Protocol, ProtocolError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "tip_from_pixel", "track_video",
-           "TrackingError", "ANGLE_COLUMNS", "MARKER_COLUMNS"]
+__all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "tip_from_pixel",
+           "tips_from_pixels", "camera_modes", "track_video", "TrackingError", "ANGLE_COLUMNS", "MARKER_COLUMNS",
+           "INTRINSIC_PARAMETERS"]
+
+#: intrinsics an ``intrinsics_covariance`` in ``camera.json`` may refer to (``gyrorig calibrate`` writes the
+#: first eight); a pose covariance is over ``(rvec, tvec)``
+INTRINSIC_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 ANGLE_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
                  "tip_x", "tip_y", "tip_z", "quality")
@@ -78,6 +93,11 @@ class TrackingCamera:
     gain_e_per_adu: float
     read_noise_e: float
     max_adu: int
+    #: covariance of the intrinsics named in ``intrinsics_parameters`` (None: exact)
+    intrinsics_covariance: np.ndarray | None = None
+    intrinsics_parameters: tuple[str, ...] = ()
+    #: covariance of ``(rvec, tvec)`` (None: exact, or found from the fiducials)
+    pose_covariance: np.ndarray | None = None
 
     @property
     def has_pose(self) -> bool:
@@ -114,13 +134,30 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
                             "the tracker needs it to turn pixels into directions")
     sensor = d.get("sensor", {})
     bits = int(sensor.get("bit_depth", 8))
+    cov_i = names = cov_p = None
+    if "intrinsics_covariance" in d:
+        names = tuple(d.get("intrinsics_parameters", INTRINSIC_PARAMETERS[:8]))
+        unknown = [n for n in names if n not in INTRINSIC_PARAMETERS]
+        cov_i = np.asarray(d["intrinsics_covariance"], dtype=float)
+        if unknown or cov_i.shape != (len(names), len(names)):
+            raise TrackingError(f"{path}: intrinsics_covariance must be a {len(names)} x {len(names)} matrix over "
+                                f"intrinsics_parameters (any of {', '.join(INTRINSIC_PARAMETERS)}); unknown: {unknown}")
+    if "pose_covariance" in d:
+        cov_p = np.asarray(d["pose_covariance"], dtype=float)
+        if cov_p.shape != (6, 6):
+            raise TrackingError(f"{path}: pose_covariance must be 6 x 6 over (rvec, tvec), not {cov_p.shape}")
+    for key, c in (("intrinsics_covariance", cov_i), ("pose_covariance", cov_p)):
+        if c is not None and (not np.all(np.isfinite(c)) or np.linalg.eigvalsh(0.5 * (c + c.T)).min()
+                              < -1e-9 * max(np.abs(c).max(), 1e-300)):
+            raise TrackingError(f"{path}: {key} must be finite, symmetric and positive semi-definite")
     return TrackingCamera(
         np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
         np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),
         np.asarray(d.get("tvec", [np.nan] * 3), dtype=float).ravel(),
         int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
         d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
-        float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1)
+        float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1,
+        cov_i, names or (), cov_p)
 
 
 # --------------------------------------------------------------------------------------
@@ -277,6 +314,20 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
 # geometry
 
 
+def tips_from_pixels(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float) -> np.ndarray:
+    """Unit tip directions (n, 3) for pixel positions (n, 2); NaN where the ray misses the sphere."""
+    xy = np.asarray(xy_px, dtype=np.float64).reshape(-1, 1, 2)
+    n = cv2.undistortPoints(xy, cam.camera_matrix, cam.dist_coeffs).reshape(-1, 2)
+    d = np.column_stack([n, np.ones(len(n))]) @ cam.rotation
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    c = cam.centre_m
+    b = d @ c
+    disc = b * b - (c @ c - radius_m**2)
+    with np.errstate(invalid="ignore"):
+        s = -b - np.sqrt(np.where(disc >= 0, disc, np.nan))
+    return (c + s[:, None] * d) / radius_m
+
+
 def tip_from_pixel(x_px: float, y_px: float, cam: TrackingCamera, radius_m: float) -> np.ndarray | None:
     """Unit tip direction: the ray through the pixel meets the sphere ``|X| = radius_m`` (nearer point)."""
     n = cv2.undistortPoints(np.array([[[x_px, y_px]]], dtype=np.float64), cam.camera_matrix, cam.dist_coeffs).reshape(2)
@@ -369,7 +420,7 @@ def estimate_pose(video: str | Path, camera: TrackingCamera, protocol: Protocol,
     for cx, cy, r in _candidates(median, 0, 0, median.shape[1], median.shape[0], bg + max(8 * noise, 4.0)):
         fit = fit_spot(median, cx, cy, r, camera)
         if fit is not None:
-            spots.append((fit.x_px, fit.y_px, fit.amplitude_adu))
+            spots.append((fit.x_px, fit.y_px, fit.amplitude_adu, fit.cov_xy))
     spots = sorted(spots, key=lambda s: -s[2])[:8]
     if len(spots) < 4:
         raise TrackingError(f"{video}: found {len(spots)} static spots; at least 4 fiducials must be visible")
@@ -403,7 +454,8 @@ def estimate_pose(video: str | Path, camera: TrackingCamera, protocol: Protocol,
                 proj = cv2.projectPoints(obj, rvec, tvec, camera.camera_matrix, camera.dist_coeffs)[0].reshape(-1, 2)
                 rms = float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1))))
                 if best is None or rms < best[0]:
-                    best = (rms, rvec.ravel(), tvec.ravel(), [names[j] for j in perm])
+                    best = (rms, rvec.ravel(), tvec.ravel(), [names[j] for j in perm], obj, img,
+                            [spots[i][3] for i in spot_set])
         if best is not None and best[0] <= max_rms_px:
             break
     if best is None or best[0] > max_rms_px:
@@ -412,8 +464,105 @@ def estimate_pose(video: str | Path, camera: TrackingCamera, protocol: Protocol,
                             f"fits (best reprojection error {rms}, limit {max_rms_px} px)")
     from dataclasses import replace
 
-    posed = replace(camera, rvec=best[1], tvec=best[2])
-    return posed, {"fiducials_matched": best[3], "pose_rms_px": best[0], "static_spots": len(spots)}
+    rms, rvec, tvec, matched, obj, img, covs = best
+    pose_cov = _pose_covariance(obj, img, covs, camera, rvec, tvec)
+    posed = replace(camera, rvec=rvec, tvec=tvec, pose_covariance=pose_cov)
+    return posed, {"fiducials_matched": matched, "pose_rms_px": rms, "static_spots": len(spots),
+                   "object_points_m": obj.tolist(), "image_points_px": img.tolist(),
+                   "pose_sigma": np.sqrt(np.diag(pose_cov)).tolist()}
+
+
+def _pose_covariance(obj, img, covs, camera: TrackingCamera, rvec, tvec) -> np.ndarray:
+    """Covariance of (rvec, tvec) from the fiducials' localisation errors (intrinsics held fixed).
+
+    Weighted by each fiducial's covariance from the spot fit on the median image, and
+    scaled up by the reduced chi-square of the reprojection when it exceeds 1.
+    """
+    proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.camera_matrix, camera.dist_coeffs)
+    r = (img - proj.reshape(-1, 2)).ravel()
+    Cinv = np.zeros((2 * len(obj), 2 * len(obj)))
+    for i, c in enumerate(covs):
+        Cinv[2 * i:2 * i + 2, 2 * i:2 * i + 2] = np.linalg.inv(c)
+    J = jac[:, :6]
+    dof = max(2 * len(obj) - 6, 1)
+    chi2_red = float(r @ Cinv @ r) / dof
+    return np.linalg.pinv(J.T @ Cinv @ J, hermitian=True) * max(1.0, chi2_red)
+
+
+def _with_intrinsics(cam: TrackingCamera, names: tuple[str, ...], delta: np.ndarray) -> TrackingCamera:
+    from dataclasses import replace
+
+    K = cam.camera_matrix.copy()
+    dist = np.zeros(max(5, cam.dist_coeffs.size))
+    dist[:cam.dist_coeffs.size] = cam.dist_coeffs
+    where = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+    for name, d in zip(names, delta):
+        if name in where:
+            K[where[name]] += d
+        else:
+            dist[("k1", "k2", "p1", "p2", "k3").index(name)] += d
+    return replace(cam, camera_matrix=K, dist_coeffs=dist)
+
+
+def _angles_of(tips: np.ndarray) -> np.ndarray:
+    """(n, 2) theta, phi of unit tip directions (n, 3)."""
+    return np.column_stack([np.arctan2(np.hypot(tips[:, 0], tips[:, 1]), tips[:, 2]),
+                            np.arctan2(tips[:, 0], -tips[:, 1])])
+
+
+def camera_modes(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiducials: dict | None = None,
+                 min_effect_rad: float = 0.0) -> np.ndarray:
+    """Angle shifts of each frame for independent one-sigma moves of the camera model.
+
+    Parameters
+    ----------
+    xy_px : (n, 2) array
+        The tip's pixel positions (the measurements, held fixed).
+    cam : TrackingCamera
+        With ``intrinsics_covariance`` and/or ``pose_covariance``.
+    fiducials : dict, optional
+        ``object_points_m``, ``image_points_px`` when the pose came from the fiducials: a
+        move of the intrinsics then re-solves the pose from them, as the tracker would.
+    min_effect_rad : float
+        Modes whose largest shift is below this are dropped.
+
+    Returns
+    -------
+    (m, n, 2) array: ``[k, i] = (dtheta, dphi)`` of frame ``i`` for mode ``k`` (central
+    differences over +-1 sigma along each eigenvector of the covariance).
+    """
+    from dataclasses import replace
+
+    xy = np.asarray(xy_px, float).reshape(-1, 2)
+    moves = []
+    if cam.intrinsics_covariance is not None:
+        lam, vec = np.linalg.eigh(0.5 * (cam.intrinsics_covariance + cam.intrinsics_covariance.T))
+        for k in np.flatnonzero(lam > 1e-12 * max(lam.max(), 1e-300)):
+            d = math.sqrt(lam[k]) * vec[:, k]
+            moves.append([_with_intrinsics(cam, cam.intrinsics_parameters, sign * d) for sign in (1.0, -1.0)])
+    if fiducials is not None and moves:
+        obj = np.asarray(fiducials["object_points_m"], float)
+        img = np.asarray(fiducials["image_points_px"], float)
+        for pair in moves:
+            for j, c in enumerate(pair):
+                ok, rv, tv = cv2.solvePnP(obj, img, c.camera_matrix, c.dist_coeffs, cam.rvec.copy(), cam.tvec.copy(),
+                                          useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+                if ok:
+                    pair[j] = replace(c, rvec=rv.ravel(), tvec=tv.ravel())
+    if cam.pose_covariance is not None:
+        lam, vec = np.linalg.eigh(0.5 * (cam.pose_covariance + cam.pose_covariance.T))
+        for k in np.flatnonzero(lam > 1e-12 * max(lam.max(), 1e-300)):
+            d = math.sqrt(lam[k]) * vec[:, k]
+            moves.append([replace(cam, rvec=cam.rvec + sign * d[:3], tvec=cam.tvec + sign * d[3:])
+                          for sign in (1.0, -1.0)])
+    out = []
+    for plus, minus in moves:
+        ap, am = _angles_of(tips_from_pixels(xy, plus, radius_m)), _angles_of(tips_from_pixels(xy, minus, radius_m))
+        dv = 0.5 * np.column_stack([ap[:, 0] - am[:, 0], np.remainder(ap[:, 1] - am[:, 1] + np.pi, 2 * np.pi) - np.pi])
+        dv = np.where(np.isfinite(dv), dv, 0.0)  # a ray that leaves the sphere under the move: no shift known
+        if np.abs(dv).max(initial=0.0) > min_effect_rad:
+            out.append(dv)
+    return np.array(out).reshape(len(out), len(xy), 2)
 
 
 # --------------------------------------------------------------------------------------
@@ -491,6 +640,7 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
     depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, spec.length_m])))
     r_expected = camera.camera_matrix[0, 0] * spec.radius_m / depth
     rows_a, rows_m = [], []
+    tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
     last = []  # recent (x, y) of the tip
     prev_hash = None
     k = 0
@@ -561,6 +711,7 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
                 sth, sph = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
                 rows_a.append((index, t_mid, th, ph, sth, sph, cov[0, 1] / (sth * sph), tip[0], tip[1], tip[2],
                                quality))
+                tip_px[len(rows_a) - 1] = (fit.x_px, fit.y_px)
                 last = (last + [(fit.x_px, fit.y_px)])[-2:]
             rows_m.append((index, t_mid, spec.name, fit.x_px, fit.y_px, math.sqrt(fit.cov_xy[0, 0]),
                            math.sqrt(fit.cov_xy[1, 1]), fit.radius_px, fit.amplitude_adu, fit.background_adu,
@@ -577,6 +728,17 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
         raise TrackingError(f"{video}: the tip marker was never found in {k} frames")
     angles["phi_rad"] = _unwrap_nan(angles.phi_rad.to_numpy())
     markers = pd.DataFrame(rows_m, columns=list(MARKER_COLUMNS))
+    rows = np.array(sorted(tip_px))
+    min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
+    modes = camera_modes(np.array([tip_px[r] for r in rows]), camera, spec.length_m, pose_info, min_effect)
+    camera_sigma = [float("nan"), float("nan")]
+    for k in range(len(modes)):
+        for j, col in enumerate((f"theta_cam_{k + 1}_rad", f"phi_cam_{k + 1}_rad")):
+            v = np.full(len(angles), np.nan)
+            v[rows] = modes[k, :, j]
+            angles[col] = v
+    if len(modes):
+        camera_sigma = np.sqrt(np.mean(np.sum(modes**2, axis=0), axis=0)).tolist()
     out = Path(out_dir)
     _io.write_csv(angles, out / "angles.csv")
     _io.write_csv(markers, out / "markers.csv")
@@ -585,6 +747,7 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
     tracked = float(angles.theta_rad.notna().mean())
     return {"frames": k, "tracked_fraction": tracked, "decode_s": t_decode, "track_s": t_track,
             "angles": str(out / "angles.csv"), "markers": str(out / "markers.csv"), "pose": pose_info,
+            "camera_modes": len(modes), "camera_sigma_rad": camera_sigma,
             "rvec": camera.rvec.tolist(), "tvec": camera.tvec.tolist()}
 
 

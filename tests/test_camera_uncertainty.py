@@ -1,0 +1,118 @@
+"""The camera model's uncertainty, from calibration to fitted error bars.
+
+Pixels come from projecting the simulator's tip through the true camera; the angles are
+then computed through a *wrong* camera drawn from the calibration covariance, as happens
+with any real calibration.  Without the camera modes the fit sees a systematic error far
+above its statistical errors; with them, the error bars cover it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from conftest import PROTOCOL_DIR
+from gyrorig.camera import camera_setup
+from gyrorig.fit import fit_angles
+from gyrorig.physics.simulate import simulate
+from gyrorig.protocols import load_protocol
+from gyrorig.tracking import TrackingCamera, camera_modes, tips_from_pixels
+
+# standard deviations of a 12-view calibration of the bundled camera (gyrorig calibrate):
+# fx, fy, cx, cy [px], k1, k2, p1, p2
+CAL_STD = np.array([1.0, 1.0, 1.4, 1.3, 1.7e-3, 2.9e-2, 1.6e-4, 1.8e-4])
+PIXEL_SIGMA = 0.02
+
+
+def _angles(tips):
+    return np.arctan2(np.hypot(tips[:, 0], tips[:, 1]), tips[:, 2]), np.arctan2(tips[:, 0], -tips[:, 1])
+
+
+def _tracked(seed: int):
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    cam = camera_setup(p).camera
+    length = float(p.extra["markers"]["tip"]["position_m"][2])
+    truth = simulate(p, duration_s=2.0, rate_hz=100.0)
+    tips = length * np.column_stack([np.sin(truth.theta_rad) * np.sin(truth.phi_rad),
+                                     -np.sin(truth.theta_rad) * np.cos(truth.phi_rad), np.cos(truth.theta_rad)])
+    px = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.distortion)[0].reshape(-1, 2)
+    rng = np.random.default_rng(seed)
+    px = px + PIXEL_SIGMA * rng.normal(size=px.shape)
+    cov = np.diag(CAL_STD**2)
+    dist = np.zeros(5)
+    dist[:4] = cam.distortion[:4]
+    true_cam = TrackingCamera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps,
+                              cam.exposure_s, "global", 0.0, 1.0, 1.0, 0.0, 255, cov, tuple("fx fy cx cy k1 k2 p1 p2".split()))
+    # the calibration's error: one draw from its covariance
+    delta = rng.multivariate_normal(np.zeros(8), cov)
+    K = cam.camera_matrix.copy()
+    K[0, 0] += delta[0]
+    K[1, 1] += delta[1]
+    K[:2, 2] += delta[2:4]
+    wrong = replace(true_cam, camera_matrix=K, dist_coeffs=dist + np.r_[delta[4:], 0.0])
+    th, ph = _angles(tips_from_pixels(px, wrong, length))
+    # per-frame errors from the pixel noise (numerical Jacobian)
+    jac = []
+    for d in ((1e-3, 0.0), (0.0, 1e-3)):
+        a1 = _angles(tips_from_pixels(px + d, wrong, length))
+        a0 = _angles(tips_from_pixels(px - d, wrong, length))
+        jac.append([(a1[0] - a0[0]) / 2e-3, (a1[1] - a0[1]) / 2e-3])
+    sth = PIXEL_SIGMA * np.hypot(jac[0][0], jac[1][0])
+    sph = PIXEL_SIGMA * np.hypot(jac[0][1], jac[1][1])
+    corr = PIXEL_SIGMA**2 * (jac[0][0] * jac[0][1] + jac[1][0] * jac[1][1]) / (sth * sph)
+    angles = pd.DataFrame({"frame": np.arange(len(th)), "t_s": truth.t_s, "theta_rad": th, "phi_rad": ph,
+                           "theta_sigma_rad": sth, "phi_sigma_rad": sph, "theta_phi_corr": corr})
+    modes = camera_modes(px, wrong, length)
+    for k in range(len(modes)):
+        angles[f"theta_cam_{k + 1}_rad"] = modes[k, :, 0]
+        angles[f"phi_cam_{k + 1}_rad"] = modes[k, :, 1]
+    return p, angles, truth
+
+
+def test_camera_modes_are_the_angle_shifts_of_a_one_sigma_camera_move():
+    p, angles, _ = _tracked(0)
+    assert sum(c.startswith("theta_cam_") for c in angles.columns) == 8
+    # the modes are orthogonal moves of the camera: their summed squares are the variance of the
+    # angle under the calibration covariance, here checked against a direct Monte Carlo
+    var_modes = sum(angles[f"theta_cam_{k}_rad"].to_numpy() ** 2 for k in range(1, 9))
+    cam = camera_setup(p).camera
+    length = float(p.extra["markers"]["tip"]["position_m"][2])
+    dist = np.zeros(5)
+    dist[:4] = cam.distortion[:4]
+    base = TrackingCamera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps, 0.0,
+                          "global", 0.0, 1.0, 1.0, 0.0, 255)
+    px = np.array([[700.0, 400.0]])
+    rng = np.random.default_rng(1)
+    th0 = _angles(tips_from_pixels(px, base, length))[0]
+    shifts = []
+    for _ in range(400):
+        d = rng.normal(size=8) * CAL_STD
+        K = cam.camera_matrix.copy()
+        K[0, 0] += d[0]
+        K[1, 1] += d[1]
+        K[:2, 2] += d[2:4]
+        c = replace(base, camera_matrix=K, dist_coeffs=dist + np.r_[d[4:], 0.0])
+        shifts.append(_angles(tips_from_pixels(px, c, length))[0] - th0)
+    one = camera_modes(px, replace(base, intrinsics_covariance=np.diag(CAL_STD**2),
+                                   intrinsics_parameters=tuple("fx fy cx cy k1 k2 p1 p2".split())), length)
+    sd_modes = float(np.sqrt(np.sum(one[:, 0, 0] ** 2)))
+    assert abs(np.std(shifts) / sd_modes - 1) < 0.15  # 400 draws: +-7 % (2 sigma 14 %)
+    assert np.all(var_modes > 0)
+
+
+def test_fit_error_bars_cover_the_calibration_error_only_with_the_camera_modes():
+    p, angles, truth = _tracked(3)
+    plain = fit_angles(angles[[c for c in angles.columns if "_cam_" not in c]], p, truth=truth,
+                       check_residuals=True, rng=np.random.default_rng(0))
+    full = fit_angles(angles, p, truth=truth, rng=np.random.default_rng(0))
+    # without the camera: the residuals are far above the noise (systematic), with it: consistent
+    assert plain.chi2_red > 5
+    assert 0.7 < full.chi2_red < 1.3 and full.errors == "formal"
+    for k in ("precession_rate_rad_s", "nutation_amplitude_rad", "cone_angle_rad"):
+        q = full.quantities[k]
+        assert q.camera_standard_error > 0.5 * q.standard_error, k  # the camera dominates here
+        assert abs(q.pull) < 4, (k, q.pull)
+    assert any("camera model" in n for n in full.notes)
