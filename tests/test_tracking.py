@@ -39,6 +39,8 @@ def round_trip(tmp_path, d, *, seed=0):
     summary = track_video(tmp_path / "video" / "video.mkv", load_camera(tmp_path / "video" / "camera.json"), p,
                           tmp_path / "track")
     angles = pd.read_csv(tmp_path / "track" / "angles.csv")
+    # the renderer's camera is exact: no camera-model modes
+    assert summary["camera_modes"] == 0 and not any("_cam_" in c for c in angles.columns)
     truth = pd.read_csv(tmp_path / "video" / "truth.csv")
     truth = truth[truth.marker == "tip"]
     m = angles.merge(truth, on="frame", suffixes=("", "_true"))
@@ -100,6 +102,47 @@ def test_duplicate_frames_and_a_spurious_spot(tmp_path):
     truth = truth[truth.marker == "tip"]
     # without container timestamps the duplicate shifts the later frame numbers by one: compare 10-20
     m = a.iloc[10:21].merge(truth, on="frame", suffixes=("", "_true"))
+    assert np.abs(m.theta_rad - m.theta_rad_true).max() < 6 * m.theta_sigma_rad.max()
+
+
+def test_dropped_frames_are_gaps_at_the_container_timestamps(tmp_path):
+    """A camera that drops frames writes a container whose timestamps jump; OpenCV's writer
+    cannot make one, so PyAV (FFmpeg's Python binding) writes it here, keeping each frame's
+    original time."""
+    import fractions
+
+    import av
+
+    p = parse_protocol(scene())
+    render_video(p, tmp_path / "v", seed=2, calibration_views=0)
+    cam = load_camera(tmp_path / "v" / "camera.json")
+    cap = cv2.VideoCapture(str(tmp_path / "v" / "video.mkv"))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(np.ascontiguousarray(f[:, :, 0]))
+    dropped = {5, 6, 7, 8, 9, 23, 40}
+    with av.open(str(tmp_path / "gappy.mkv"), "w") as out:
+        st = out.add_stream("ffv1", rate=int(cam.fps))
+        st.width, st.height, st.pix_fmt = 640, 480, "gray"
+        st.time_base = fractions.Fraction(1, 1000)  # Matroska's clock: milliseconds
+        for k, f in enumerate(frames):
+            if k in dropped:
+                continue
+            vf = av.VideoFrame.from_ndarray(f, format="gray")
+            vf.pts, vf.time_base = round(1000 * k / cam.fps), st.time_base
+            out.mux(st.encode(vf))
+        out.mux(st.encode())
+    track_video(tmp_path / "gappy.mkv", cam, p, tmp_path / "t")
+    a = pd.read_csv(tmp_path / "t" / "angles.csv")
+    kept = [k for k in range(len(frames)) if k not in dropped]
+    assert a.frame.tolist() == kept  # the gaps are where the camera dropped frames, not shifted
+    np.testing.assert_allclose(a.t_s, np.array(kept) / cam.fps + cam.exposure_s / 2, atol=1e-3)  # ms container clock
+    truth = pd.read_csv(tmp_path / "v" / "truth.csv")
+    m = a.merge(truth[truth.marker == "tip"], on="frame", suffixes=("", "_true"))
+    assert len(m) == len(kept)
     assert np.abs(m.theta_rad - m.theta_rad_true).max() < 6 * m.theta_sigma_rad.max()
 
 
@@ -186,6 +229,14 @@ def test_pose_from_fiducials_when_the_camera_file_has_none(tmp_path):
     rot_err = cv2.Rodrigues(cv2.Rodrigues(np.array(summary["rvec"]))[0] @ cv2.Rodrigues(true_rvec)[0].T)[0]
     assert np.linalg.norm(rot_err) < 2e-3  # rad
     assert np.linalg.norm(np.array(summary["tvec"]) - true_tvec) < 2e-3  # m
+    # the pose's uncertainty (from the fiducials' localisation) goes out as camera modes; the
+    # actual pose error is within 5 of its standard deviations
+    assert summary["camera_modes"] >= 1
+    angles = pd.read_csv(tmp_path / "t" / "angles.csv")
+    assert summary["frames"] == len(angles)
+    assert "theta_cam_1_rad" in angles.columns
+    sig = np.array(summary["pose"]["pose_sigma"])
+    assert np.all(np.abs(np.array(summary["tvec"]) - true_tvec) < 5 * sig[3:] + 1e-9)
     # fewer than 4 fiducials: refused with the reason
     d2 = copy.deepcopy(d)
     for k in (3, 4, 5):

@@ -229,7 +229,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     print(f"RMS reprojection error {result.rms_px:.3f} px; fx {k[0, 0]:.2f}, fy {k[1, 1]:.2f}, "
           f"cx {k[0, 2]:.2f}, cy {k[1, 2]:.2f}, dist {np.round(result.dist_coeffs, 5).tolist()}")
     _io.write_json(result.to_json(), args.out)
-    print(f"wrote {args.out} (add the camera pose rvec, tvec relative to the pivot before tracking)")
+    print(f"wrote {args.out}, with the intrinsics' covariance (tracking propagates it into the error bars). It has no "
+          "pose: `gyrorig track` finds it from the protocol's lab fiducials, or add rvec, tvec relative to the pivot")
     return EXIT_OK
 
 

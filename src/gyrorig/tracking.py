@@ -732,10 +732,10 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
     min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
     modes = camera_modes(np.array([tip_px[r] for r in rows]), camera, spec.length_m, pose_info, min_effect)
     camera_sigma = [float("nan"), float("nan")]
-    for k in range(len(modes)):
-        for j, col in enumerate((f"theta_cam_{k + 1}_rad", f"phi_cam_{k + 1}_rad")):
+    for mode in range(len(modes)):
+        for j, col in enumerate((f"theta_cam_{mode + 1}_rad", f"phi_cam_{mode + 1}_rad")):
             v = np.full(len(angles), np.nan)
-            v[rows] = modes[k, :, j]
+            v[rows] = modes[mode, :, j]
             angles[col] = v
     if len(modes):
         camera_sigma = np.sqrt(np.mean(np.sum(modes**2, axis=0), axis=0)).tolist()
