@@ -243,3 +243,49 @@ def test_pose_from_fiducials_when_the_camera_file_has_none(tmp_path):
         del d2["markers"][f"fiducial_{k}"]
     with pytest.raises(TrackingError, match="at least 4 are needed"):
         track_video(tmp_path / "v" / "video.mkv", cam, parse_protocol(d2), tmp_path / "t2")
+
+
+def test_uncompressed_video_tracks_exactly_like_the_lossless_one(tmp_path):
+    """Both codecs are lossless: same seed, same pixels, the same angles to the last bit."""
+    p = parse_protocol(scene(duration=0.1))
+    out = {}
+    for codec in ("lossless", "raw"):
+        video = render_video(p, tmp_path / codec, seed=4, calibration_views=0, codec=codec)["video"]
+        track_video(video, load_camera(tmp_path / codec / "camera.json"), p, tmp_path / f"t_{codec}")
+        out[codec] = pd.read_csv(tmp_path / f"t_{codec}" / "angles.csv")
+    assert str(video).endswith(".avi")
+    pd.testing.assert_frame_equal(out["lossless"], out["raw"])
+
+
+def test_compiled_spot_kernel_matches_the_numpy_model():
+    """The tracker's compiled normal equations are the readable numpy model's, to rounding."""
+    from gyrorig.tracking import _model, _normal_equations, _variance
+
+    cam = _bare_camera()
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[10:41, 20:51].astype(float)
+    for params in (np.array([35.3, 25.7, 6.2, 180.0, 12.0]),
+                   np.array([35.3, 25.7, 6.2, 180.0, 44.0, 30.5, 4.0, 90.0, 12.0])):  # two blended discs
+        mu_true, _ = _model(params, xx, yy, cam.psf_sigma_px)
+        win = mu_true + rng.normal(size=mu_true.shape) * 3
+        use = rng.random(win.shape) > 0.05
+        p = params * (1 + 0.01 * rng.normal(size=params.shape))
+        mu_ref, jac = _model(p, xx, yy, cam.psf_sigma_px)
+        wgt = np.where(use, 1 / _variance(mu_ref, cam, 1.0), 0.0)
+        jf = jac.reshape(-1, len(p))
+        A_ref = (jf * wgt.reshape(-1, 1)).T @ jf
+        g_ref = (jf * wgt.reshape(-1, 1)).T @ (win - mu_ref).ravel()
+        mu = np.empty_like(win)
+        A, g, chi2 = _normal_equations(win, 20.0, 10.0, use, p, cam.psf_sigma_px, cam.gain_e_per_adu,
+                                       (cam.read_noise_e / cam.gain_e_per_adu) ** 2, 1.0, mu)
+        np.testing.assert_allclose(mu, mu_ref, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-9 * np.abs(A_ref).max())
+        np.testing.assert_allclose(g, g_ref, rtol=1e-9, atol=1e-9 * np.abs(g_ref).max())
+        assert chi2 == pytest.approx(float(((win - mu_ref) ** 2 * wgt).sum()), rel=1e-10)
+
+
+def _bare_camera():
+    from gyrorig.tracking import TrackingCamera
+
+    return TrackingCamera(np.eye(3), np.zeros(5), np.zeros(3), np.zeros(3), 64, 48, 100.0, 1e-3, "global", 0.0, 1.1,
+                          2.0, 5.0, 255)

@@ -330,7 +330,8 @@ def spot_crb_px(x: float, y: float, radius_px: float, amplitude_adu: float, back
 def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480)), seed: int = 0) -> pd.DataFrame:
     """Render the air-cushion rig, track it, and compare with the truth and the bound.
 
-    For each image size, with motion blur off (the bound's model is exact) and on:
+    For each image size: FFV1 with motion blur off (the bound's model is exact) and on, and
+    uncompressed video (blur off), which shows the tracker's own speed when decoding is free:
     RMS position error of the tip against the truth, the Cramer-Rao bound, their ratio,
     the standard deviation of the normalised errors of x, y, theta and phi, and the
     tracking speed with and without video decoding.
@@ -346,25 +347,29 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
     from .render import render_video
     from .tracking import load_camera, track_video
 
+    from .tracking import warm_up
+
+    warm_up()
     base = load_protocol(BUNDLED_PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     rows = []
     for (w, h) in sizes:
-        for nsub in (1, 8):
+        for codec, nsub in (("lossless", 1), ("lossless", 8), ("raw", 1)):
             cam_t = dict(base.extra["camera"])
             cam_t.update(width_px=w, height_px=h, pixel_size_um=3.45 * 1440 / w, motion_blur_samples=nsub)
             p = replace(base, extra={**base.extra, "camera": cam_t})
             with tempfile.TemporaryDirectory() as tmp:
-                render_video(p, f"{tmp}/v", seed=seed, duration_s=duration_s, calibration_views=0)
+                video = render_video(p, f"{tmp}/v", seed=seed, duration_s=duration_s, calibration_views=0,
+                                     codec=codec)["video"]
                 cam = load_camera(f"{tmp}/v/camera.json")
                 start = time.perf_counter()
-                cap = cv2.VideoCapture(f"{tmp}/v/video.mkv", cv2.CAP_FFMPEG)
+                cap = cv2.VideoCapture(video, cv2.CAP_FFMPEG)
                 cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
                 while cap.read()[0]:
                     pass
                 cap.release()
                 decode_only = time.perf_counter() - start
                 start = time.perf_counter()
-                summary = track_video(f"{tmp}/v/video.mkv", cam, p, f"{tmp}/t")
+                summary = track_video(video, cam, p, f"{tmp}/t")
                 wall = time.perf_counter() - start
                 mk = pd.read_csv(f"{tmp}/t/markers.csv")
                 angles = pd.read_csv(f"{tmp}/t/angles.csv").dropna(subset=["theta_rad"])
@@ -384,7 +389,7 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
                 angles.phi_sigma_rad.to_numpy()
             n = summary["frames"]
             rows.append(dict(
-                width_px=w, height_px=h, motion_blur_samples=nsub, frames=n,
+                width_px=w, height_px=h, codec=codec, motion_blur_samples=nsub, frames=n,
                 tracked_fraction=summary["tracked_fraction"],
                 rms_error_px=float(np.sqrt(np.mean(err**2))), crb_px=float(np.sqrt(np.mean(crb**2))),
                 error_over_crb=float(np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(crb**2))),

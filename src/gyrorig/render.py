@@ -288,9 +288,15 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
             yield image, truth
 
 
+#: ``lossless``: FFV1 in Matroska (8 or 16 bit); ``raw``: uncompressed 8-bit AVI (large, decodes
+#: at memory speed); ``mp4``: lossy MPEG-4 (small; the noise model no longer holds)
+VIDEO_CODECS = ("lossless", "raw", "mp4")
+
+
 def _open_writer(path: Path, cam: Camera, codec: str) -> cv2.VideoWriter:
     sixteen = codec == "lossless" and cam.sensor.bit_depth > 8
-    fourcc = cv2.VideoWriter_fourcc(*("FFV1" if codec == "lossless" else "mp4v"))
+    # raw: uncompressed frames, as machine-vision cameras record them (decoding costs nothing)
+    fourcc = 0 if codec == "raw" else cv2.VideoWriter_fourcc(*("FFV1" if codec == "lossless" else "mp4v"))
     params = [cv2.VIDEOWRITER_PROP_IS_COLOR, 0, cv2.VIDEOWRITER_PROP_DEPTH, cv2.CV_16U if sixteen else cv2.CV_8U]
     writer = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, fourcc, float(cam.fps), (cam.width_px, cam.height_px), params)
     if not writer.isOpened():
@@ -307,10 +313,13 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
     temporary name and renamed only when complete; on any error nothing is left
     under the final names.
     """
-    if codec not in ("lossless", "mp4"):
-        raise ValueError(f"codec = {codec!r}: allowed 'lossless', 'mp4'")
+    if codec not in VIDEO_CODECS:
+        raise ValueError(f"codec = {codec!r}: allowed {', '.join(map(repr, VIDEO_CODECS))}")
     setup = camera_setup(protocol)
     cam = setup.camera
+    if codec == "raw" and cam.sensor.bit_depth > 8:
+        raise ValueError(f"codec = 'raw' writes 8-bit AVI; camera.bit_depth = {cam.sensor.bit_depth}: use 'lossless' "
+                         "(FFV1 keeps 16 bits)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     duration = protocol.scene.duration_s if duration_s is None else float(duration_s)
@@ -318,7 +327,7 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
     start = time.perf_counter()
     paths = marker_paths(protocol, setup, duration)
     t_sim = time.perf_counter() - start
-    name = "video.mkv" if codec == "lossless" else "video.mp4"
+    name = {"lossless": "video.mkv", "mp4": "video.mp4", "raw": "video.avi"}[codec]
     tmp = out / f".{name}.partial{Path(name).suffix}"
     writer = _open_writer(tmp, cam, codec)
     truths = []
