@@ -136,6 +136,8 @@ def test_bad_input_is_refused_by_name():
 
 @pytest.mark.parametrize("spec_kw", [dict(harmonics=3), dict(fit_axis=True, damped=True, harmonics=3, segments=2,
                                                               persistent=True, nutation_origin_s=-1.0),
+                                      dict(fit_axis=True, damped=True, harmonics=2, persistent=True, transient=True,
+                                           sidebands=True, precession_second=True, nutation_origin_s=-1.0),
                                       dict(fit_axis=True)])
 def test_analytic_jacobian_matches_finite_differences(spec_kw):
     from scipy.optimize._numdiff import approx_derivative
@@ -149,7 +151,7 @@ def test_analytic_jacobian_matches_finite_differences(spec_kw):
     ix = m.index
     p[ix["log_cone_angle"]], p[ix["precession_rate_rad_s"]] = np.log(0.5), 1.7
     for name, v in (("nutation_frequency_rad_s", 59.0), ("persistent_frequency_rad_s", 59.5), ("axis_tilt_rad", 0.05),
-                    ("axis_azimuth_rad", 1.5)):
+                    ("axis_azimuth_rad", 1.5), ("log_transient_rate", np.log(20.0))):
         if name in ix:
             p[ix[name]] = v
     n = 400

@@ -103,6 +103,14 @@ class ModelSpec:
     persistent: bool = False
     #: tau at which a damped nutation's envelope is 1 (the first frame): amplitudes are quoted there
     nutation_origin_s: float = 0.0
+    #: a fast exponential transient from the first frame (damped scenes: the gyrostat frame's
+    #: own spin relaxes in I_frame / c, tens of ms, after release)
+    transient: bool = False
+    #: nutation sidebands at w +- Omega (damped, fitted axis: damping about the lab vertical
+    #: modulates the nutation with the precession phase)
+    sidebands: bool = False
+    #: second precession harmonic (damped, fitted axis: an elliptical cone)
+    precession_second: bool = False
     #: nuisance parameters for the camera model's uncertainty (one per mode, unit prior)
     camera_modes: int = 0
 
@@ -127,6 +135,14 @@ class ModelSpec:
         if self.persistent:
             n += ["persistent_frequency_rad_s", "persistent_tilt_cos_rad", "persistent_tilt_sin_rad",
                   "persistent_azimuth_cos_rad", "persistent_azimuth_sin_rad"]
+        if self.transient:
+            n += ["log_transient_rate", "transient_tilt_rad", "transient_azimuth_rad"]
+        if self.sidebands:
+            for side in ("upper", "lower"):
+                n += [f"tilt_{side}_cos_rad", f"tilt_{side}_sin_rad", f"azimuth_{side}_cos_rad", f"azimuth_{side}_sin_rad"]
+        if self.precession_second:
+            n += ["tilt_precession2_cos_rad", "tilt_precession2_sin_rad", "azimuth_precession2_cos_rad",
+                  "azimuth_precession2_sin_rad"]
         n += [f"camera_mode_{k + 1}" for k in range(self.camera_modes)]  # always last
         return n
 
@@ -302,6 +318,22 @@ class _Model:
             c, sn = np.cos(wp * tau), np.sin(wp * tau)
             th = th + p[ix["persistent_tilt_cos_rad"]] * c + p[ix["persistent_tilt_sin_rad"]] * sn
             ph = ph + p[ix["persistent_azimuth_cos_rad"]] * c + p[ix["persistent_azimuth_sin_rad"]] * sn
+        if s.transient:
+            e = np.exp(-np.exp(p[ix["log_transient_rate"]]) * (tau - s.nutation_origin_s))
+            th = th + p[ix["transient_tilt_rad"]] * e
+            ph = ph + p[ix["transient_azimuth_rad"]] * e
+        if s.sidebands:
+            psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
+            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * (tau - s.nutation_origin_s))
+            for side, sign in (("upper", 1.0), ("lower", -1.0)):
+                arg = psi + sign * p[ix["precession_rate_rad_s"]] * tau
+                c, sn = env1 * np.cos(arg), env1 * np.sin(arg)
+                th = th + p[ix[f"tilt_{side}_cos_rad"]] * c + p[ix[f"tilt_{side}_sin_rad"]] * sn
+                ph = ph + p[ix[f"azimuth_{side}_cos_rad"]] * c + p[ix[f"azimuth_{side}_sin_rad"]] * sn
+        if s.precession_second:
+            c2, s2 = np.cos(2 * p[ix["precession_rate_rad_s"]] * tau), np.sin(2 * p[ix["precession_rate_rad_s"]] * tau)
+            th = th + p[ix["tilt_precession2_cos_rad"]] * c2 + p[ix["tilt_precession2_sin_rad"]] * s2
+            ph = ph + p[ix["azimuth_precession2_cos_rad"]] * c2 + p[ix["azimuth_precession2_sin_rad"]] * s2
         return th, ph
 
     def axis_frame_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
@@ -358,10 +390,36 @@ class _Model:
             self._sinusoid_columns(p, tau, dth, dph, "precession_rate_rad_s", "precession")
         if s.persistent:
             self._sinusoid_columns(p, tau, dth, dph, "persistent_frequency_rad_s", "persistent")
+        if s.transient:
+            kappa = np.exp(p[ix["log_transient_rate"]])
+            dt0 = tau - s.nutation_origin_s
+            e = np.exp(-kappa * dt0)
+            dth[:, ix["transient_tilt_rad"]] = e
+            dph[:, ix["transient_azimuth_rad"]] = e
+            dth[:, ix["log_transient_rate"]] = -kappa * dt0 * e * p[ix["transient_tilt_rad"]]
+            dph[:, ix["log_transient_rate"]] = -kappa * dt0 * e * p[ix["transient_azimuth_rad"]]
+        if s.sidebands:
+            psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
+            dt0 = tau - s.nutation_origin_s
+            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * dt0)
+            for side, sign in (("upper", 1.0), ("lower", -1.0)):
+                arg = psi + sign * p[ix["precession_rate_rad_s"]] * tau
+                c, sn = env1 * np.cos(arg), env1 * np.sin(arg)
+                for d, q in ((dth, "tilt"), (dph, "azimuth")):
+                    a, b = p[ix[f"{q}_{side}_cos_rad"]], p[ix[f"{q}_{side}_sin_rad"]]
+                    d[:, ix[f"{q}_{side}_cos_rad"]] = c
+                    d[:, ix[f"{q}_{side}_sin_rad"]] = sn
+                    darg = -a * sn + b * c  # d/d arg
+                    d[:, ix["nutation_frequency_rad_s"]] += darg * tau
+                    d[:, ix["nutation_chirp_rad_s2"]] += darg * 0.5 * tau**2
+                    d[:, ix["precession_rate_rad_s"]] += darg * sign * tau
+                    d[:, ix["nutation_decay_rate_per_s"]] += -dt0 * (a * c + b * sn)
+        if s.precession_second:
+            self._sinusoid_columns(p, tau, dth, dph, "precession_rate_rad_s", "precession2", factor=2.0)
         return dth, dph
 
-    def _sinusoid_columns(self, p, tau, dth, dph, freq: str, stem: str) -> None:
-        """Columns of a pair of sinusoids ``X_cos cos(w tau) + X_sin sin(w tau)`` in tilt and azimuth.
+    def _sinusoid_columns(self, p, tau, dth, dph, freq: str, stem: str, factor: float = 1.0) -> None:
+        """Columns of a pair of sinusoids ``X_cos cos(f w tau) + X_sin sin(f w tau)`` in tilt and azimuth.
 
         ``stem`` names the amplitudes (``tilt_<stem>_cos_rad`` ..., or ``<stem>_tilt_cos_rad``
         ...); their derivative with respect to the frequency parameter ``freq`` is added.
@@ -370,12 +428,12 @@ class _Model:
         names = ([f"tilt_{stem}_cos_rad", f"tilt_{stem}_sin_rad", f"azimuth_{stem}_cos_rad", f"azimuth_{stem}_sin_rad"]
                  if f"tilt_{stem}_cos_rad" in ix else
                  [f"{stem}_tilt_cos_rad", f"{stem}_tilt_sin_rad", f"{stem}_azimuth_cos_rad", f"{stem}_azimuth_sin_rad"])
-        w = p[ix[freq]]
+        w = factor * p[ix[freq]]
         c, sn = np.cos(w * tau), np.sin(w * tau)
         for d, (nc, ns) in ((dth, names[:2]), (dph, names[2:])):
             d[:, ix[nc]] = c
             d[:, ix[ns]] = sn
-            d[:, ix[freq]] += tau * (-p[ix[nc]] * sn + p[ix[ns]] * c)
+            d[:, ix[freq]] += factor * tau * (-p[ix[nc]] * sn + p[ix[ns]] * c)
 
     def lab_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
         """d(theta, phi)_lab / dp, each (n, P): analytic in the axis frame, chain rule to the lab."""
@@ -614,6 +672,9 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
         raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
     res = least_squares(white, x0, jac=white.jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
                         max_nfev=200 * (len(x0) + 1))
+    if res.status == 0:  # out of evaluations (slow progress along a shallow valley): go on once from there
+        res = least_squares(white, res.x, jac=white.jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
+                            gtol=1e-12, max_nfev=400 * (len(x0) + 1))
     J = res.jac
     try:
         JTJ = J.T @ J
@@ -732,26 +793,81 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                     cur = None
             if cur is not None:
                 best = cur
-                if spec0.damped:
-                    # a persistent oscillation near the nutation frequency, if the data show one
-                    p_cur = dict(zip(_Model(cur.spec).names, cur.x))
-                    w_n = p_cur["nutation_frequency_rad_s"]
-                    trial = []
-                    for dw in (2 * np.pi / data.duration_s, -2 * np.pi / data.duration_s):
-                        st = dict(p_cur, persistent_frequency_rad_s=w_n + dw)
-                        for key in ("persistent_tilt_cos_rad", "persistent_tilt_sin_rad", "persistent_azimuth_cos_rad",
-                                    "persistent_azimuth_sin_rad"):
-                            st[key] = 1e-3 * abs(p_cur["tilt_cos_1_rad"]) + 1e-9
-                        trial.append(_solve(replace(cur.spec, persistent=True), data, st))
-                    sol_p = min(trial, key=lambda s_: s_.chi2)
-                    if sol_p.ok and cur.chi2 - sol_p.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol_p.dof):
-                        best = sol_p
-                        notes.append("a persistent oscillation near the nutation frequency is significant and "
-                                     "is modelled")
+        if spec0.damped:
+            best = _with_transient(best, data, notes)
+        if spec0.damped and spec0.fit_axis:
+            best = _with_extension(best, data, notes, "precession_second",
+                                   "a second harmonic of the precession (an elliptical cone) is significant and is "
+                                   "modelled")
+            if best.spec.harmonics:
+                best = _with_extension(best, data, notes, "sidebands",
+                                       "nutation sidebands at the nutation frequency +- the precession rate (damping "
+                                       "about the lab vertical modulates the nutation) are significant and are modelled")
+        if spec0.damped and best.spec.harmonics:
+            best = _with_persistent(best, data, notes)
         if reason is not None:
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
     return best, notes, undetermined
+
+
+def _with_persistent(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
+    """Add a persistent oscillation near the nutation frequency if the data show one (chi-square test).
+
+    Under damping the drifting slow mode keeps a small undamped oscillation alive (B2 rig,
+    ~3e-5 rad); started one frequency bin either side of the nutation.
+    """
+    p_cur = dict(zip(_Model(cur.spec).names, cur.x))
+    w_n = p_cur["nutation_frequency_rad_s"]
+    trial = []
+    for dw in (2 * np.pi / data.duration_s, -2 * np.pi / data.duration_s):
+        st = dict(p_cur, persistent_frequency_rad_s=w_n + dw)
+        for key in ("persistent_tilt_cos_rad", "persistent_tilt_sin_rad", "persistent_azimuth_cos_rad",
+                    "persistent_azimuth_sin_rad"):
+            st[key] = 1e-3 * abs(p_cur["tilt_cos_1_rad"]) + 1e-9
+        trial.append(_solve(replace(cur.spec, persistent=True), data, st))
+    sol_p = min(trial, key=lambda s_: s_.chi2)
+    if sol_p.ok and cur.chi2 - sol_p.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol_p.dof):
+        notes.append("a persistent oscillation near the nutation frequency is significant and is modelled")
+        return sol_p
+    return cur
+
+
+def _with_extension(cur: _Solved, data: FitData, notes: list[str], flag: str, note: str) -> _Solved:
+    """Add the linear-amplitude terms ``flag`` of the spec (started at zero) if a chi-square test wants them."""
+    spec_x = replace(cur.spec, **{flag: True})
+    sol = _solve(spec_x, data, dict(zip(_Model(cur.spec).names, cur.x)))
+    if sol.ok and cur.chi2 - sol.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol.dof):
+        notes.append(note)
+        return sol
+    return cur
+
+
+def _with_transient(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
+    """Add a fast exponential transient from the first frame if the data show one (chi-square test).
+
+    After release, a damped gyrostat's frame spin relaxes in ``I_frame / c`` (27 ms on the
+    bundled rigs), which moves the tip by ~1e-4 rad for a few frames; the rates tried span
+    what a frame rate can see.
+    """
+    p_cur = dict(zip(_Model(cur.spec).names, cur.x))
+    spec_t = replace(cur.spec, transient=True)
+    dt = float(np.median(np.diff(data.t_s)))
+    trial = []
+    for kappa in (0.3 / dt, 0.1 / dt, 0.03 / dt, 10.0 / data.duration_s):
+        st = dict(p_cur, log_transient_rate=math.log(kappa), transient_tilt_rad=0.0, transient_azimuth_rad=0.0)
+        sol = _solve(spec_t, data, st)
+        if sol.ok:
+            trial.append(sol)
+    if not trial:
+        return cur
+    sol_t = min(trial, key=lambda s_: s_.chi2)
+    if cur.chi2 - sol_t.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol_t.dof):
+        rate = math.exp(dict(zip(_Model(spec_t).names, sol_t.x))["log_transient_rate"])
+        notes.append(f"a fast transient from the first frame (decay rate {rate:.3g} 1/s) is significant and is "
+                     "modelled")
+        return sol_t
+    return cur
 
 
 # --------------------------------------------------------------------------------- derived quantities
