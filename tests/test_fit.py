@@ -137,7 +137,8 @@ def test_bad_input_is_refused_by_name():
 @pytest.mark.parametrize("spec_kw", [dict(harmonics=3), dict(fit_axis=True, damped=True, harmonics=3, segments=2,
                                                               persistent=True, nutation_origin_s=-1.0),
                                       dict(fit_axis=True, damped=True, harmonics=2, persistent=True, transient=True,
-                                           sidebands=True, precession_second=True, nutation_origin_s=-1.0),
+                                           transient_min_rate_per_s=5.0, sidebands=True, precession_second=True,
+                                           nutation_origin_s=-1.0),
                                       dict(fit_axis=True)])
 def test_analytic_jacobian_matches_finite_differences(spec_kw):
     from scipy.optimize._numdiff import approx_derivative

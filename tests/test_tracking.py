@@ -289,3 +289,25 @@ def _bare_camera():
 
     return TrackingCamera(np.eye(3), np.zeros(5), np.zeros(3), np.zeros(3), 64, 48, 100.0, 1e-3, "global", 0.0, 1.1,
                           2.0, 5.0, 255)
+
+
+def test_crossbar_dots_give_the_frame_angle(tmp_path):
+    """The frame's dots are tracked too; the frame angle psi (modulo pi: the pair is symmetric)
+    agrees with the simulator's within the reported sigma."""
+    p = parse_protocol(scene(duration=0.5))
+    summary, m = round_trip(tmp_path, copy.deepcopy(scene(duration=0.5)), seed=6)
+    markers = pd.read_csv(tmp_path / "track" / "markers.csv")
+    counts = markers.marker.value_counts()
+    assert counts["crossbar_a"] >= 0.9 * len(m) and counts["crossbar_b"] >= 0.8 * len(m)
+    angles = pd.read_csv(tmp_path / "track" / "angles.csv")
+    sim = simulate(p, t_eval_s=angles.t_s.to_numpy())
+    ok = angles.psi_rad.notna()
+    assert ok.mean() > 0.95
+    err = np.angle(np.exp(2j * (angles.psi_rad - sim.psi_frame_rad.to_numpy()))) / 2  # modulo pi
+    pulls = (err / angles.psi_sigma_rad)[ok]
+    assert PULL_STD_RANGE[0] < pulls.std() < PULL_STD_RANGE[1] and np.abs(pulls).max() < 6
+    # without the dots: no psi, and only the tip in markers.csv
+    track_video(tmp_path / "video" / "video.mkv", load_camera(tmp_path / "video" / "camera.json"), p,
+                tmp_path / "tip_only", frame_dots=False)
+    assert "psi_rad" not in pd.read_csv(tmp_path / "tip_only" / "angles.csv").columns
+    assert set(pd.read_csv(tmp_path / "tip_only" / "markers.csv").marker) == {"tip"}

@@ -331,7 +331,8 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
     """Render the air-cushion rig, track it, and compare with the truth and the bound.
 
     For each image size: FFV1 with motion blur off (the bound's model is exact) and on, and
-    uncompressed video (blur off), which shows the tracker's own speed when decoding is free:
+    uncompressed video (blur off), which shows the tracker's own speed when decoding is free, tracking
+    the tip alone and with the frame's dots:
     RMS position error of the tip against the truth, the Cramer-Rao bound, their ratio,
     the standard deviation of the normalised errors of x, y, theta and phi, and the
     tracking speed with and without video decoding.
@@ -353,7 +354,7 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
     base = load_protocol(BUNDLED_PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     rows = []
     for (w, h) in sizes:
-        for codec, nsub in (("lossless", 1), ("lossless", 8), ("raw", 1)):
+        for codec, nsub, dots in (("lossless", 1, False), ("lossless", 8, False), ("raw", 1, False), ("raw", 1, True)):
             cam_t = dict(base.extra["camera"])
             cam_t.update(width_px=w, height_px=h, pixel_size_um=3.45 * 1440 / w, motion_blur_samples=nsub)
             p = replace(base, extra={**base.extra, "camera": cam_t})
@@ -369,9 +370,10 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
                 cap.release()
                 decode_only = time.perf_counter() - start
                 start = time.perf_counter()
-                summary = track_video(video, cam, p, f"{tmp}/t")
+                summary = track_video(video, cam, p, f"{tmp}/t", frame_dots=dots)
                 wall = time.perf_counter() - start
                 mk = pd.read_csv(f"{tmp}/t/markers.csv")
+                mk = mk[mk.marker == "tip"]
                 angles = pd.read_csv(f"{tmp}/t/angles.csv").dropna(subset=["theta_rad"])
                 truth = pd.read_csv(f"{tmp}/v/truth.csv")
             truth = truth[truth.marker == "tip"]
@@ -389,7 +391,7 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
                 angles.phi_sigma_rad.to_numpy()
             n = summary["frames"]
             rows.append(dict(
-                width_px=w, height_px=h, codec=codec, motion_blur_samples=nsub, frames=n,
+                width_px=w, height_px=h, codec=codec, motion_blur_samples=nsub, frame_dots=dots, frames=n,
                 tracked_fraction=summary["tracked_fraction"],
                 rms_error_px=float(np.sqrt(np.mean(err**2))), crb_px=float(np.sqrt(np.mean(crb**2))),
                 error_over_crb=float(np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(crb**2))),

@@ -106,6 +106,9 @@ class ModelSpec:
     #: a fast exponential transient from the first frame (damped scenes: the gyrostat frame's
     #: own spin relaxes in I_frame / c, tens of ms, after release)
     transient: bool = False
+    #: the transient decays at least this fast (1/s): ten e-folds within the record, so that it
+    #: cannot stand in for the slow terms
+    transient_min_rate_per_s: float = 0.0
     #: nutation sidebands at w +- Omega (damped, fitted axis: damping about the lab vertical
     #: modulates the nutation with the precession phase)
     sidebands: bool = False
@@ -319,7 +322,7 @@ class _Model:
             th = th + p[ix["persistent_tilt_cos_rad"]] * c + p[ix["persistent_tilt_sin_rad"]] * sn
             ph = ph + p[ix["persistent_azimuth_cos_rad"]] * c + p[ix["persistent_azimuth_sin_rad"]] * sn
         if s.transient:
-            e = np.exp(-np.exp(p[ix["log_transient_rate"]]) * (tau - s.nutation_origin_s))
+            e = np.exp(-(s.transient_min_rate_per_s + np.exp(p[ix["log_transient_rate"]])) * (tau - s.nutation_origin_s))
             th = th + p[ix["transient_tilt_rad"]] * e
             ph = ph + p[ix["transient_azimuth_rad"]] * e
         if s.sidebands:
@@ -391,13 +394,13 @@ class _Model:
         if s.persistent:
             self._sinusoid_columns(p, tau, dth, dph, "persistent_frequency_rad_s", "persistent")
         if s.transient:
-            kappa = np.exp(p[ix["log_transient_rate"]])
+            excess = np.exp(p[ix["log_transient_rate"]])
             dt0 = tau - s.nutation_origin_s
-            e = np.exp(-kappa * dt0)
+            e = np.exp(-(s.transient_min_rate_per_s + excess) * dt0)
             dth[:, ix["transient_tilt_rad"]] = e
             dph[:, ix["transient_azimuth_rad"]] = e
-            dth[:, ix["log_transient_rate"]] = -kappa * dt0 * e * p[ix["transient_tilt_rad"]]
-            dph[:, ix["log_transient_rate"]] = -kappa * dt0 * e * p[ix["transient_azimuth_rad"]]
+            dth[:, ix["log_transient_rate"]] = -excess * dt0 * e * p[ix["transient_tilt_rad"]]
+            dph[:, ix["log_transient_rate"]] = -excess * dt0 * e * p[ix["transient_azimuth_rad"]]
         if s.sidebands:
             psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
             dt0 = tau - s.nutation_origin_s
@@ -851,11 +854,13 @@ def _with_transient(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
     what a frame rate can see.
     """
     p_cur = dict(zip(_Model(cur.spec).names, cur.x))
-    spec_t = replace(cur.spec, transient=True)
+    floor = 10.0 / data.duration_s
+    spec_t = replace(cur.spec, transient=True, transient_min_rate_per_s=floor)
     dt = float(np.median(np.diff(data.t_s)))
     trial = []
-    for kappa in (0.3 / dt, 0.1 / dt, 0.03 / dt, 10.0 / data.duration_s):
-        st = dict(p_cur, log_transient_rate=math.log(kappa), transient_tilt_rad=0.0, transient_azimuth_rad=0.0)
+    for kappa in (0.3 / dt, 0.1 / dt, 0.03 / dt, 2 * floor):
+        st = dict(p_cur, log_transient_rate=math.log(max(kappa - floor, 1e-3 * floor)), transient_tilt_rad=0.0,
+                  transient_azimuth_rad=0.0)
         sol = _solve(spec_t, data, st)
         if sol.ok:
             trial.append(sol)
@@ -863,9 +868,8 @@ def _with_transient(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
         return cur
     sol_t = min(trial, key=lambda s_: s_.chi2)
     if cur.chi2 - sol_t.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol_t.dof):
-        rate = math.exp(dict(zip(_Model(spec_t).names, sol_t.x))["log_transient_rate"])
-        notes.append(f"a fast transient from the first frame (decay rate {rate:.3g} 1/s) is significant and is "
-                     "modelled")
+        notes.append(f"a fast transient from the first frame (decaying faster than {floor:.3g} 1/s) is significant "
+                     "and is modelled")
         return sol_t
     return cur
 

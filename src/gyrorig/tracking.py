@@ -646,6 +646,176 @@ def camera_modes(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiduci
 
 
 # --------------------------------------------------------------------------------------
+# the frame's own dots (crossbar): the frame's rotation angle about the axis
+
+
+@dataclass(frozen=True)
+class _DotSpec:
+    name: str
+    body_m: np.ndarray  # position on the frame (axis along z)
+    radius_m: float
+
+    @property
+    def angle_rad(self) -> float:
+        return math.atan2(self.body_m[1], self.body_m[0])
+
+    @property
+    def rho_m(self) -> float:
+        return math.hypot(self.body_m[0], self.body_m[1])
+
+
+def _dot_specs(protocol: Protocol) -> list[_DotSpec]:
+    """Frame-fixed dots off the axis (e.g. the crossbar): they give the frame's angle about the axis."""
+    out = []
+    for name, m in (protocol.extra.get("markers") or {}).items():
+        if (name != "tip" and isinstance(m, dict) and m.get("body") == "frame" and m.get("kind", "dot") == "dot"
+                and math.hypot(*m["position_m"][:2]) > 1e-6):
+            out.append(_DotSpec(name, np.asarray(m["position_m"], float), float(m["radius_m"])))
+    return out
+
+
+def _axis_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Line of nodes ``a`` and ``b = n x a`` for the tip direction ``n`` (Goldstein x-convention)."""
+    phi = math.atan2(n[0], -n[1])
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([c, s, 0.0]), np.array([-n[2] * s, n[2] * c, n[0] * s - n[1] * c])
+
+
+def _dot_position(spec: _DotSpec, n: np.ndarray, psi: float) -> np.ndarray:
+    a, b = _axis_basis(n)
+    ang = psi + spec.angle_rad
+    return spec.rho_m * (math.cos(ang) * a + math.sin(ang) * b) + spec.body_m[2] * n
+
+
+def _dot_angle(x_px: float, y_px: float, spec: _DotSpec, n: np.ndarray, cam: TrackingCamera) -> float | None:
+    """The frame angle psi implied by a dot seen at a pixel (None if the ray cannot meet its circle).
+
+    The ray meets the sphere ``|X| = |p|`` twice; the intersection whose height along the
+    axis is nearer the dot's is taken, and rejected if it is off the dot's circle by more
+    than a quarter of its radius.
+    """
+    und = cv2.undistortPoints(np.array([[[x_px, y_px]]], np.float64), cam.camera_matrix, cam.dist_coeffs).reshape(2)
+    d = cam.rotation.T @ np.array([und[0], und[1], 1.0])
+    d /= np.linalg.norm(d)
+    c = cam.centre_m
+    b_ = c @ d
+    disc = b_ * b_ - (c @ c - float(spec.body_m @ spec.body_m))
+    if disc < 0:
+        return None
+    best = None
+    for s in (-b_ - math.sqrt(disc), -b_ + math.sqrt(disc)):
+        X = c + s * d
+        off = abs(X @ n - spec.body_m[2])
+        if best is None or off < best[0]:
+            best = (off, X)
+    off, X = best
+    v = X - (X @ n) * n
+    if off > 0.25 * spec.rho_m or abs(np.linalg.norm(v) - spec.rho_m) > 0.25 * spec.rho_m:
+        return None
+    a, b = _axis_basis(n)
+    return math.atan2(v @ b, v @ a) - spec.angle_rad
+
+
+class _DotTracker:
+    """Follows the frame's dots from frame to frame; gives the frame angle psi and its sigma.
+
+    With two dots symmetric about the axis (the bundled crossbar) which is which cannot be
+    told from the images: psi is then known modulo pi, and is continuous within a record.
+    """
+
+    LOST_AFTER = 5  # frames without any dot before a fresh acquisition
+
+    def __init__(self, specs: list[_DotSpec], cam: TrackingCamera):
+        self.specs = specs
+        self.cam = cam
+        depth = float(np.linalg.norm(cam.centre_m))
+        self.r_px = {s.name: cam.camera_matrix[0, 0] * s.radius_m / depth for s in specs}
+        self.psi = None
+        self.rate = 0.0
+        self.t = None
+        self.misses = 0
+        self.last_r = dict(self.r_px)
+
+    def _project(self, X: np.ndarray) -> np.ndarray:
+        return cv2.projectPoints(X.reshape(-1, 1, 3), self.cam.rvec, self.cam.tvec, self.cam.camera_matrix,
+                                 self.cam.dist_coeffs)[0].reshape(-1, 2)
+
+    def _acquire(self, image, n, tip_xy, r_tip, threshold):
+        spec = self.specs[0]
+        circle = self._project(np.array([_dot_position(spec, n, q) for q in np.linspace(0, 2 * np.pi, 25)[:-1]]))
+        r = self.r_px[spec.name]
+        h, w = image.shape
+        x0, y0 = circle.min(axis=0) - 3 * r - 5
+        x1, y1 = circle.max(axis=0) + 3 * r + 5
+        cand = _candidates(image, max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h), threshold)
+        for cx, cy, cr in sorted(cand, key=lambda c: -c[2]):
+            if not 0.5 * r <= cr <= 1.6 * r or math.hypot(cx - tip_xy[0], cy - tip_xy[1]) < 1.2 * r_tip:
+                continue
+            fit = fit_spot(image, cx, cy, cr, self.cam)
+            if fit is not None:
+                psi = _dot_angle(fit.x_px, fit.y_px, spec, n, self.cam)
+                if psi is not None:
+                    return psi
+        return None
+
+    def step(self, image, t_s: float, n: np.ndarray, tip_xy, r_tip: float, threshold: float):
+        """Fit the dots in one frame; returns ``(psi, psi_sigma, [(name, SpotFit), ...])``."""
+        if self.psi is None:
+            self.psi = self._acquire(image, n, tip_xy, r_tip, threshold)
+            self.rate, self.t = 0.0, t_s
+            if self.psi is None:
+                return float("nan"), float("nan"), []
+        psi_pred = self.psi + self.rate * (t_s - self.t)
+        h, w = image.shape
+        found, est = [], []
+        for spec in self.specs:
+            r = self.r_px[spec.name]
+            px, py = self._project(_dot_position(spec, n, psi_pred))[0]
+            reach = int(3 * r + 10)
+            cand = _candidates(image, max(int(px) - reach, 0), max(int(py) - reach, 0), min(int(px) + reach, w),
+                               min(int(py) + reach, h), threshold)
+            cand = [c for c in cand if 0.5 * r <= c[2] <= 1.6 * r
+                    and math.hypot(c[0] - tip_xy[0], c[1] - tip_xy[1]) >= 1.2 * r_tip]
+            if not cand:
+                continue
+            cx, cy, cr = min(cand, key=lambda c: (c[0] - px) ** 2 + (c[1] - py) ** 2)
+            if self.misses == 0 and math.hypot(cx - px, cy - py) < max(2.0, 0.3 * cr):
+                cx, cy, cr = float(px), float(py), self.last_r[spec.name]  # sub-pixel prediction: fewer iterations
+            fit = fit_spot(image, cx, cy, cr, self.cam)
+            if fit is None:
+                continue
+            self.last_r[spec.name] = fit.radius_px
+            psi_m = _dot_angle(fit.x_px, fit.y_px, spec, n, self.cam)
+            if psi_m is None:
+                continue
+            psi_m = psi_pred + math.remainder(psi_m - psi_pred, 2 * math.pi)
+            # sigma from the spot covariance through the pixel -> angle map
+            jac = np.zeros(2)
+            for i, (dx, dy) in enumerate(((0.05, 0.0), (0.0, 0.05))):
+                p1 = _dot_angle(fit.x_px + dx, fit.y_px + dy, spec, n, self.cam)
+                p0 = _dot_angle(fit.x_px - dx, fit.y_px - dy, spec, n, self.cam)
+                if p1 is None or p0 is None:
+                    break
+                jac[i] = math.remainder(p1 - p0, 2 * math.pi) / 0.1
+            else:
+                var = float(jac @ fit.cov_xy @ jac)
+                if var > 0:
+                    est.append((psi_m, var))
+            found.append((spec.name, fit))
+        if not est:
+            self.misses += 1
+            if self.misses >= self.LOST_AFTER:
+                self.psi = None
+            return float("nan"), float("nan"), found
+        wts = np.array([1 / v for _, v in est])
+        psi = float(np.sum(wts * np.array([p for p, _ in est])) / wts.sum())
+        if self.t is not None and t_s > self.t:
+            self.rate = (psi - self.psi) / (t_s - self.t)
+        self.psi, self.t, self.misses = psi, t_s, 0
+        return psi, float(1 / math.sqrt(wts.sum())), found
+
+
+# --------------------------------------------------------------------------------------
 # the tracking loop
 
 
@@ -693,8 +863,13 @@ def _candidates(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold
 
 
 def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,
-                progress: Callable[[int, int], None] | None = None) -> dict:
+                progress: Callable[[int, int], None] | None = None, frame_dots: bool = True) -> dict:
     """Track the tip marker through a video; write ``angles.csv`` and ``markers.csv``.
+
+    With ``frame_dots`` (and frame-fixed dots off the axis in the protocol, like the
+    crossbar) these are tracked too: their detections go to ``markers.csv`` and the
+    frame's angle about the axis to ``angles.csv`` (``psi_rad, psi_sigma_rad``; modulo pi
+    for a symmetric pair).
 
     Returns a summary (frames, tracked fraction, timings).  Raises
     :class:`TrackingError` for an unreadable video, a camera that does not match the
@@ -723,6 +898,9 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
     tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
     last = []  # recent (x, y) of the tip
     last_r = r_expected  # its latest fitted radius [px]
+    dot_specs = _dot_specs(protocol) if frame_dots else []
+    dots = _DotTracker(dot_specs, camera) if dot_specs else None
+    psi_rows: dict[int, tuple[float, float]] = {}
     prev_hash = None
     k = 0
     t_decode = t_track = 0.0  # t_decode: time spent waiting for decoded frames
@@ -801,6 +979,16 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
                 tip_px[len(rows_a) - 1] = (fit.x_px, fit.y_px)
                 last = (last + [(fit.x_px, fit.y_px)])[-2:]
                 last_r = fit.radius_px
+                if dots is not None:
+                    psi, psi_sigma, found = dots.step(frame, t_mid, tip, (fit.x_px, fit.y_px), fit.radius_px,
+                                                      threshold)
+                    psi_rows[len(rows_a) - 1] = (psi, psi_sigma)
+                    for name, dfit in found:
+                        t_dot = t_frame + camera.exposure_s / 2 + ((dfit.y_px / camera.height_px) * camera.readout_time_s
+                                                                   if camera.shutter == "rolling" else 0.0)
+                        rows_m.append((index, t_dot, name, dfit.x_px, dfit.y_px, math.sqrt(dfit.cov_xy[0, 0]),
+                                       math.sqrt(dfit.cov_xy[1, 1]), dfit.radius_px, dfit.amplitude_adu,
+                                       dfit.background_adu, dfit.chi2_red, "blended" if dfit.blended else "ok"))
             rows_m.append((index, t_mid, spec.name, fit.x_px, fit.y_px, math.sqrt(fit.cov_xy[0, 0]),
                            math.sqrt(fit.cov_xy[1, 1]), fit.radius_px, fit.amplitude_adu, fit.background_adu,
                            fit.chi2_red, quality))
@@ -816,6 +1004,11 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
         raise TrackingError(f"{video}: the tip marker was never found in {k} frames")
     angles["phi_rad"] = _unwrap_nan(angles.phi_rad.to_numpy())
     markers = pd.DataFrame(rows_m, columns=list(MARKER_COLUMNS))
+    if dots is not None:
+        psi_col = np.full((len(angles), 2), np.nan)
+        for r_, v_ in psi_rows.items():
+            psi_col[r_] = v_
+        angles["psi_rad"], angles["psi_sigma_rad"] = psi_col[:, 0], psi_col[:, 1]
     rows = np.array(sorted(tip_px))
     min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
     modes = camera_modes(np.array([tip_px[r] for r in rows]), camera, spec.length_m, pose_info, min_effect)
