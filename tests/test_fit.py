@@ -152,7 +152,7 @@ def test_analytic_jacobian_matches_finite_differences(spec_kw):
     ix = m.index
     p[ix["log_cone_angle"]], p[ix["precession_rate_rad_s"]] = np.log(0.5), 1.7
     for name, v in (("nutation_frequency_rad_s", 59.0), ("persistent_frequency_rad_s", 59.5), ("axis_tilt_rad", 0.05),
-                    ("axis_azimuth_rad", 1.5), ("log_transient_rate", np.log(20.0))):
+                    ("axis_azimuth_rad", 1.5), ("transient_rate_logit", -1.0)):
         if name in ix:
             p[ix[name]] = v
     n = 400

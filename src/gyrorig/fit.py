@@ -57,6 +57,7 @@ import numpy as np
 import pandas as pd
 from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
+from scipy.special import expit
 from scipy.stats import chi2
 
 from .protocols import Protocol
@@ -109,6 +110,8 @@ class ModelSpec:
     #: the transient decays at least this fast (1/s): ten e-folds within the record, so that it
     #: cannot stand in for the slow terms
     transient_min_rate_per_s: float = 0.0
+    #: ... and at most this fast (a few e-folds per frame): the rate is bounded smoothly between the two
+    transient_max_rate_per_s: float = 1e3
     #: nutation sidebands at w +- Omega (damped, fitted axis: damping about the lab vertical
     #: modulates the nutation with the precession phase)
     sidebands: bool = False
@@ -116,6 +119,11 @@ class ModelSpec:
     precession_second: bool = False
     #: nuisance parameters for the camera model's uncertainty (one per mode, unit prior)
     camera_modes: int = 0
+
+    def transient_rate(self, logit: float) -> float:
+        """The transient's decay rate, bounded smoothly between its minimum and maximum. [1/s]"""
+        return self.transient_min_rate_per_s + (self.transient_max_rate_per_s - self.transient_min_rate_per_s) * \
+            float(expit(logit))
 
     def names(self) -> list[str]:
         n = []
@@ -139,7 +147,7 @@ class ModelSpec:
             n += ["persistent_frequency_rad_s", "persistent_tilt_cos_rad", "persistent_tilt_sin_rad",
                   "persistent_azimuth_cos_rad", "persistent_azimuth_sin_rad"]
         if self.transient:
-            n += ["log_transient_rate", "transient_tilt_rad", "transient_azimuth_rad"]
+            n += ["transient_rate_logit", "transient_tilt_rad", "transient_azimuth_rad"]
         if self.sidebands:
             for side in ("upper", "lower"):
                 n += [f"tilt_{side}_cos_rad", f"tilt_{side}_sin_rad", f"azimuth_{side}_cos_rad", f"azimuth_{side}_sin_rad"]
@@ -322,7 +330,7 @@ class _Model:
             th = th + p[ix["persistent_tilt_cos_rad"]] * c + p[ix["persistent_tilt_sin_rad"]] * sn
             ph = ph + p[ix["persistent_azimuth_cos_rad"]] * c + p[ix["persistent_azimuth_sin_rad"]] * sn
         if s.transient:
-            e = np.exp(-(s.transient_min_rate_per_s + np.exp(p[ix["log_transient_rate"]])) * (tau - s.nutation_origin_s))
+            e = np.exp(-s.transient_rate(p[ix["transient_rate_logit"]]) * (tau - s.nutation_origin_s))
             th = th + p[ix["transient_tilt_rad"]] * e
             ph = ph + p[ix["transient_azimuth_rad"]] * e
         if s.sidebands:
@@ -394,13 +402,15 @@ class _Model:
         if s.persistent:
             self._sinusoid_columns(p, tau, dth, dph, "persistent_frequency_rad_s", "persistent")
         if s.transient:
-            excess = np.exp(p[ix["log_transient_rate"]])
+            u = p[ix["transient_rate_logit"]]
             dt0 = tau - s.nutation_origin_s
-            e = np.exp(-(s.transient_min_rate_per_s + excess) * dt0)
+            e = np.exp(-s.transient_rate(u) * dt0)
+            sg = expit(u)
+            dk = (s.transient_max_rate_per_s - s.transient_min_rate_per_s) * sg * (1 - sg)
             dth[:, ix["transient_tilt_rad"]] = e
             dph[:, ix["transient_azimuth_rad"]] = e
-            dth[:, ix["log_transient_rate"]] = -excess * dt0 * e * p[ix["transient_tilt_rad"]]
-            dph[:, ix["log_transient_rate"]] = -excess * dt0 * e * p[ix["transient_azimuth_rad"]]
+            dth[:, ix["transient_rate_logit"]] = -dk * dt0 * e * p[ix["transient_tilt_rad"]]
+            dph[:, ix["transient_rate_logit"]] = -dk * dt0 * e * p[ix["transient_azimuth_rad"]]
         if s.sidebands:
             psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
             dt0 = tau - s.nutation_origin_s
@@ -855,11 +865,13 @@ def _with_transient(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
     """
     p_cur = dict(zip(_Model(cur.spec).names, cur.x))
     floor = 10.0 / data.duration_s
-    spec_t = replace(cur.spec, transient=True, transient_min_rate_per_s=floor)
     dt = float(np.median(np.diff(data.t_s)))
+    cap = max(3.0 / dt, 2 * floor)
+    spec_t = replace(cur.spec, transient=True, transient_min_rate_per_s=floor, transient_max_rate_per_s=cap)
     trial = []
     for kappa in (0.3 / dt, 0.1 / dt, 0.03 / dt, 2 * floor):
-        st = dict(p_cur, log_transient_rate=math.log(max(kappa - floor, 1e-3 * floor)), transient_tilt_rad=0.0,
+        frac = min(max((kappa - floor) / (cap - floor), 1e-3), 1 - 1e-3)
+        st = dict(p_cur, transient_rate_logit=math.log(frac / (1 - frac)), transient_tilt_rad=0.0,
                   transient_azimuth_rad=0.0)
         sol = _solve(spec_t, data, st)
         if sol.ok:
