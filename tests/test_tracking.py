@@ -50,6 +50,19 @@ def round_trip(tmp_path, d, *, seed=0):
     return summary, m
 
 
+def gray_frames(path) -> list:
+    """Every frame of a video as a contiguous 2-D array."""
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(np.ascontiguousarray(f[:, :, 0] if f.ndim == 3 else f))
+    cap.release()
+    return frames
+
+
 def check_pulls(m):
     ok = m.dropna(subset=["theta_rad"])
     assert len(ok) >= 0.95 * len(m)
@@ -79,13 +92,7 @@ def test_round_trip(tmp_path, name, kwargs):
 def test_duplicate_frames_and_a_spurious_spot(tmp_path):
     p = parse_protocol(scene())
     render_video(p, tmp_path / "v", seed=1, calibration_views=0)
-    cap = cv2.VideoCapture(str(tmp_path / "v" / "video.mkv"))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(np.ascontiguousarray(f[:, :, 0]))
+    frames = gray_frames(tmp_path / "v" / "video.mkv")
     # a spurious bright spot of the tip's size far from it in frames 10-20, and frame 30 repeated
     for f in frames[10:21]:
         cv2.circle(f, (40, 40), 8, 200, -1)
@@ -116,13 +123,7 @@ def test_dropped_frames_are_gaps_at_the_container_timestamps(tmp_path):
     p = parse_protocol(scene())
     render_video(p, tmp_path / "v", seed=2, calibration_views=0)
     cam = load_camera(tmp_path / "v" / "camera.json")
-    cap = cv2.VideoCapture(str(tmp_path / "v" / "video.mkv"))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(np.ascontiguousarray(f[:, :, 0]))
+    frames = gray_frames(tmp_path / "v" / "video.mkv")
     dropped = {5, 6, 7, 8, 9, 23, 40}
     with av.open(str(tmp_path / "gappy.mkv"), "w") as out:
         st = out.add_stream("ffv1", rate=int(cam.fps))
