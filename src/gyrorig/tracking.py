@@ -370,7 +370,6 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
         p = p2
     if abs(p[0] - x0) > half or abs(p[1] - y0) > half:
         return None
-    wgt = np.where(use, 1.0 / _variance(mu, cam, bvar), 0.0)
     dof = max(int(use.sum()) - len(p), 1)
     chi2_red = float(chi2_sum / dof)
     scale_chi2 = chi2_red
@@ -380,7 +379,7 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
         near = use & (np.hypot(xx - p[0], yy - p[1]) <= p[2] + 3 * sigma)
         n_near = int(near.sum())
         if n_near > 10:
-            scale_chi2 = float(((win - mu) ** 2 * wgt)[near].sum() / max(n_near - 5, 1))
+            scale_chi2 = float(((win - mu)[near] ** 2 / _variance(mu[near], cam, bvar)).sum() / max(n_near - 5, 1))
     try:
         # a known noise model: inflate only when the fit is worse than the noise; else scale to the residuals
         cov = np.linalg.inv(fisher)[:2, :2] * (max(1.0, scale_chi2) if known else scale_chi2)
