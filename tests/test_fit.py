@@ -6,11 +6,14 @@ never from the formulas being tested.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
 
-from gyrorig.fit import FitError, fit_angles, model_for_scene
+from gyrorig.fit import (FitError, FitTerms, _Model, _residual_fn, fit_angles, fit_data_from_angles,
+                         model_for_scene, plan_terms)
 from gyrorig.physics.exact import exact_solution
 from gyrorig.physics.simulate import simulate
 from gyrorig.protocols import load_protocol
@@ -165,3 +168,86 @@ def test_analytic_jacobian_matches_finite_differences(spec_kw):
     jn = approx_derivative(white, p, method="3-point")
     ja = white.jac(p)
     assert np.max(np.abs(ja - jn).max(axis=0) / np.abs(jn).max(axis=0)) < 1e-5
+
+
+def _b2_records(seeds, duration=2.0, sigma=5e-5):
+    p = load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml")
+    return p, [_noisy(p, duration, sigma=sigma, seed=s) for s in seeds]
+
+
+def test_planned_terms_give_every_record_of_a_scene_the_same_model():
+    p, records = _b2_records([0, 1, 2])
+    pred = predict(p, simulate_damping=False)
+    scene = model_for_scene(p, pred)
+    # planned once, on the noiseless motion with the records' per-frame errors
+    angles0, sim = records[0]
+    noiseless = angles0.assign(theta_rad=sim.theta_rad.to_numpy(), phi_rad=sim.phi_rad.to_numpy())
+    terms = plan_terms(fit_data_from_angles(noiseless, None, scene.precession_hint_rad_s), scene, source="test plan")
+    assert terms.harmonics >= 1 and terms.persistent  # what the simulated B2 motion shows at this noise
+    specs = set()
+    for angles, truth in records:
+        r = fit_angles(angles, p, prediction=pred, truth=truth, terms=terms)
+        specs.add(FitTerms.of(r.spec))
+        assert r.terms.source == "test plan"
+        assert any("test plan" in n for n in r.notes)
+        lam = r.quantities["tilt_growth_rate_per_s"]
+        assert abs(lam.pull) < 4
+    assert specs == {replace(terms, source="")}
+
+
+def test_a_term_the_data_need_beyond_the_plan_is_added_and_said():
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    angles, _ = _noisy(p, 4.0)
+    r = fit_angles(angles, p, prediction=predict(p, simulate_damping=False), terms=FitTerms(harmonics=1))
+    assert r.spec.harmonics >= 2  # a heavy top's nutation is not a pure sinusoid at this noise
+    assert any("the data need a term the plan did not have (nutation harmonic 2)" in n for n in r.notes)
+
+
+def test_planned_terms_stay_when_a_noisy_record_cannot_tell():
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    angles, _ = _noisy(p, 4.0, sigma=3e-3)
+    pred = predict(p, simulate_damping=False)
+    free = fit_angles(angles, p, prediction=pred)
+    planned = fit_angles(angles, p, prediction=pred, terms=FitTerms(harmonics=4))
+    assert free.spec.harmonics < 4 and planned.spec.harmonics == 4
+    # more terms, wider (honest for that model) error bars; the value still agrees
+    a, b = free.quantities["nutation_amplitude_rad"], planned.quantities["nutation_amplitude_rad"]
+    assert b.standard_error >= a.standard_error and abs(a.value - b.value) < 3 * b.standard_error
+
+
+def test_fit_terms_round_trip_and_refuse_bad_keys_by_name():
+    t = FitTerms(harmonics=3, transient=True, sidebands=True, source="x")
+    assert FitTerms.from_dict(t.as_dict()) == t
+    with pytest.raises(ValueError, match="unknown key.*nutation"):
+        FitTerms.from_dict({"nutation": 2})
+    with pytest.raises(ValueError, match=r"harmonics must be an integer in \[0, 6\]"):
+        FitTerms.from_dict({"harmonics": 9})
+    with pytest.raises(ValueError, match="transient must be true or false"):
+        FitTerms.from_dict({"transient": "yes"})
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    angles, _ = _noisy(p, 0.5)
+    with pytest.raises(ValueError, match="terms must be one of data, noiseless"):
+        fit_angles(angles, p, terms="planned")
+
+
+def test_damped_fit_ends_at_a_stationary_point_of_the_chi_square():
+    # B2 through its camera at 640x480, with the transient term: Levenberg-Marquardt alone stops
+    # 0.16 standard errors short here (it crawls along a valley of correlated exponentials);
+    # the Gauss-Newton finish must end where the gradient vanishes
+    from gyrorig.camera import with_image_size
+    from gyrorig.plan import _expected_angles
+
+    p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
+    pred = predict(p, simulate_damping=False)
+    ex = _expected_angles(p, 2.0)
+    e = np.einsum("nij,nj->ni", np.linalg.cholesky(ex.cov), np.random.default_rng(5).standard_normal((len(ex.theta), 2)))
+    angles = ex.angles.assign(theta_rad=ex.theta + e[:, 0], phi_rad=ex.phi + e[:, 1])
+    r = fit_angles(angles, p, prediction=pred, terms=FitTerms(harmonics=3, transient=True, persistent=True))
+    assert r.spec.transient and r.spec.persistent
+    data = fit_data_from_angles(angles, None, model_for_scene(p, pred).precession_hint_rad_s)
+    _, white = _residual_fn(_Model(r.spec), data)
+    res, J = white(r.x), white.jac(r.x)
+    cosine = np.abs(J.T @ res) / (np.linalg.norm(J, axis=0) * np.linalg.norm(res))
+    assert cosine.max() < 1e-5
+    step = np.linalg.lstsq(J, -res, rcond=None)[0]
+    assert np.max(np.abs(step) / np.sqrt(np.diag(r.covariance))) < 1e-3  # in standard errors

@@ -98,3 +98,32 @@ def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
     if name == "air-cushion-heavy-top":  # formal errors: the plan predicts what the chain reports
         for row in table.itertuples():
             assert 0.9 < row.median_fit_se / row.planned_se < 1.1, row
+
+
+def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):
+    import json
+
+    from gyrorig.plan import _expected_angles
+
+    proto = PROTOCOL_DIR / "eddy-damped-top-b2.toml"
+    assert main(["plan", str(proto), "--duration", "1.5", "--out", str(tmp_path / "plan")]) == 0
+    terms = json.loads((tmp_path / "plan" / "plan.json").read_text())["fit_terms"]
+    assert terms["harmonics"] >= 1 and "1.5 s records" in terms["source"]
+    # a record of that length through that camera (simulated motion + the planned per-frame noise)
+    ex = _expected_angles(load_protocol(proto), 1.5)
+    e = np.einsum("nij,nj->ni", np.linalg.cholesky(ex.cov), np.random.default_rng(1).standard_normal((len(ex.theta), 2)))
+    ex.angles.assign(theta_rad=ex.theta + e[:, 0], phi_rad=ex.phi + e[:, 1]).to_csv(tmp_path / "angles.csv", index=False)
+    assert main(["fit", str(tmp_path / "angles.csv"), "--protocol", str(proto), "--out", str(tmp_path / "fit"),
+                 "--terms", str(tmp_path / "plan" / "plan.json")]) == 0
+    model = json.loads((tmp_path / "fit" / "fit.json").read_text())["model"]
+    assert model["nutation_harmonics"] >= terms["harmonics"]
+    for key, flag in (("transient", "transient"), ("elliptical_cone", "precession_second"),
+                      ("nutation_sidebands", "sidebands"), ("persistent_oscillation", "persistent")):
+        assert model[key] or not terms[flag], key  # every planned term is in the fit
+    assert "gyrorig plan of eddy-damped-top-b2" in model["terms_chosen"]
+    capsys.readouterr()
+    # a bad --terms names the problem and writes nothing
+    assert main(["fit", str(tmp_path / "angles.csv"), "--protocol", str(proto), "--out", str(tmp_path / "bad"),
+                 "--terms", str(tmp_path / "nope.json")]) == 2
+    assert "--terms" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from . import _io
-from .fit import QUANTITY_UNITS, FitResult, fit_angles
+from .fit import QUANTITY_UNITS, FitResult, FitTerms, fit_angles
 from .protocols import Protocol, load_protocol
 from .smooth import SmoothResult, smooth_angles
 
@@ -90,7 +90,7 @@ def fit_document(fit: FitResult, protocol: Protocol, prediction: dict | None, sm
 
 def fit_file(angles_csv: str | Path, protocol: Protocol, out: str | Path, *, truth_csv: str | Path | None = None,
              smooth: SmoothResult | None = None, prediction: dict | None = None,
-             rng: np.random.Generator | None = None) -> FitResult:
+             rng: np.random.Generator | None = None, terms: "str | FitTerms" = "data") -> FitResult:
     """``gyrorig fit``: smooth (for the outlier marks) unless given, fit, write ``fit.json`` and plots."""
     from .report import plot_fit
     from .theory import predict
@@ -103,7 +103,7 @@ def fit_file(angles_csv: str | Path, protocol: Protocol, out: str | Path, *, tru
         prediction = predict(protocol)
     truth = load_truth(truth_csv) if truth_csv is not None else None
     exclude = (smooth.table["status"] == "outlier").to_numpy()
-    fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng)
+    fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms)
     _io.write_csv(fit.residuals, out / "fit_residuals.csv")
     fig = plot_fit(angles, smooth.table, fit, title=f"{protocol.name}: tracked, smoothed and fitted")
     with _io.atomic_path(out / "fit.png") as tmp:
@@ -227,7 +227,8 @@ standard errors: {html.escape(fit.errors)}. Differences are in standard errors o
 # ------------------------------------------------------------------------------------- whole chain
 def analyze_video(video: str | Path, camera: str | Path, protocol: Protocol, out: str | Path, *,
                   truth_csv: str | Path | None = None, progress: Progress | None = None,
-                  rng: np.random.Generator | None = None, stage: Callable[[str], None] | None = None) -> dict:
+                  rng: np.random.Generator | None = None, stage: Callable[[str], None] | None = None,
+                  terms: "str | FitTerms" = "data") -> dict:
     """Track, smooth, fit and report one video; returns a summary dict.
 
     ``progress(done, total)`` follows the tracking frame by frame; ``stage(message)`` is told
@@ -250,7 +251,7 @@ def analyze_video(video: str | Path, camera: str | Path, protocol: Protocol, out
     say("theory predictions and the fit ...")
     prediction = predict(protocol)
     fit = fit_file(out / "track" / "angles.csv", protocol, out, truth_csv=truth_csv, smooth=smooth,
-                   prediction=prediction, rng=rng)
+                   prediction=prediction, rng=rng, terms=terms)
     t3 = time.perf_counter()
     say("writing the report ...")
     tracking = {"frames": tracked["frames"], "tracked_fraction": tracked["tracked_fraction"],
@@ -266,7 +267,8 @@ VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".m4v", ".webm")
 
 
 def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | None = None,
-                  protocol: Protocol | None = None, progress_line: Callable[[str], None] | None = None) -> pd.DataFrame:
+                  protocol: Protocol | None = None, progress_line: Callable[[str], None] | None = None,
+                  terms: "str | FitTerms" = "data") -> pd.DataFrame:
     """Analyse a folder of videos (one camera and protocol) or a manifest CSV.
 
     The manifest has columns ``video, protocol[, camera]`` (paths relative to the manifest).
@@ -304,7 +306,7 @@ def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | N
         try:
             p = prot if isinstance(prot, Protocol) else load_protocol(prot)
             row["protocol"] = p.name
-            res = analyze_video(video, cam, p, out / stem)
+            res = analyze_video(video, cam, p, out / stem, terms=terms)
             row.update(status="ok", error="", frames=res["frames"], tracked_fraction=res["tracked_fraction"],
                        chi2_red=res["fit"].chi2_red)
             for name, q in res["fit"].quantities.items():

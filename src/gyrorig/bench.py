@@ -407,7 +407,8 @@ FIT_MC_SCENES = ("air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-piv
 
 
 def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
-                        camera_size: tuple[int, int] | None = (640, 480), prediction: dict | None = None) -> list[dict]:
+                        camera_size: tuple[int, int] | None = (640, 480), prediction: dict | None = None,
+                        terms="planned") -> list[dict]:
     """One run of the full chain (render -> track -> smooth -> fit) with the truth unseen.
 
     Returns one row per fitted quantity: value, standard error, the truth (same model fitted to
@@ -431,6 +432,10 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
 
         prediction = predict(p, simulate_damping=False)
     start = time.perf_counter()
+    if terms == "planned":  # chosen before the run, from the protocol alone (fit_monte_carlo does it once per scene)
+        from .plan import plan_fit_terms
+
+        terms = plan_fit_terms(p, duration_s, prediction=prediction)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             render_video(p, f"{tmp}/v", seed=seed, duration_s=duration_s, calibration_views=0)
@@ -440,25 +445,30 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
         truth = truth[truth.marker == "tip"].assign(t_s=lambda d: d.t_marker_s)
         sm = smooth_angles(angles)
         fit = fit_angles(angles, p, prediction=prediction, exclude=(sm.table.status == "outlier").to_numpy(),
-                         truth=truth, rng=np.random.default_rng(seed))
+                         truth=truth, rng=np.random.default_rng(seed), terms=terms)
     except Exception as exc:  # reported in the table, not hidden
         return [{"scene": scene, "seed": seed, "error": f"{type(exc).__name__}: {exc}"}]
     rows = []
     for name, q in fit.quantities.items():
         rows.append({"scene": scene, "seed": seed, "quantity": name, "status": q.status, "value": q.value,
                      "standard_error": q.standard_error, "formal_standard_error": q.formal_standard_error, "truth": q.truth, "pull": q.pull, "chi2_red": fit.chi2_red,
-                     "errors": fit.errors, "harmonics": fit.spec.harmonics, "wall_s": time.perf_counter() - start,
+                     "errors": fit.errors, "harmonics": fit.spec.harmonics, "terms": fit.terms.describe(),
+                     "wall_s": time.perf_counter() - start,
                      "error": ""})
     return rows
 
 
 def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: int = 40, duration_s: float = 2.0,
                     workers: int | None = None, progress=None, scheduler: str | None = None,
-                    camera_size: tuple[int, int] | None = (640, 480)) -> pd.DataFrame:
+                    camera_size: tuple[int, int] | None = (640, 480), first_seed: int = 0,
+                    terms: str = "planned") -> pd.DataFrame:
     """The fit benchmark: many seeds per scene, in parallel; one row per quantity and run.
 
     Runs in local processes, or on a Dask cluster when ``scheduler`` is its address
     (``pip install 'gyrorig[dask]'``).  Scenes are bundled protocol names or protocols.
+    ``terms="planned"``: each scene's fit model is chosen once, before the runs, by
+    :func:`gyrorig.plan.plan_fit_terms` for this record length and camera; ``"data"``: each
+    run chooses its own by chi-square tests.
     """
     import os
     from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -468,7 +478,15 @@ def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: 
 
     protos = [s if isinstance(s, Protocol) else load_protocol(BUNDLED_PROTOCOL_DIR / f"{s}.toml") for s in scenes]
     preds = [predict(p, simulate_damping=False) for p in protos]
-    jobs = [(i, seed) for i in range(len(protos)) for seed in range(seeds)]
+    if terms == "planned":
+        from .camera import with_image_size
+        from .plan import plan_fit_terms
+
+        plans = [plan_fit_terms(with_image_size(p, *camera_size) if camera_size else p, duration_s, prediction=pr)
+                 for p, pr in zip(protos, preds)]
+    else:
+        plans = [terms] * len(protos)
+    jobs = [(i, seed) for i in range(len(protos)) for seed in range(first_seed, first_seed + seeds)]
     rows: list[dict] = []
 
     def collect(futures, completed) -> None:
@@ -484,18 +502,19 @@ def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: 
         except ImportError as exc:
             raise ValueError("--scheduler needs Dask: pip install 'gyrorig[dask]'") from exc
         with Client(scheduler) as client:
-            collect([client.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i], pure=False)
+            collect([client.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i], plans[i],
+                                       pure=False)
                      for i, seed in jobs], dask_completed)
         return pd.DataFrame(rows)
     workers = workers or min(len(jobs), os.cpu_count() or 1)
     if workers <= 1:
         for k, (i, seed) in enumerate(jobs):
-            rows += fit_monte_carlo_run(protos[i], seed, duration_s, camera_size, preds[i])
+            rows += fit_monte_carlo_run(protos[i], seed, duration_s, camera_size, preds[i], plans[i])
             if progress:
                 progress(k + 1, len(jobs))
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            collect([pool.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i])
+            collect([pool.submit(fit_monte_carlo_run, protos[i], seed, duration_s, camera_size, preds[i], plans[i])
                      for i, seed in jobs], as_completed)
     return pd.DataFrame(rows)
 

@@ -279,10 +279,10 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
     seeds = args.seeds if args.seeds is not None else (4 if args.quick else 40)
     start = time.perf_counter()
     runs = fit_monte_carlo(scenes, seeds=seeds, duration_s=args.duration, workers=args.workers,
-                           progress=_progress_printer("runs"))
+                           progress=_progress_printer("runs"), first_seed=args.first_seed, terms=args.terms)
     table = summarize_fit_monte_carlo(runs)
-    print(f"{len(scenes)} scene(s) x {seeds} seeds, {args.duration:g} s of 640x480 video each, "
-          f"{time.perf_counter() - start:.0f} s")
+    print(f"{len(scenes)} scene(s) x {seeds} seeds (from {args.first_seed}), {args.duration:g} s of 640x480 video "
+          f"each, model terms {args.terms}, {time.perf_counter() - start:.0f} s")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if table.attrs.get("failed_runs"):
         print(f"{table.attrs['failed_runs']} run(s) failed: see runs.csv")
@@ -516,11 +516,30 @@ def _cmd_smooth(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _terms_arg(value: str):
+    """``--terms``: 'data', or a JSON file with the fit terms (a plan.json's ``fit_terms``, or the terms alone)."""
+    from .fit import FitTerms
+
+    if value == "data":
+        return "data"
+    path = Path(value)
+    if not path.is_file():
+        raise ValueError(f"--terms: expected 'data' or a plan.json from 'gyrorig plan --out DIR'; {value} is not a file")
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--terms: {value} is not JSON ({exc})") from exc
+    terms = doc.get("fit_terms", doc) if isinstance(doc, dict) else None
+    if not isinstance(terms, dict):
+        raise ValueError(f"--terms: {value} has no fit_terms object")
+    return FitTerms.from_dict(terms)
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from .analysis import fit_file
 
     out = Path(args.out)
-    fit = fit_file(args.angles, load_protocol(args.protocol), out, truth_csv=args.truth)
+    fit = fit_file(args.angles, load_protocol(args.protocol), out, truth_csv=args.truth, terms=_terms_arg(args.terms))
     _print_fit(fit, out)
     return EXIT_OK
 
@@ -533,7 +552,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     out = Path(args.out)
     protocol = load_protocol(args.protocol) if args.protocol else None
     if src.is_dir() or src.suffix.lower() == ".csv":
-        summary = analyze_batch(src, out, camera=args.camera, protocol=protocol, progress_line=print)
+        summary = analyze_batch(src, out, camera=args.camera, protocol=protocol, progress_line=print,
+                                terms=_terms_arg(args.terms))
         ok = int((summary.status == "ok").sum())
         print(f"{ok} of {len(summary)} videos analysed -> {out / 'summary.csv'}")
         return EXIT_OK if ok == len(summary) else EXIT_FAILED
@@ -541,6 +561,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         raise ValueError("analyze VIDEO needs --camera and --protocol")
     try:
         res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=_progress_printer("track"),
+                            terms=_terms_arg(args.terms),
                             stage=lambda msg: print(msg, flush=True))
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
@@ -677,6 +698,10 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--seeds", type=int, default=None, help="runs per scene (default 40; 4 with --quick)")
     bf.add_argument("--duration", type=float, default=2.0, help="video length [s] (default 2)")
     bf.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    bf.add_argument("--first-seed", type=int, default=0, help="seeds run from this one (default 0)")
+    bf.add_argument("--terms", choices=("planned", "data"), default="planned",
+                    help="'planned' (default): each scene's model terms are chosen once by the plan for the "
+                         "record length, before the runs; 'data': by chi-square tests in each run")
     bf.add_argument("--quick", action="store_true", help="one scene, 4 seeds")
     bf.add_argument("--out", default=None, help="also write runs.csv and fit.csv here")
     bf.set_defaults(func=_cmd_bench_fit)
@@ -740,6 +765,10 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--protocol", required=True, help="protocol TOML (decides the model)")
     f.add_argument("--out", required=True, help="output directory (fit.json, fit.png, fit_residuals.csv)")
     f.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
+    f.add_argument("--terms", default="data",
+                   help="how the model's optional terms (nutation harmonics, damped-scene terms) are chosen: 'data' "
+                   "(default) by chi-square tests on this record, or a plan.json from 'gyrorig plan --duration T "
+                   "--out DIR' (its fit_terms: the same model for every record of the scene)")
     f.set_defaults(func=_cmd_fit)
 
     an = sub.add_parser("analyze", help="track -> smooth -> fit -> report.html; a folder or manifest CSV for a batch")
@@ -748,6 +777,10 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--protocol", default=None, help="protocol TOML")
     an.add_argument("--out", required=True, help="output directory")
     an.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
+    an.add_argument("--terms", default="data",
+                   help="how the model's optional terms (nutation harmonics, damped-scene terms) are chosen: 'data' "
+                   "(default) by chi-square tests on this record, or a plan.json from 'gyrorig plan --duration T "
+                   "--out DIR' (its fit_terms: the same model for every record of the scene)")
     an.set_defaults(func=_cmd_analyze)
 
     d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track, smooth, fit, report")

@@ -51,7 +51,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 import pandas as pd
@@ -65,8 +65,8 @@ from .smooth import measurement_covariance
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["FitError", "ModelSpec", "Quantity", "FitResult", "FitData", "model_for_scene", "fit_data_from_angles",
-           "fit_angles", "fit_model", "QUANTITY_UNITS"]
+__all__ = ["FitError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "model_for_scene",
+           "fit_data_from_angles", "fit_angles", "fit_model", "plan_terms", "QUANTITY_UNITS"]
 
 QUANTITY_UNITS = {
     "precession_rate_rad_s": "rad/s",
@@ -80,9 +80,15 @@ QUANTITY_UNITS = {
 }
 #: significance for adding a model term (nutation, a harmonic): chi-square tail probability
 TERM_P_VALUE = 1e-3
+#: planning a model on noiseless simulated angles: a term is kept when it changes the chi-square
+#: by more than this (its non-centrality: leaving it out could bias a quantity by up to
+#: sqrt(this) standard errors)
+PLANNED_NONCENTRALITY = 1.0
 #: nutation counts as resolved by the camera below this fraction of the Nyquist frequency
 NYQUIST_FRACTION = 0.9
 MAX_HARMONICS = 6
+#: Levenberg-Marquardt tolerances (xtol, ftol, gtol); undamped Gauss-Newton steps finish the job
+LM_TOL = 1e-9
 #: above this reduced chi-square the residuals are dominated by a systematic, and the report says so
 SYSTEMATIC_CHI2_RED = 10.0
 #: a parameter whose value is below this many standard errors is "not significant"
@@ -156,6 +162,88 @@ class ModelSpec:
                   "azimuth_precession2_sin_rad"]
         n += [f"camera_mode_{k + 1}" for k in range(self.camera_modes)]  # always last
         return n
+
+
+@dataclass(frozen=True)
+class FitTerms:
+    """The optional terms of a fit model, fixed before the data are fitted.
+
+    :func:`plan_terms` chooses them on noiseless simulated angles of the scene, so that every
+    run of an experiment is fitted with the same model: a model chosen afresh by each run's
+    own chi-square tests switches terms on and off between runs, and the runs that gain a
+    term get wider error bars than those that do not.
+    """
+
+    harmonics: int = 0
+    transient: bool = False
+    precession_second: bool = False
+    sidebands: bool = False
+    persistent: bool = False
+    #: where the terms come from (for the report)
+    source: str = ""
+
+    @classmethod
+    def of(cls, spec: ModelSpec, source: str = "") -> "FitTerms":
+        return cls(harmonics=spec.harmonics, transient=spec.transient, precession_second=spec.precession_second,
+                   sidebands=spec.sidebands, persistent=spec.persistent, source=source)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FitTerms":
+        """From :meth:`as_dict` (or a plan.json's ``fit_terms``); unknown keys are refused by name."""
+        allowed = {f.name for f in fields(cls)}
+        bad = sorted(set(d) - allowed)
+        if bad:
+            raise ValueError(f"fit terms: unknown key(s) {', '.join(bad)}; allowed: {', '.join(sorted(allowed))}")
+        h = d.get("harmonics", 0)
+        if not isinstance(h, int) or isinstance(h, bool) or not 0 <= h <= MAX_HARMONICS:
+            raise ValueError(f"fit terms: harmonics must be an integer in [0, {MAX_HARMONICS}]; got {h!r}")
+        for k in ("transient", "precession_second", "sidebands", "persistent"):
+            if k in d and not isinstance(d[k], bool):
+                raise ValueError(f"fit terms: {k} must be true or false; got {d[k]!r}")
+        return cls(**d)
+
+    def describe(self) -> str:
+        parts = [f"{self.harmonics} nutation harmonic(s)" if self.harmonics else "no nutation"]
+        parts += [name for name, on in (("transient", self.transient), ("elliptical cone", self.precession_second),
+                                        ("nutation sidebands", self.sidebands),
+                                        ("persistent oscillation", self.persistent)) if on]
+        return ", ".join(parts)
+
+
+@dataclass(frozen=True)
+class _Selector:
+    """How fit_model decides whether to add a term."""
+
+    #: terms planned in advance: kept whenever they converge
+    terms: FitTerms | None = None
+    #: noiseless data: keep a term whose chi-square change exceeds this (instead of the p-value test)
+    noncentrality: float | None = None
+
+    def need(self, ddof: int) -> float:
+        return self.noncentrality if self.noncentrality is not None else float(chi2.isf(TERM_P_VALUE, ddof))
+
+    def planned(self, flag: str, k: int = 0) -> bool:
+        if self.terms is None:
+            return False
+        return k <= self.terms.harmonics if flag == "harmonics" else bool(getattr(self.terms, flag))
+
+    def wants(self, ref: _Solved, sol: _Solved, flag: str, notes: list[str], note: str, k: int = 0) -> bool:
+        """Keep ``sol`` (``ref`` plus a term)?  Planned terms stay if they converge; others by the test."""
+        planned = self.planned(flag, k)
+        if not sol.ok:
+            if planned:
+                notes.append(f"the planned term ({note}) did not converge and is left out: {sol.message}")
+            return False
+        if planned:
+            return True
+        if ref.chi2 - sol.chi2 > self.need(ref.dof - sol.dof):
+            if self.terms is not None:
+                notes.append(f"the data need a term the plan did not have ({note}): it is added")
+            return True
+        return False
 
 
 @dataclass(frozen=True)
@@ -236,6 +324,8 @@ class FitResult:
     x: np.ndarray = field(default_factory=lambda: np.zeros(0))
     covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     wall_time_s: float = 0.0
+    #: how the optional model terms were chosen
+    terms: FitTerms | None = None
 
     @property
     def chi2_red(self) -> float:
@@ -244,7 +334,11 @@ class FitResult:
     def summary(self) -> dict:
         return {
             "model": {"fit_axis": self.spec.fit_axis, "damped": self.spec.damped,
-                      "nutation_harmonics": self.spec.harmonics, "azimuth_segments": self.spec.segments},
+                      "nutation_harmonics": self.spec.harmonics, "azimuth_segments": self.spec.segments,
+                      "transient": self.spec.transient, "elliptical_cone": self.spec.precession_second,
+                      "nutation_sidebands": self.spec.sidebands, "persistent_oscillation": self.spec.persistent,
+                      "camera_modes": self.spec.camera_modes,
+                      "terms_chosen": self.terms.source if self.terms is not None else ""},
             "t_ref_s": self.t_ref_s, "chi2": self.chi2, "dof": self.dof, "chi2_red": self.chi2_red,
             "errors": self.errors, "notes": list(self.notes),
             "quantities": {k: q.as_dict() for k, q in self.quantities.items()},
@@ -683,19 +777,70 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
     n_res = 2 * data.n + spec.camera_modes  # the priors add a residual per camera mode
     if n_res <= len(x0):
         raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
-    res = least_squares(white, x0, jac=white.jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+    res = least_squares(white, x0, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL, gtol=LM_TOL,
                         max_nfev=200 * (len(x0) + 1))
     if res.status == 0:  # out of evaluations (slow progress along a shallow valley): go on once from there
-        res = least_squares(white, res.x, jac=white.jac, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
-                            gtol=1e-12, max_nfev=400 * (len(x0) + 1))
-    J = res.jac
+        res = least_squares(white, res.x, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL,
+                            gtol=LM_TOL, max_nfev=400 * (len(x0) + 1))
+    x, r, J = _gauss_newton_polish(white, res.x, res.fun, res.jac)
     try:
         JTJ = J.T @ J
         cov = np.linalg.pinv(JTJ, rcond=1e-14, hermitian=True)
     except np.linalg.LinAlgError:
         cov = np.full((len(x0), len(x0)), np.nan)
-    chi2v = float(np.sum(res.fun**2))
-    return _Solved(spec, res.x, cov, chi2v, n_res - len(x0), bool(res.success), res.message)
+    chi2v = float(np.sum(r**2))
+    return _Solved(spec, x, cov, chi2v, n_res - len(x0), bool(res.success), res.message)
+
+
+def _gauss_newton_polish(white, x: np.ndarray, r: np.ndarray, J: np.ndarray, max_steps: int = 30
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Finish a least-squares minimisation with undamped Gauss-Newton steps.
+
+    Where parameters are strongly correlated (exponentials and sinusoids of nearby rates in the
+    damped models), Levenberg-Marquardt's damping makes it crawl along the valley: thousands of
+    steps, each lowering the chi-square a little.  Near the minimum of a small-residual problem,
+    Gauss-Newton (a column-scaled least-squares solve of ``J dx = -r``) converges in a few steps
+    there; a step that does not lower the chi-square is halved.  Stops when a step's predicted
+    gain is below 1e-9 in chi-square.
+    """
+    c = float(r @ r)
+    for _ in range(max_steps):
+        norms = np.linalg.norm(J, axis=0)
+        norms[norms == 0] = 1.0
+        step, *_ = np.linalg.lstsq(J / norms, -r, rcond=1e-13)
+        dx = step / norms
+        gain = float(np.sum(((J / norms) @ step) ** 2))
+        if not np.all(np.isfinite(dx)) or gain < 1e-9:
+            break
+        for _half in range(12):
+            x_new = x + dx
+            r_new = white(x_new)
+            c_new = float(r_new @ r_new)
+            if np.isfinite(c_new) and c_new < c:
+                break
+            dx = 0.5 * dx
+        else:
+            break
+        x, r, c = x_new, r_new, c_new
+        J = white.jac(x)
+    return x, r, J
+
+
+def _conditional_amplitudes(spec: ModelSpec, data: FitData, start: dict[str, float], names: list[str]
+                            ) -> tuple[dict[str, float], float]:
+    """Start values for parameters the model is linear in (the amplitudes of a new term): their
+    least-squares values with every other parameter held at ``start`` (one Gauss-Newton step
+    in those parameters alone).  Returns the start and its chi-square."""
+    model = _Model(spec)
+    x0 = np.array([start.get(n, 0.0) for n in model.names], float)
+    _, white = _residual_fn(model, data)
+    cols = [model.index[n] for n in names]
+    r = white(x0)
+    J = white.jac(x0)[:, cols]
+    step, *_ = np.linalg.lstsq(J, -r, rcond=None)
+    x0[cols] += step
+    out = dict(zip(model.names, x0))
+    return out, float(np.sum(white(x0) ** 2))
 
 
 def _linear_harmonics(spec: ModelSpec, data: FitData, start: dict[str, float]) -> dict[str, float]:
@@ -726,12 +871,25 @@ def _linear_harmonics(spec: ModelSpec, data: FitData, start: dict[str, float]) -
     return out
 
 
-def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONICS
+def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONICS, *,
+              terms: FitTerms | None = None, noncentrality: float | None = None
               ) -> tuple[_Solved, list[str], dict[str, str]]:
-    """Fit the scene's model; choose the nutation terms by the data.
+    """Fit the scene's model, with its optional terms (nutation harmonics, and under damping the
+    transient, elliptical cone, sidebands and persistent oscillation) chosen in this order.
+
+    Parameters
+    ----------
+    terms : FitTerms, optional
+        Terms planned in advance (:func:`plan_terms`): each is kept whenever it converges.  A
+        term not in the plan is still added when the data's chi-square test wants it (noted).
+        Without ``terms`` every term is chosen by that test (p < :data:`TERM_P_VALUE`).
+    noncentrality : float, optional
+        For noiseless data (planning): a term is kept when it lowers the chi-square by more
+        than this, instead of by the p-value test.
 
     Returns the solution, notes, and reasons for quantities that cannot be determined.
     """
+    sel = _Selector(terms=terms, noncentrality=noncentrality)
     spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1, camera_modes=data.camera_modes,
                     nutation_origin_s=float(data.t_s[0] - data.t_ref_s) if scene.spec.damped else 0.0)
     notes: list[str] = list(scene.reasons)
@@ -790,12 +948,13 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                 s_k = _linear_harmonics(spec_k, data, start1)
                 sol = _solve(spec_k, data, s_k)
                 ref = cur if cur is not None else base
-                dchi = ref.chi2 - sol.chi2
-                ddof = ref.dof - sol.dof
-                if not sol.ok or dchi < chi2.isf(TERM_P_VALUE, ddof):
-                    if cur is None:
+                if not sel.wants(ref, sol, "harmonics", notes, f"nutation harmonic {k}", k):
+                    if cur is None and not sol.ok:
+                        reason = f"the fit with nutation did not converge: {sol.message}"
+                    elif cur is None:
+                        dchi, ddof = ref.chi2 - sol.chi2, ref.dof - sol.dof
                         reason = (f"no significant nutation in the data (chi-square improves by {dchi:.3g} for "
-                                  f"{ddof} more parameters; {chi2.isf(TERM_P_VALUE, ddof):.3g} needed)")
+                                  f"{ddof} more parameters; {sel.need(ddof):.3g} needed)")
                     break
                 cur = sol
                 start1 = dict(zip(_Model(spec_k).names, sol.x))
@@ -806,25 +965,24 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                     cur = None
             if cur is not None:
                 best = cur
-        if spec0.damped:
-            best = _with_transient(best, data, notes)
-        if spec0.damped and spec0.fit_axis:
-            best = _with_extension(best, data, notes, "precession_second",
-                                   "a second harmonic of the precession (an elliptical cone) is significant and is "
-                                   "modelled")
-            if best.spec.harmonics:
-                best = _with_extension(best, data, notes, "sidebands",
-                                       "nutation sidebands at the nutation frequency +- the precession rate (damping "
-                                       "about the lab vertical modulates the nutation) are significant and are modelled")
         if spec0.damped and best.spec.harmonics:
-            best = _with_persistent(best, data, notes)
+            best = _with_persistent(best, data, notes, sel)
+        if spec0.damped:
+            best = _with_transient(best, data, notes, sel)
+        if spec0.damped and spec0.fit_axis:
+            best = _with_extension(best, data, notes, sel, "precession_second",
+                                   "a second harmonic of the precession (an elliptical cone)")
+            if best.spec.harmonics:
+                best = _with_extension(best, data, notes, sel, "sidebands",
+                                       "nutation sidebands at the nutation frequency +- the precession rate (damping "
+                                       "about the lab vertical modulates the nutation)")
         if reason is not None:
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
     return best, notes, undetermined
 
 
-def _with_persistent(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
+def _with_persistent(cur: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
     """Add a persistent oscillation near the nutation frequency if the data show one (chi-square test).
 
     Under damping the drifting slow mode keeps a small undamped oscillation alive (B2 rig,
@@ -833,30 +991,35 @@ def _with_persistent(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
     p_cur = dict(zip(_Model(cur.spec).names, cur.x))
     w_n = p_cur["nutation_frequency_rad_s"]
     trial = []
+    spec_p = replace(cur.spec, persistent=True)
+    amps = ["persistent_tilt_cos_rad", "persistent_tilt_sin_rad", "persistent_azimuth_cos_rad",
+            "persistent_azimuth_sin_rad"]
     for dw in (2 * np.pi / data.duration_s, -2 * np.pi / data.duration_s):
-        st = dict(p_cur, persistent_frequency_rad_s=w_n + dw)
-        for key in ("persistent_tilt_cos_rad", "persistent_tilt_sin_rad", "persistent_azimuth_cos_rad",
-                    "persistent_azimuth_sin_rad"):
-            st[key] = 1e-3 * abs(p_cur["tilt_cos_1_rad"]) + 1e-9
-        trial.append(_solve(replace(cur.spec, persistent=True), data, st))
-    sol_p = min(trial, key=lambda s_: s_.chi2)
-    if sol_p.ok and cur.chi2 - sol_p.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol_p.dof):
-        notes.append("a persistent oscillation near the nutation frequency is significant and is modelled")
+        st = dict(p_cur, persistent_frequency_rad_s=w_n + dw, **{k: 0.0 for k in amps})
+        st, _ = _conditional_amplitudes(spec_p, data, st, amps)
+        trial.append(_solve(spec_p, data, st))
+    ok = [s_ for s_ in trial if s_.ok] or trial
+    sol_p = min(ok, key=lambda s_: s_.chi2)
+    note = "a persistent oscillation near the nutation frequency"
+    if sel.wants(cur, sol_p, "persistent", notes, note):
+        notes.append(f"{note} is modelled")
         return sol_p
     return cur
 
 
-def _with_extension(cur: _Solved, data: FitData, notes: list[str], flag: str, note: str) -> _Solved:
-    """Add the linear-amplitude terms ``flag`` of the spec (started at zero) if a chi-square test wants them."""
+def _with_extension(cur: _Solved, data: FitData, notes: list[str], sel: _Selector, flag: str, note: str) -> _Solved:
+    """Add the linear-amplitude terms ``flag`` of the spec (started at zero) if the selector wants them."""
     spec_x = replace(cur.spec, **{flag: True})
-    sol = _solve(spec_x, data, dict(zip(_Model(cur.spec).names, cur.x)))
-    if sol.ok and cur.chi2 - sol.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol.dof):
-        notes.append(note)
+    new = [n for n in _Model(spec_x).names if n not in _Model(cur.spec).index]
+    st, _ = _conditional_amplitudes(spec_x, data, dict(zip(_Model(cur.spec).names, cur.x)), new)
+    sol = _solve(spec_x, data, st)
+    if sel.wants(cur, sol, flag, notes, note):
+        notes.append(f"{note}: modelled")
         return sol
     return cur
 
 
-def _with_transient(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
+def _with_transient(cur: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
     """Add a fast exponential transient from the first frame if the data show one (chi-square test).
 
     After release, a damped gyrostat's frame spin relaxes in ``I_frame / c`` (27 ms on the
@@ -868,20 +1031,19 @@ def _with_transient(cur: _Solved, data: FitData, notes: list[str]) -> _Solved:
     dt = float(np.median(np.diff(data.t_s)))
     cap = max(3.0 / dt, 2 * floor)
     spec_t = replace(cur.spec, transient=True, transient_min_rate_per_s=floor, transient_max_rate_per_s=cap)
-    trial = []
-    for kappa in (0.3 / dt, 0.1 / dt, 0.03 / dt, 2 * floor):
-        frac = min(max((kappa - floor) / (cap - floor), 1e-3), 1 - 1e-3)
+    # the amplitudes are linear: solve them for a ladder of rates, start from the best rate
+    best_start, best_chi2 = None, math.inf
+    for kappa in np.geomspace(1.05 * floor, 0.95 * cap, 16):
+        frac = (kappa - floor) / (cap - floor)
         st = dict(p_cur, transient_rate_logit=math.log(frac / (1 - frac)), transient_tilt_rad=0.0,
                   transient_azimuth_rad=0.0)
-        sol = _solve(spec_t, data, st)
-        if sol.ok:
-            trial.append(sol)
-    if not trial:
-        return cur
-    sol_t = min(trial, key=lambda s_: s_.chi2)
-    if cur.chi2 - sol_t.chi2 > chi2.isf(TERM_P_VALUE, cur.dof - sol_t.dof):
-        notes.append(f"a fast transient from the first frame (decaying faster than {floor:.3g} 1/s) is significant "
-                     "and is modelled")
+        st, c2 = _conditional_amplitudes(spec_t, data, st, ["transient_tilt_rad", "transient_azimuth_rad"])
+        if c2 < best_chi2:
+            best_start, best_chi2 = st, c2
+    sol_t = _solve(spec_t, data, best_start)
+    note = f"a fast transient from the first frame (decaying faster than {floor:.3g} 1/s)"
+    if sel.wants(cur, sol_t, "transient", notes, note):
+        notes.append(f"{note} is modelled")
         return sol_t
     return cur
 
@@ -1001,10 +1163,23 @@ def _theory_values(prediction: dict | None) -> dict:
     return out
 
 
+def plan_terms(data: FitData, scene: SceneModel, source: str = "") -> FitTerms:
+    """The model terms that noiseless angles ``data`` (with the per-frame errors real data will
+    have) call for: each term is kept when it changes the chi-square by more than
+    :data:`PLANNED_NONCENTRALITY`, i.e. when leaving it out could bias a fitted quantity by a
+    sizeable fraction of its standard error."""
+    d = replace(data, camera_shift=None)
+    sol, _, _ = fit_model(d, scene, noncentrality=PLANNED_NONCENTRALITY)
+    return FitTerms.of(sol.spec, source)
+
+
+TERM_CHOICES = ("data", "noiseless")
+
+
 def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
                exclude: np.ndarray | None = None, truth: pd.DataFrame | None = None,
                rng: np.random.Generator | None = None, bootstrap_replicates: int = 50,
-               check_residuals: bool = True) -> FitResult:
+               check_residuals: bool = True, terms: FitTerms | str = "data") -> FitResult:
     """Fit an angle table with the scene's model and compare with theory (and truth, if given).
 
     Parameters
@@ -1028,11 +1203,30 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         Test the residuals (whiteness, chi-square) and fall back on the bootstrap or scaled
         errors.  Off only for noiseless model data (planning: the formal errors are then the
         Cramer-Rao bound for the stated per-frame errors).
+    terms : {"data", "noiseless"} or FitTerms
+        How the optional model terms (nutation harmonics; under damping the transient,
+        elliptical cone, sidebands, persistent oscillation) are chosen.  ``"data"`` (default):
+        by chi-square tests on these data.  A :class:`FitTerms` (from :func:`gyrorig.plan.plan_fit_terms`,
+        i.e. ``gyrorig plan``): these terms, the same for every record of the scene; a term the
+        data need beyond them is still added (noted).  ``"noiseless"``: the angles are noiseless
+        model data (planning): a term is kept above a non-centrality of :data:`PLANNED_NONCENTRALITY`.
     """
     start_time = time.perf_counter()
     scene = model_for_scene(protocol, prediction)
     data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s)
-    sol, notes, undetermined = fit_model(data, scene)
+    pre_notes: list[str] = []
+    if isinstance(terms, str) and terms not in TERM_CHOICES:
+        raise ValueError(f"terms must be one of {', '.join(TERM_CHOICES)} or a FitTerms; got {terms!r}")
+    if isinstance(terms, FitTerms):
+        sol, notes, undetermined = fit_model(data, scene, terms=terms)
+        pre_notes.append(f"model terms ({terms.describe()}) {terms.source or 'given'}")
+    else:
+        sol, notes, undetermined = fit_model(
+            data, scene, noncentrality=PLANNED_NONCENTRALITY if terms == "noiseless" else None)
+        terms = FitTerms.of(sol.spec, "chosen by chi-square tests on the data" if terms == "data" else
+                            "chosen on noiseless data (non-centrality above "
+                            f"{PLANNED_NONCENTRALITY:g})")
+    notes = pre_notes + notes
     names = _Model(sol.spec).names
     fns = _quantity_functions(sol.spec, names)
     chi2_red = sol.chi2 / max(sol.dof, 1)
@@ -1149,7 +1343,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     params = {n: (float(v), float(np.sqrt(max(sol.cov[i, i], 0.0)))) for i, (n, v) in enumerate(zip(names, sol.x))}
     return FitResult(spec=sol.spec, params=params, quantities=quantities, chi2=sol.chi2, dof=sol.dof,
                      residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, errors=errors, notes=tuple(notes),
-                     x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time)
+                     x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time, terms=terms)
 
 
 def _statistical_covariance(sol: _Solved, data: FitData) -> np.ndarray | None:
@@ -1186,9 +1380,8 @@ def _truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.nda
     keep = np.concatenate([[True], np.diff(t) > 0])
     th_i = CubicSpline(t[keep], th[keep])(data.t_s)
     ph_i = _wrap(CubicSpline(t[keep], ph[keep])(data.t_s))
-    cov = np.zeros_like(data.cov)
-    cov[:, 0, 0] = cov[:, 1, 1] = 1e-12
-    d = replace(data, theta_rad=th_i, phi_rad=ph_i, cov=cov, camera_shift=None)
+    # the data's own weights: the truth is what this estimator converges to without noise
+    d = replace(data, theta_rad=th_i, phi_rad=ph_i, camera_shift=None)
     spec = replace(spec, camera_modes=0)
     names = _Model(spec).names
     sol = _solve(spec, d, dict(zip(names, x)))

@@ -38,7 +38,7 @@ from .protocols import Protocol, ProtocolError, parse_protocol
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["plan_experiment", "monte_carlo_check", "sweep", "parse_sweep", "TARGET_RELATIVE_SE"]
+__all__ = ["plan_experiment", "plan_fit_terms", "monte_carlo_check", "sweep", "parse_sweep", "TARGET_RELATIVE_SE"]
 
 #: record length assessed by default (longer scenes: the advice extrapolates; --duration overrides)
 DEFAULT_PLAN_LENGTH_S = 20.0
@@ -111,6 +111,45 @@ def _simulated_angles(protocol: Protocol, duration_s: float, fps: float) -> pd.D
     return simulate(protocol, t_eval_s=np.arange(n) / fps)
 
 
+def _expected_angles(protocol: Protocol, duration_s: float) -> SimpleNamespace:
+    """The simulated tip angles at the camera's frame times, with the per-frame covariance the
+    tracker will reach (the pixel bound propagated through the camera model)."""
+    setup, marker = _tip_marker(protocol)
+    cam = setup.camera
+    lever = float(np.linalg.norm(marker.position_m))
+    sim = _simulated_angles(protocol, duration_s, cam.fps)
+    theta, phi = sim.theta_rad.to_numpy(), sim.phi_rad.to_numpy()
+    pos = lever * np.stack([np.sin(theta) * np.sin(phi), -np.sin(theta) * np.cos(phi), np.cos(theta)], axis=-1)
+    depth = float(np.median(np.linalg.norm(pos - cam.position_m, axis=1)))
+    spot = _pixel_bound(setup, marker, depth)
+    cov = _angle_covariance(setup, lever, theta, phi, spot["sigma_px"])
+    angles = pd.DataFrame({"frame": np.arange(len(sim)), "t_s": sim.t_s, "theta_rad": theta, "phi_rad": phi,
+                           "theta_sigma_rad": np.sqrt(cov[:, 0, 0]), "phi_sigma_rad": np.sqrt(cov[:, 1, 1]),
+                           "theta_phi_corr": cov[:, 0, 1] / np.sqrt(cov[:, 0, 0] * cov[:, 1, 1])})
+    return SimpleNamespace(theta=theta, phi=phi, pos=pos, depth=depth, spot=spot, cov=cov, angles=angles)
+
+
+def plan_fit_terms(protocol: Protocol, duration_s: float, *, prediction: dict | None = None):
+    """The fit model's optional terms for records of ``duration_s`` through the protocol's camera.
+
+    Chosen once, before any data, on the simulated motion with the per-frame errors the camera
+    will give (:func:`gyrorig.fit.plan_terms`): every record of the scene is then fitted with
+    the same model (``fit_angles(..., terms=...)``, ``gyrorig fit --terms plan.json``), rather
+    than one chosen afresh by each record's chi-square tests, which switches terms on and off
+    from record to record.  Returns a :class:`gyrorig.fit.FitTerms`.
+    """
+    from .fit import fit_data_from_angles, model_for_scene, plan_terms
+    from .theory import predict
+
+    if "camera" not in protocol.extra:
+        raise ProtocolError("planning the fit terms needs a [camera] section in the protocol")
+    pred = prediction if prediction is not None else predict(protocol, simulate_damping=False)
+    scene = model_for_scene(protocol, pred)
+    ex = _expected_angles(protocol, duration_s)
+    data = fit_data_from_angles(ex.angles, None, scene.precession_hint_rad_s)
+    return plan_terms(data, scene, source=f"gyrorig plan of {protocol.name} for {duration_s:g} s records")
+
+
 def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, prediction: dict | None = None,
                     simulate_damping: bool = True) -> dict:
     """What the rig and camera of ``protocol`` will measure (see the module docstring).
@@ -138,12 +177,8 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     if marker.body == "frame" and np.hypot(*marker.position_m[:2]) > 1e-9:
         rec.append(f"marker {marker.name} is off the symmetry axis: its spin smears it during the exposure; put the "
                    "tip marker on the axis")
-    sim = _simulated_angles(protocol, T, cam.fps)
-    theta, phi = sim.theta_rad.to_numpy(), sim.phi_rad.to_numpy()
-    pos = lever * np.stack([np.sin(theta) * np.sin(phi), -np.sin(theta) * np.cos(phi), np.cos(theta)], axis=-1)
-    depth = float(np.median(np.linalg.norm(pos - cam.position_m, axis=1)))
-    spot = _pixel_bound(setup, marker, depth)
-    cov = _angle_covariance(setup, lever, theta, phi, spot["sigma_px"])
+    ex = _expected_angles(protocol, T)
+    theta, phi, pos, spot, cov, depth = ex.theta, ex.phi, ex.pos, ex.spot, ex.cov, ex.depth
     px = _project(setup, pos)
     speed_px_s = np.linalg.norm(np.gradient(px, 1 / cam.fps, axis=0), axis=1)
     blur_px = float(np.max(speed_px_s) * cam.exposure_s)
@@ -190,10 +225,7 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
                f"scales as 1/lever arm, now {lever * 1e3:.0f} mm); lab fiducials around the pivot fix the camera pose")
 
     # the expected errors: Cramer-Rao bound of the fit model for this motion and camera
-    angles = pd.DataFrame({"frame": np.arange(len(sim)), "t_s": sim.t_s, "theta_rad": theta, "phi_rad": phi,
-                           "theta_sigma_rad": np.sqrt(cov[:, 0, 0]), "phi_sigma_rad": np.sqrt(cov[:, 1, 1]),
-                           "theta_phi_corr": cov[:, 0, 1] / np.sqrt(cov[:, 0, 0] * cov[:, 1, 1])})
-    fit = fit_angles(angles, protocol, prediction=pred, check_residuals=False)
+    fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
     quantities = {}
     recording = {}
     for name, q in fit.quantities.items():
@@ -230,6 +262,8 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
                    "'gyrorig bench track') and marker blends add to them")
     out["recording"] = {"length_s": T, **recording}
     out["fit_model"] = fit.summary()["model"]
+    # the model every record of this length should be fitted with: gyrorig fit --terms plan.json
+    out["fit_terms"] = {**fit.terms.as_dict(), "source": f"gyrorig plan of {protocol.name} for {T:g} s records"}
     if recording:
         longest = max((v["length_needed_s"], k) for k, v in recording.items() if isinstance(v, dict))
         rec.append(f"recording length: {longest[0]:.3g} s for every quantity to reach its target precision "
