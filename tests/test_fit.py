@@ -251,3 +251,24 @@ def test_damped_fit_ends_at_a_stationary_point_of_the_chi_square():
     assert cosine.max() < 1e-5
     step = np.linalg.lstsq(J, -res, rcond=None)[0]
     assert np.max(np.abs(step) / np.sqrt(np.diag(r.covariance))) < 1e-3  # in standard errors
+
+
+def test_a_record_too_short_for_the_model_is_flagged_not_trusted():
+    # the accelerated pivot over 2 s (0.55 precession periods): the persistent oscillation's
+    # frequency is known only to ~0.9 rad of phase over the record, so the least-squares errors
+    # are not Cramer-Rao bounds (runs scatter beyond them); B2 over the same 2 s is resolved
+    from gyrorig.camera import with_image_size
+    from gyrorig.fit import NONLINEAR_PHASE_RAD
+    from gyrorig.plan import _expected_angles
+
+    p = with_image_size(load_protocol(PROTOCOL_DIR / "accelerated-pivot.toml"), 640, 480)
+    pred = predict(p, simulate_damping=False)
+    short = fit_angles(_expected_angles(p, 2.0).angles, p, prediction=pred, terms="noiseless", check_residuals=False)
+    assert not short.linear_regime
+    assert short.phase_uncertainty_rad["persistent_frequency_rad_s"] > NONLINEAR_PHASE_RAD
+    assert any("too short for this model" in n and "persistent_frequency_rad_s" in n for n in short.notes)
+    assert short.summary()["model"]["linear_regime"] is False
+    b2 = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
+    ok = fit_angles(_expected_angles(b2, 2.0).angles, b2, prediction=predict(b2, simulate_damping=False),
+                    terms="noiseless", check_residuals=False)
+    assert ok.spec.persistent and ok.linear_regime and not any("too short" in n for n in ok.notes)

@@ -167,12 +167,18 @@ def _cmd_bench_stability(args: argparse.Namespace) -> int:
 
 
 def _progress_printer(label: str):
-    """A progress bar on a terminal (stderr); silent when not a TTY."""
+    """A progress bar on a terminal (stderr); elsewhere (a log file) a line at every tenth of the work."""
     tty = sys.stderr.isatty()
     start = time.perf_counter()
+    logged = [-1]
 
     def show(done: int, total: int) -> None:
         if not tty:
+            tenth = 10 * done // max(total, 1)
+            if tenth > logged[0]:
+                logged[0] = tenth
+                sys.stderr.write(f"{label}: {done}/{total} after {time.perf_counter() - start:.0f} s\n")
+                sys.stderr.flush()
             return
         frac = done / max(total, 1)
         rate = done / max(time.perf_counter() - start, 1e-9)

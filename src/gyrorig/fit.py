@@ -66,7 +66,7 @@ from .smooth import measurement_covariance
 logger = logging.getLogger(__name__)
 
 __all__ = ["FitError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "model_for_scene",
-           "fit_data_from_angles", "fit_angles", "fit_model", "plan_terms", "QUANTITY_UNITS"]
+           "fit_data_from_angles", "fit_angles", "fit_model", "plan_terms", "phase_uncertainty", "QUANTITY_UNITS"]
 
 QUANTITY_UNITS = {
     "precession_rate_rad_s": "rad/s",
@@ -89,8 +89,13 @@ NYQUIST_FRACTION = 0.9
 MAX_HARMONICS = 6
 #: Levenberg-Marquardt tolerances (xtol, ftol, gtol); undamped Gauss-Newton steps finish the job
 LM_TOL = 1e-9
+#: a solution counts as converged when no Jacobian column has |cos| to the residuals above this
+STATIONARY_COSINE = 1e-6
 #: above this reduced chi-square the residuals are dominated by a systematic, and the report says so
 SYSTEMATIC_CHI2_RED = 10.0
+#: a rate-like parameter whose standard error leaves more than this phase (rad) uncertain at the
+#: record's ends puts the fit outside its linear regime (see :func:`phase_uncertainty`)
+NONLINEAR_PHASE_RAD = 0.3
 #: a parameter whose value is below this many standard errors is "not significant"
 SIGNIFICANCE_SE = 3.0
 
@@ -326,6 +331,13 @@ class FitResult:
     wall_time_s: float = 0.0
     #: how the optional model terms were chosen
     terms: FitTerms | None = None
+    #: phase left uncertain at the record's ends by each rate-like parameter (:func:`phase_uncertainty`)
+    phase_uncertainty_rad: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def linear_regime(self) -> bool:
+        """True when every rate-like parameter is known well enough for the errors to be Cramer-Rao bounds."""
+        return all(v <= NONLINEAR_PHASE_RAD for v in self.phase_uncertainty_rad.values())
 
     @property
     def chi2_red(self) -> float:
@@ -338,7 +350,8 @@ class FitResult:
                       "transient": self.spec.transient, "elliptical_cone": self.spec.precession_second,
                       "nutation_sidebands": self.spec.sidebands, "persistent_oscillation": self.spec.persistent,
                       "camera_modes": self.spec.camera_modes,
-                      "terms_chosen": self.terms.source if self.terms is not None else ""},
+                      "terms_chosen": self.terms.source if self.terms is not None else "",
+                      "linear_regime": self.linear_regime, "phase_uncertainty_rad": dict(self.phase_uncertainty_rad)},
             "t_ref_s": self.t_ref_s, "chi2": self.chi2, "dof": self.dof, "chi2_red": self.chi2_red,
             "errors": self.errors, "notes": list(self.notes),
             "quantities": {k: q.as_dict() for k, q in self.quantities.items()},
@@ -777,19 +790,35 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
     n_res = 2 * data.n + spec.camera_modes  # the priors add a residual per camera mode
     if n_res <= len(x0):
         raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
-    res = least_squares(white, x0, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL, gtol=LM_TOL,
-                        max_nfev=200 * (len(x0) + 1))
-    if res.status == 0:  # out of evaluations (slow progress along a shallow valley): go on once from there
-        res = least_squares(white, res.x, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL,
-                            gtol=LM_TOL, max_nfev=400 * (len(x0) + 1))
-    x, r, J = _gauss_newton_polish(white, res.x, res.fun, res.jac)
+    # Levenberg-Marquardt with a modest budget, then undamped Gauss-Newton; again from there
+    # while the gradient has not vanished (LM alone can crawl for 10^4 steps in these models)
+    x = x0
+    for _round in range(4):
+        res = least_squares(white, x, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL,
+                            gtol=LM_TOL, max_nfev=50 * (len(x0) + 1))
+        x, r, J = _gauss_newton_polish(white, res.x, res.fun, res.jac)
+        stationary = _max_cosine(J, r) < STATIONARY_COSINE
+        if stationary:
+            break
+    ok = bool(stationary and np.all(np.isfinite(x)))
+    message = res.message if ok or res.success else f"{res.message} (gradient not zero after {_round + 1} rounds)"
     try:
         JTJ = J.T @ J
         cov = np.linalg.pinv(JTJ, rcond=1e-14, hermitian=True)
     except np.linalg.LinAlgError:
         cov = np.full((len(x0), len(x0)), np.nan)
     chi2v = float(np.sum(r**2))
-    return _Solved(spec, x, cov, chi2v, n_res - len(x0), bool(res.success), res.message)
+    return _Solved(spec, x, cov, chi2v, n_res - len(x0), ok, message)
+
+
+def _max_cosine(J: np.ndarray, r: np.ndarray) -> float:
+    """Largest |cos| between the residual vector and a Jacobian column (0 at a minimum)."""
+    nr = float(np.linalg.norm(r))
+    if nr == 0:
+        return 0.0
+    nj = np.linalg.norm(J, axis=0)
+    nj[nj == 0] = 1.0
+    return float(np.max(np.abs(J.T @ r) / nj) / nr)
 
 
 def _gauss_newton_polish(white, x: np.ndarray, r: np.ndarray, J: np.ndarray, max_steps: int = 30
@@ -821,8 +850,11 @@ def _gauss_newton_polish(white, x: np.ndarray, r: np.ndarray, J: np.ndarray, max
             dx = 0.5 * dx
         else:
             break
+        done = c - c_new < 1e-12 * c
         x, r, c = x_new, r_new, c_new
         J = white.jac(x)
+        if done:
+            break
     return x, r, J
 
 
@@ -1093,6 +1125,30 @@ def _quantity_functions(spec: ModelSpec, names: list[str]):
     return fns
 
 
+#: parameters that enter the model as phase or log-amplitude rates: (name, power of tau)
+_RATE_PARAMETERS = (("precession_rate_rad_s", 1), ("nutation_frequency_rad_s", 1), ("persistent_frequency_rad_s", 1),
+                    ("nutation_decay_rate_per_s", 1), ("tilt_growth_rate_per_s", 1),
+                    ("precession_acceleration_rad_s2", 2), ("nutation_chirp_rad_s2", 2),
+                    ("tilt_growth_curvature_per_s2", 2))
+
+
+def phase_uncertainty(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data: FitData) -> dict[str, float]:
+    """For each rate-like parameter, one standard error times the longest ``|tau|`` (``tau^2 / 2``
+    for second-order terms): the phase or log-amplitude it leaves uncertain at the record's
+    ends, in radians.  The least-squares errors are Cramer-Rao bounds only while these are
+    well below 1 (the model is linear over one standard error); above :data:`NONLINEAR_PHASE_RAD`
+    the record is too short for the model and the errors are not reliable."""
+    names = _Model(spec).names
+    tau = float(np.max(np.abs(data.t_s - data.t_ref_s)))
+    out = {}
+    for name, power in _RATE_PARAMETERS:
+        if name in names:
+            i = names.index(name)
+            se = math.sqrt(max(float(cov[i, i]), 0.0))
+            out[name] = se * (tau if power == 1 else 0.5 * tau * tau)
+    return out
+
+
 def _residual_check(model: _Model, data: FitData, x: np.ndarray) -> tuple[float, float]:
     _, white = _residual_fn(model, data)
     r = white(x)[:2 * data.n].reshape(2, -1)
@@ -1248,6 +1304,13 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         errors = "formal x sqrt(chi2_red)"
         notes.append(f"reduced chi-square {chi2_red:.3f} is significantly above 1 (the tracker's error bars are too "
                      "small or the model misses something): standard errors scaled by sqrt(chi2_red)")
+    phases = phase_uncertainty(sol.spec, sol.x, sol.cov, data)
+    nonlinear = {k: v for k, v in phases.items() if v > NONLINEAR_PHASE_RAD}
+    if nonlinear:
+        notes.append("the record is too short for this model: " + ", ".join(
+            f"{k} leaves {v:.2g} rad of phase uncertain over the record" for k, v in nonlinear.items())
+            + f" (above {NONLINEAR_PHASE_RAD:g}); the model is not linear over one standard error, so the standard "
+            "errors are not reliable (they vary from record to record); a longer record resolves the terms")
     if check_residuals and chi2_red > SYSTEMATIC_CHI2_RED:
         notes.append(f"the residuals are far larger than the tracker's errors (reduced chi-square {chi2_red:.3g}): a "
                      "systematic error dominates (camera calibration or pose, or a motion the model does not describe);"
@@ -1343,7 +1406,8 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     params = {n: (float(v), float(np.sqrt(max(sol.cov[i, i], 0.0)))) for i, (n, v) in enumerate(zip(names, sol.x))}
     return FitResult(spec=sol.spec, params=params, quantities=quantities, chi2=sol.chi2, dof=sol.dof,
                      residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, errors=errors, notes=tuple(notes),
-                     x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time, terms=terms)
+                     x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time, terms=terms,
+                     phase_uncertainty_rad=phases)
 
 
 def _statistical_covariance(sol: _Solved, data: FitData) -> np.ndarray | None:

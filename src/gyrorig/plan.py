@@ -229,7 +229,7 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     quantities = {}
     recording = {}
     for name, q in fit.quantities.items():
-        entry = {"units": q.units, "resolvable": q.status == "determined", "reason": q.reason,
+        entry = {"units": q.units, "resolvable": q.status == "determined", "reason": q.reason, "reliable": True,
                  "predicted_paper": q.paper, "predicted_exact": q.exact, "simulated": q.value,
                  "expected_standard_error": q.standard_error}
         if q.status == "determined" and q.value:
@@ -269,9 +269,41 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         rec.append(f"recording length: {longest[0]:.3g} s for every quantity to reach its target precision "
                    f"(set by {longest[1]}); precession periods in {T:g} s: "
                    f"{recording.get('precession_periods_in_record', float('nan')):.2g}")
+    if not fit.linear_regime:
+        worst = max(fit.phase_uncertainty_rad.items(), key=lambda kv: kv[1])
+        longer = _linear_length(protocol, T, pred)
+        out["recording"]["linear_regime"] = False
+        out["recording"]["length_for_linear_regime_s"] = longer
+        for entry in quantities.values():
+            entry["reliable"] = False
+        rec.append(f"a {T:g} s record is too short for the scene's fit model: {worst[0]} leaves {worst[1]:.2g} rad of "
+                   f"phase uncertain over the record, so the model is not linear over one standard error and the "
+                   f"expected errors above are not reliable (runs will scatter beyond them); "
+                   + (f"a {longer:.3g} s record is long enough" if longer else
+                      f"no record up to the scene's {protocol.scene.duration_s:g} s is long enough"))
+    else:
+        out["recording"]["linear_regime"] = True
     rec.extend(_damping_advice(protocol, pred))
     out["wall_time_s"] = time.perf_counter() - start
     return out
+
+
+def _linear_length(protocol: Protocol, duration_s: float, pred: dict) -> float | None:
+    """The shortest of a few longer records (x1.5 .. x4, up to the scene's length) over which the
+    fit model is in its linear regime; None if none is."""
+    from .fit import fit_angles
+
+    tried = set()
+    for factor in (1.5, 2.0, 3.0, 4.0):
+        T = min(duration_s * factor, protocol.scene.duration_s)
+        if T <= duration_s or T in tried:
+            continue
+        tried.add(T)
+        fit = fit_angles(_expected_angles(protocol, T).angles, protocol, prediction=pred, check_residuals=False,
+                         terms="noiseless")
+        if fit.linear_regime:
+            return T
+    return None
 
 
 def _damping_advice(protocol: Protocol, pred: dict) -> list[str]:
