@@ -80,24 +80,30 @@ def test_sweep_parsing_and_a_small_sweep(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["air-cushion-heavy-top", "eddy-damped-top-b2", pytest.param(
-    "accelerated-pivot", marks=pytest.mark.xfail(strict=True, reason=(
-        "known, open in issue 7: on 1.5 s records the chi-square test adds the elliptical-cone/sideband terms in "
-        "some runs only; the Monte Carlo spread of the nutation frequency is then 2.9x the plan's bound")))])
+@pytest.mark.parametrize("name", ["air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-pivot"])
 def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
     from gyrorig.plan import monte_carlo_check
 
     p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
-    table = monte_carlo_check(p, 12, duration_s=1.5)
-    assert table.attrs["failed_runs"] == 0
+    duration = 1.5
+    if name == "accelerated-pivot":
+        # 1.5 s (0.4 precession periods) is too short for this scene's model: the plan must say so
+        # and name a length that is long enough; the check runs there
+        plan = plan_experiment(p, duration_s=duration, simulate_damping=False)
+        assert not plan["recording"]["linear_regime"]
+        assert not any(q["reliable"] for q in plan["quantities"].values())
+        duration = plan["recording"]["length_for_linear_regime_s"]
+        assert duration is not None and duration <= p.scene.duration_s
+    table = monte_carlo_check(p, 12, duration_s=duration)
+    assert table.attrs["failed_runs"] == 0 and table.attrs["linear_regime"]
     # 12 runs estimate a spread to ~20 %: the plan must not be optimistic beyond that
     # (measured 0.49-1.43; below 1 where part of the per-frame error repeats in every run)
     for row in table.itertuples():
         if np.isfinite(row.sd_over_planned):
             assert row.sd_over_planned < 1.8, row
-    if name == "air-cushion-heavy-top":  # formal errors: the plan predicts what the chain reports
-        for row in table.itertuples():
-            assert 0.9 < row.median_fit_se / row.planned_se < 1.1, row
+    # every run is fitted with the model the plan chose, so the errors it reports are the plan's
+    for row in table.itertuples():
+        assert 0.8 < row.median_fit_se / row.planned_se < 1.25, row
 
 
 def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):

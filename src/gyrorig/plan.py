@@ -349,6 +349,7 @@ def monte_carlo_check(protocol: Protocol, n: int, *, duration_s: float = 2.0, sc
                      "sd_pull": float(g.pull.std(ddof=1)) if len(g) > 1 else math.nan})
     table = pd.DataFrame(rows)
     table.attrs["failed_runs"] = int((runs["error"].fillna("") != "").sum()) if "error" in runs else 0
+    table.attrs["linear_regime"] = bool(plan["recording"].get("linear_regime", True))
     return table
 
 
