@@ -541,6 +541,15 @@ def _terms_arg(value: str):
     return FitTerms.from_dict(terms)
 
 
+def _add_fit_options(parser: argparse.ArgumentParser) -> None:
+    """``--truth`` and ``--terms``, shared by fit and analyze."""
+    parser.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
+    parser.add_argument("--terms", default="data",
+                        help="how the model's optional terms (nutation harmonics, damped-scene terms) are chosen: "
+                        "'data' (default) by chi-square tests on this record, or a plan.json from 'gyrorig plan "
+                        "--duration T --out DIR' (its fit_terms: the same model for every record of the scene)")
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from .analysis import fit_file
 
@@ -770,11 +779,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("angles", help="angles.csv from 'gyrorig track'")
     f.add_argument("--protocol", required=True, help="protocol TOML (decides the model)")
     f.add_argument("--out", required=True, help="output directory (fit.json, fit.png, fit_residuals.csv)")
-    f.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
-    f.add_argument("--terms", default="data",
-                   help="how the model's optional terms (nutation harmonics, damped-scene terms) are chosen: 'data' "
-                   "(default) by chi-square tests on this record, or a plan.json from 'gyrorig plan --duration T "
-                   "--out DIR' (its fit_terms: the same model for every record of the scene)")
+    _add_fit_options(f)
     f.set_defaults(func=_cmd_fit)
 
     an = sub.add_parser("analyze", help="track -> smooth -> fit -> report.html; a folder or manifest CSV for a batch")
@@ -782,11 +787,7 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--camera", default=None, help="camera.json")
     an.add_argument("--protocol", default=None, help="protocol TOML")
     an.add_argument("--out", required=True, help="output directory")
-    an.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
-    an.add_argument("--terms", default="data",
-                   help="how the model's optional terms (nutation harmonics, damped-scene terms) are chosen: 'data' "
-                   "(default) by chi-square tests on this record, or a plan.json from 'gyrorig plan --duration T "
-                   "--out DIR' (its fit_terms: the same model for every record of the scene)")
+    _add_fit_options(an)
     an.set_defaults(func=_cmd_analyze)
 
     d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track, smooth, fit, report")
