@@ -89,8 +89,12 @@ NYQUIST_FRACTION = 0.9
 MAX_HARMONICS = 6
 #: Levenberg-Marquardt tolerances (xtol, ftol, gtol); undamped Gauss-Newton steps finish the job
 LM_TOL = 1e-9
-#: a solution counts as converged when no Jacobian column has |cos| to the residuals above this
-STATIONARY_COSINE = 1e-6
+#: a solution counts as converged when a further Gauss-Newton step would move no parameter by
+#: more than this many standard errors
+STATIONARY_STEP_SE = 1e-3
+#: ... or when a further round of Levenberg-Marquardt and Gauss-Newton lowers the chi-square by
+#: less than this
+STALLED_CHI2_GAIN = 1e-6
 #: above this reduced chi-square the residuals are dominated by a systematic, and the report says so
 SYSTEMATIC_CHI2_RED = 10.0
 #: a rate-like parameter whose standard error leaves more than this phase (rad) uncertain at the
@@ -128,6 +132,13 @@ class ModelSpec:
     sidebands: bool = False
     #: second precession harmonic (damped, fitted axis: an elliptical cone)
     precession_second: bool = False
+    #: third order in the damped nutation's amplitude: a term at the nutation frequency decaying
+    #: three times as fast (the nutation's shape depends on its amplitude, so the ratio of its
+    #: tilt and azimuth parts drifts as it decays; B2 rig over 4 s at full resolution)
+    third_order: bool = False
+    #: the damped nutation's shape drifts: its fundamental's coefficients change linearly in time
+    #: (the mode shape depends on the tilt, which drifts; first order, like the frequency chirp)
+    shape_drift: bool = False
     #: nuisance parameters for the camera model's uncertainty (one per mode, unit prior)
     camera_modes: int = 0
 
@@ -162,6 +173,10 @@ class ModelSpec:
         if self.sidebands:
             for side in ("upper", "lower"):
                 n += [f"tilt_{side}_cos_rad", f"tilt_{side}_sin_rad", f"azimuth_{side}_cos_rad", f"azimuth_{side}_sin_rad"]
+        if self.shape_drift:
+            n += ["tilt_drift_cos_rad_s", "tilt_drift_sin_rad_s", "azimuth_drift_cos_rad_s", "azimuth_drift_sin_rad_s"]
+        if self.third_order:
+            n += ["tilt_third_cos_rad", "tilt_third_sin_rad", "azimuth_third_cos_rad", "azimuth_third_sin_rad"]
         if self.precession_second:
             n += ["tilt_precession2_cos_rad", "tilt_precession2_sin_rad", "azimuth_precession2_cos_rad",
                   "azimuth_precession2_sin_rad"]
@@ -184,13 +199,17 @@ class FitTerms:
     precession_second: bool = False
     sidebands: bool = False
     persistent: bool = False
+    third_order: bool = False
+    shape_drift: bool = False
     #: where the terms come from (for the report)
     source: str = ""
 
     @classmethod
     def of(cls, spec: ModelSpec, source: str = "") -> "FitTerms":
         return cls(harmonics=spec.harmonics, transient=spec.transient, precession_second=spec.precession_second,
-                   sidebands=spec.sidebands, persistent=spec.persistent, source=source)
+                   sidebands=spec.sidebands, persistent=spec.persistent, third_order=spec.third_order,
+                   shape_drift=spec.shape_drift,
+                   source=source)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -205,7 +224,7 @@ class FitTerms:
         h = d.get("harmonics", 0)
         if not isinstance(h, int) or isinstance(h, bool) or not 0 <= h <= MAX_HARMONICS:
             raise ValueError(f"fit terms: harmonics must be an integer in [0, {MAX_HARMONICS}]; got {h!r}")
-        for k in ("transient", "precession_second", "sidebands", "persistent"):
+        for k in ("transient", "precession_second", "sidebands", "persistent", "third_order", "shape_drift"):
             if k in d and not isinstance(d[k], bool):
                 raise ValueError(f"fit terms: {k} must be true or false; got {d[k]!r}")
         return cls(**d)
@@ -214,7 +233,9 @@ class FitTerms:
         parts = [f"{self.harmonics} nutation harmonic(s)" if self.harmonics else "no nutation"]
         parts += [name for name, on in (("transient", self.transient), ("elliptical cone", self.precession_second),
                                         ("nutation sidebands", self.sidebands),
-                                        ("persistent oscillation", self.persistent)) if on]
+                                        ("persistent oscillation", self.persistent),
+                                        ("third-order nutation", self.third_order),
+                                        ("drifting nutation shape", self.shape_drift)) if on]
         return ", ".join(parts)
 
 
@@ -349,6 +370,7 @@ class FitResult:
                       "nutation_harmonics": self.spec.harmonics, "azimuth_segments": self.spec.segments,
                       "transient": self.spec.transient, "elliptical_cone": self.spec.precession_second,
                       "nutation_sidebands": self.spec.sidebands, "persistent_oscillation": self.spec.persistent,
+                      "third_order_nutation": self.spec.third_order, "nutation_shape_drift": self.spec.shape_drift,
                       "camera_modes": self.spec.camera_modes,
                       "terms_chosen": self.terms.source if self.terms is not None else "",
                       "linear_regime": self.linear_regime, "phase_uncertainty_rad": dict(self.phase_uncertainty_rad)},
@@ -392,6 +414,17 @@ class _Model:
         self.names = spec.names()
         self.index = {n: i for i, n in enumerate(self.names)}
 
+    def envelope(self, p: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The damped nutation's envelope, 1 at the first frame: ``exp(-mu (tau - tau0))``."""
+        return np.exp(-p[self.index["nutation_decay_rate_per_s"]] * (tau - self.spec.nutation_origin_s))
+
+    def nutation_phase(self, p: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """``psi = w tau (+ w' tau^2 / 2 when damped)``."""
+        psi = p[self.index["nutation_frequency_rad_s"]] * tau
+        if self.spec.damped:
+            psi = psi + 0.5 * p[self.index["nutation_chirp_rad_s2"]] * tau**2
+        return psi
+
     def axis_frame(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
         """theta', phi' in the axis frame."""
         s, ix = self.spec, self.index
@@ -405,8 +438,7 @@ class _Model:
             ph = ph + 0.5 * p[ix["precession_acceleration_rad_s2"]] * tau**2
         if s.harmonics:
             w = p[ix["nutation_frequency_rad_s"]]
-            env1 = (np.exp(-p[ix["nutation_decay_rate_per_s"]] * (tau - s.nutation_origin_s)) if s.damped
-                    else np.ones_like(tau))
+            env1 = self.envelope(p, tau) if s.damped else np.ones_like(tau)
             if s.damped:
                 # second order in the decaying amplitude: the mean tilt and the mean
                 # precession rate shift with amplitude^2, so these decay twice as fast
@@ -442,12 +474,19 @@ class _Model:
             ph = ph + p[ix["transient_azimuth_rad"]] * e
         if s.sidebands:
             psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
-            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * (tau - s.nutation_origin_s))
+            env1 = self.envelope(p, tau)
             for side, sign in (("upper", 1.0), ("lower", -1.0)):
                 arg = psi + sign * p[ix["precession_rate_rad_s"]] * tau
                 c, sn = env1 * np.cos(arg), env1 * np.sin(arg)
                 th = th + p[ix[f"tilt_{side}_cos_rad"]] * c + p[ix[f"tilt_{side}_sin_rad"]] * sn
                 ph = ph + p[ix[f"azimuth_{side}_cos_rad"]] * c + p[ix[f"azimuth_{side}_sin_rad"]] * sn
+        for stem, factor, power in self._nutation_extras(tau):
+            f = factor * self.envelope(p, tau) ** power
+            psi = self.nutation_phase(p, tau)
+            c, sn = f * np.cos(psi), f * np.sin(psi)
+            u = self._unit(stem)
+            th = th + p[ix[f"tilt_{stem}_cos_{u}"]] * c + p[ix[f"tilt_{stem}_sin_{u}"]] * sn
+            ph = ph + p[ix[f"azimuth_{stem}_cos_{u}"]] * c + p[ix[f"azimuth_{stem}_sin_{u}"]] * sn
         if s.precession_second:
             c2, s2 = np.cos(2 * p[ix["precession_rate_rad_s"]] * tau), np.sin(2 * p[ix["precession_rate_rad_s"]] * tau)
             th = th + p[ix["tilt_precession2_cos_rad"]] * c2 + p[ix["tilt_precession2_sin_rad"]] * s2
@@ -475,7 +514,7 @@ class _Model:
         if s.harmonics:
             w = p[ix["nutation_frequency_rad_s"]]
             dt0 = tau - s.nutation_origin_s
-            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * dt0) if s.damped else np.ones_like(tau)
+            env1 = self.envelope(p, tau) if s.damped else np.ones_like(tau)
             psi = w * tau
             if s.damped:
                 psi = psi + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
@@ -521,7 +560,7 @@ class _Model:
         if s.sidebands:
             psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
             dt0 = tau - s.nutation_origin_s
-            env1 = np.exp(-p[ix["nutation_decay_rate_per_s"]] * dt0)
+            env1 = self.envelope(p, tau)
             for side, sign in (("upper", 1.0), ("lower", -1.0)):
                 arg = psi + sign * p[ix["precession_rate_rad_s"]] * tau
                 c, sn = env1 * np.cos(arg), env1 * np.sin(arg)
@@ -536,7 +575,38 @@ class _Model:
                     d[:, ix["nutation_decay_rate_per_s"]] += -dt0 * (a * c + b * sn)
         if s.precession_second:
             self._sinusoid_columns(p, tau, dth, dph, "precession_rate_rad_s", "precession2", factor=2.0)
+        dt0 = tau - s.nutation_origin_s
+        for stem, factor, power in self._nutation_extras(tau):
+            f = factor * self.envelope(p, tau) ** power
+            psi = self.nutation_phase(p, tau)
+            c, sn = f * np.cos(psi), f * np.sin(psi)
+            for d, q in ((dth, "tilt"), (dph, "azimuth")):
+                nc, ns = f"{q}_{stem}_cos_{self._unit(stem)}", f"{q}_{stem}_sin_{self._unit(stem)}"
+                a, b = p[ix[nc]], p[ix[ns]]
+                d[:, ix[nc]] = c
+                d[:, ix[ns]] = sn
+                dpsi = -a * sn + b * c
+                d[:, ix["nutation_frequency_rad_s"]] += dpsi * tau
+                d[:, ix["nutation_chirp_rad_s2"]] += dpsi * 0.5 * tau**2
+                d[:, ix["nutation_decay_rate_per_s"]] += -power * dt0 * (a * c + b * sn)
         return dth, dph
+
+    def _nutation_extras(self, tau: np.ndarray) -> list[tuple[str, np.ndarray, int]]:
+        """Damped-nutation terms at the fundamental beyond the harmonics: (stem, factor, envelope power).
+
+        ``shape_drift``: ``(tau - tau0) e^{-mu (tau - tau0)}`` (the coefficients drift linearly);
+        ``third_order``: ``e^{-3 mu (tau - tau0)}`` (third order in the amplitude)."""
+        s = self.spec
+        out = []
+        if s.shape_drift:
+            out.append(("drift", tau - s.nutation_origin_s, 1))
+        if s.third_order:
+            out.append(("third", np.ones_like(tau), 3))
+        return out
+
+    @staticmethod
+    def _unit(stem: str) -> str:
+        return "rad_s" if stem == "drift" else "rad"
 
     def _sinusoid_columns(self, p, tau, dth, dph, freq: str, stem: str, factor: float = 1.0) -> None:
         """Columns of a pair of sinusoids ``X_cos cos(f w tau) + X_sin sin(f w tau)`` in tilt and azimuth.
@@ -792,16 +862,28 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
         raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
     # Levenberg-Marquardt with a modest budget, then undamped Gauss-Newton; again from there
     # while the gradient has not vanished (LM alone can crawl for 10^4 steps in these models)
+    # Where the model is far from quadratic over one standard error (a term whose amplitude is
+    # ~0 leaves its rate free), the Gauss-Newton step can point 1 s.e. away while no step
+    # lowers the chi-square: a round of both solvers that gains nothing also ends it.
     x = x0
+    chi2_prev = math.inf
     for _round in range(4):
         res = least_squares(white, x, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL,
                             gtol=LM_TOL, max_nfev=50 * (len(x0) + 1))
         x, r, J = _gauss_newton_polish(white, res.x, res.fun, res.jac)
-        stationary = _max_cosine(J, r) < STATIONARY_COSINE
+        chi2_now = float(r @ r)
+        stationary = (_remaining_step_se(J, r) < STATIONARY_STEP_SE
+                      or chi2_prev - chi2_now < STALLED_CHI2_GAIN)
         if stationary:
             break
+        chi2_prev = chi2_now
     ok = bool(stationary and np.all(np.isfinite(x)))
-    message = res.message if ok or res.success else f"{res.message} (gradient not zero after {_round + 1} rounds)"
+    if ok:
+        message = res.message
+    else:
+        message = (f"no minimum after {_round + 1} rounds of Levenberg-Marquardt and Gauss-Newton (one more step "
+                   f"would move a parameter by {_remaining_step_se(J, r):.3g} standard errors; the chi-square still "
+                   "falls slowly): the parameters are nearly degenerate over this record")
     try:
         JTJ = J.T @ J
         cov = np.linalg.pinv(JTJ, rcond=1e-14, hermitian=True)
@@ -811,14 +893,19 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
     return _Solved(spec, x, cov, chi2v, n_res - len(x0), ok, message)
 
 
-def _max_cosine(J: np.ndarray, r: np.ndarray) -> float:
-    """Largest |cos| between the residual vector and a Jacobian column (0 at a minimum)."""
-    nr = float(np.linalg.norm(r))
-    if nr == 0:
-        return 0.0
-    nj = np.linalg.norm(J, axis=0)
-    nj[nj == 0] = 1.0
-    return float(np.max(np.abs(J.T @ r) / nj) / nr)
+def _remaining_step_se(J: np.ndarray, r: np.ndarray) -> float:
+    """The largest move, in standard errors, that one more Gauss-Newton step would make (0 at a minimum).
+
+    Scale-free, and meaningful when the residuals are tiny (noiseless planning data), where the
+    angle between the residuals and the Jacobian's columns is set by rounding."""
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    Js = J / norms
+    step, *_ = np.linalg.lstsq(Js, -r, rcond=1e-13)
+    cov_s = np.linalg.pinv(Js.T @ Js, rcond=1e-14, hermitian=True)
+    se = np.sqrt(np.maximum(np.diag(cov_s), 0.0))
+    se[se == 0] = np.inf
+    return float(np.max(np.abs(step) / se)) if np.all(np.isfinite(step)) else math.inf
 
 
 def _gauss_newton_polish(white, x: np.ndarray, r: np.ndarray, J: np.ndarray, max_steps: int = 30
@@ -998,6 +1085,14 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
             if cur is not None:
                 best = cur
         if spec0.damped and best.spec.harmonics:
+            # the nutation's own slow changes first: terms further down (a persistent
+            # oscillation, a transient) could otherwise stand in for them
+            best = _with_extension(best, data, notes, sel, "shape_drift",
+                                   "a drifting nutation shape (its tilt and azimuth parts change linearly in time "
+                                   "as the tilt drifts)")
+            best = _with_extension(best, data, notes, sel, "third_order",
+                                   "a third-order nutation term decaying three times as fast (the nutation's shape "
+                                   "changes with its amplitude)")
             best = _with_persistent(best, data, notes, sel)
         if spec0.damped:
             best = _with_transient(best, data, notes, sel)
@@ -1008,6 +1103,8 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                 best = _with_extension(best, data, notes, sel, "sidebands",
                                        "nutation sidebands at the nutation frequency +- the precession rate (damping "
                                        "about the lab vertical modulates the nutation)")
+        if spec0.damped:
+            best = _without_unresolved_persistent(best, data, notes, sel)
         if reason is not None:
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
@@ -1033,10 +1130,34 @@ def _with_persistent(cur: _Solved, data: FitData, notes: list[str], sel: _Select
     ok = [s_ for s_ in trial if s_.ok] or trial
     sol_p = min(ok, key=lambda s_: s_.chi2)
     note = "a persistent oscillation near the nutation frequency"
+    if _persistent_unresolved(sol_p, data, sel):
+        return cur
     if sel.wants(cur, sol_p, "persistent", notes, note):
         notes.append(f"{note} is modelled")
         return sol_p
     return cur
+
+
+def _persistent_unresolved(sol: _Solved, data: FitData, sel: _Selector) -> bool:
+    """A persistent oscillation (not planned) whose frequency this record does not resolve."""
+    if not sol.spec.persistent or sel.planned("persistent") or not sol.ok:
+        return False
+    return phase_uncertainty(sol.spec, sol.x, sol.cov, data)["persistent_frequency_rad_s"] > NONLINEAR_PHASE_RAD
+
+
+def _without_unresolved_persistent(best: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
+    """Take the persistent oscillation out again when, with the terms added after it, the record
+    no longer resolves its frequency: it would only make the other errors unreliable."""
+    if not _persistent_unresolved(best, data, sel):
+        return best
+    spec = replace(best.spec, persistent=False)
+    sol = _solve(spec, data, dict(zip(_Model(best.spec).names, best.x)))
+    if not sol.ok:
+        return best
+    notes[:] = [n for n in notes if not n.startswith("a persistent oscillation")]
+    notes.append(f"a persistent oscillation near the nutation frequency is left out: with the other terms the record "
+                 f"does not resolve its frequency (chi-square {sol.chi2 - best.chi2:+.3g} without it)")
+    return sol
 
 
 def _with_extension(cur: _Solved, data: FitData, notes: list[str], sel: _Selector, flag: str, note: str) -> _Solved:

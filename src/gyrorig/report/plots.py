@@ -188,7 +188,8 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
                 ax.plot(t[out], th_deg[out], "rx", ms=5, label="outlier (gated)")
         ax.plot(curve.t_s[csel], np.degrees(curve.theta_rad[csel]), lw=0.8, color="C1", label="fit")
         ax.set(xlabel="t [s]", ylabel="tilt theta [deg]", title="tilt, first second" if zoom else "tilt")
-        ax.legend(fontsize=7, loc="best")
+        # below the axes: inside, the legend hides the oscillation it labels
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=4, frameon=False)
     ax = axes[1, 0]
     phi_meas = np.unwrap(angles.phi_rad.to_numpy()[ok])
     phi_fit = np.interp(t[ok], curve.t_s, np.unwrap(curve.phi_rad))
