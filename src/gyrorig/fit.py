@@ -1208,6 +1208,10 @@ def _nutation_amplitude(spec: ModelSpec, names: list[str], x: np.ndarray) -> flo
     y = np.zeros_like(psi)
     for k in range(1, spec.harmonics + 1):
         y += x[ix[f"tilt_cos_{k}_rad"]] * np.cos(k * psi) + x[ix[f"tilt_sin_{k}_rad"]] * np.sin(k * psi)
+    if spec.third_order:
+        # at the first frame the third-order term is part of the fundamental (it only decays faster);
+        # the two are nearly degenerate, their sum is what the record determines
+        y += x[ix["tilt_third_cos_rad"]] * np.cos(psi) + x[ix["tilt_third_sin_rad"]] * np.sin(psi)
     # refine the extremes with a parabola through the grid's best points
     def extreme(sign: float) -> float:
         i = int(np.argmax(sign * y))
