@@ -84,6 +84,9 @@ TERM_P_VALUE = 1e-3
 #: by more than this (its non-centrality: leaving it out could bias a quantity by up to
 #: sqrt(this) standard errors)
 PLANNED_NONCENTRALITY = 1.0
+#: planning on noiseless data keeps a term with a free frequency (the persistent oscillation)
+#: only above this chi-square change: below it, noisy records cannot locate the frequency
+FREE_FREQUENCY_NONCENTRALITY = 25.0
 #: nutation counts as resolved by the camera below this fraction of the Nyquist frequency
 NYQUIST_FRACTION = 0.9
 MAX_HARMONICS = 6
@@ -1147,16 +1150,24 @@ def _persistent_unresolved(sol: _Solved, data: FitData, sel: _Selector) -> bool:
 
 def _without_unresolved_persistent(best: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
     """Take the persistent oscillation out again when, with the terms added after it, the record
-    no longer resolves its frequency: it would only make the other errors unreliable."""
-    if not _persistent_unresolved(best, data, sel):
+    no longer resolves its frequency or no longer needs it (it was tried before the transient
+    and the axis terms, and can stand in for them).  A free frequency needs a clear detection
+    to be estimable: on noiseless planning data at least :data:`FREE_FREQUENCY_NONCENTRALITY`."""
+    if not best.spec.persistent or sel.planned("persistent") or not best.ok:
         return best
     spec = replace(best.spec, persistent=False)
     sol = _solve(spec, data, dict(zip(_Model(best.spec).names, best.x)))
     if not sol.ok:
         return best
+    gain, ddof = sol.chi2 - best.chi2, sol.dof - best.dof
+    need = max(sel.need(ddof), FREE_FREQUENCY_NONCENTRALITY) if sel.noncentrality is not None else sel.need(ddof)
+    unresolved = _persistent_unresolved(best, data, sel)
+    if not unresolved and gain > need:
+        return best
     notes[:] = [n for n in notes if not n.startswith("a persistent oscillation")]
-    notes.append(f"a persistent oscillation near the nutation frequency is left out: with the other terms the record "
-                 f"does not resolve its frequency (chi-square {sol.chi2 - best.chi2:+.3g} without it)")
+    why = ("the record does not resolve its frequency" if unresolved else
+           f"the other terms leave it little to do (chi-square {gain:+.3g} without it; {need:.3g} needed)")
+    notes.append(f"a persistent oscillation near the nutation frequency is left out: {why}")
     return sol
 
 
