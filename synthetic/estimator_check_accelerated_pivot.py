@@ -8,7 +8,9 @@ estimator from the render -> track chain.
     python synthetic/estimator_check_accelerated_pivot.py [DURATION_S] [RECORDS]
 
 Measured 2026-11-23 (5.7 s, 16 records, ~10 s each): equilibrium tilt pulls -13, -9.3, -9.2,
--7.8, -6.7 in 5 of 16 records (mean -3.2 +- 1.3, SD 5.2): the fit lands in other minima.
+-7.8, -6.7 in 5 of 16 records (mean -3.2 +- 1.3, SD 5.2): the model was two-valued (a tilt
+term locked to the precession phase is to first order a shift of the fitted axis).  Without
+that term: pull SDs 0.85-1.22, no outlier, mean pulls -0.66 +- 0.31 ... +0.49 +- 0.22.
 """
 
 import sys
