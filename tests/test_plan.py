@@ -83,9 +83,9 @@ def test_sweep_parsing_and_a_small_sweep(tmp_path, capsys):
 @pytest.mark.parametrize("name", [
     "air-cushion-heavy-top", "eddy-damped-top-b2",
     pytest.param("accelerated-pivot", marks=pytest.mark.xfail(strict=True, reason=(
-        "issue 7: over 1.5 s (0.4 precession periods) the plan finds the model resolved on the noiseless "
-        "motion, but 3 of 12 noisy records do not converge (measured 2026-11-23); the plan's check does "
-        "not yet see that"))),
+        "issue 7: in the Monte Carlo at the length this test picks (1.5 s, or the plan's length for the "
+        "linear regime) 3 of 12 noisy records do not converge (measured 2026-11-23); the plan's "
+        "noiseless check does not predict that"))),
 ])
 def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
     from gyrorig.plan import monte_carlo_check
