@@ -214,8 +214,7 @@ class FitTerms:
     def of(cls, spec: ModelSpec, source: str = "") -> "FitTerms":
         return cls(harmonics=spec.harmonics, transient=spec.transient, precession_second=spec.precession_second,
                    sidebands=spec.sidebands, persistent=spec.persistent, third_order=spec.third_order,
-                   shape_drift=spec.shape_drift,
-                   source=source)
+                   shape_drift=spec.shape_drift, source=source)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -443,7 +442,6 @@ class _Model:
         if s.damped:
             ph = ph + 0.5 * p[ix["precession_acceleration_rad_s2"]] * tau**2
         if s.harmonics:
-            w = p[ix["nutation_frequency_rad_s"]]
             env1 = self.envelope(p, tau) if s.damped else np.ones_like(tau)
             if s.damped:
                 # second order in the decaying amplitude: the mean tilt and the mean
@@ -452,9 +450,7 @@ class _Model:
                 th = th + p[ix["tilt_decaying_offset_rad"]] * env2
                 ph = ph + p[ix["azimuth_decaying_offset_rad"]] * env2
             env = env1
-            psi = w * tau
-            if s.damped:
-                psi = psi + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2  # the frequency follows the tilt
+            psi = self.nutation_phase(p, tau)  # damped: the frequency follows the tilt (a chirp)
             for k in range(1, s.harmonics + 1):
                 c, sn = np.cos(k * psi), np.sin(k * psi)
                 th = th + env * (p[ix[f"tilt_cos_{k}_rad"]] * c + p[ix[f"tilt_sin_{k}_rad"]] * sn)
@@ -478,20 +474,21 @@ class _Model:
             th = th + p[ix["transient_tilt_rad"]] * e
             ph = ph + p[ix["transient_azimuth_rad"]] * e
         if s.sidebands:
-            psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
+            psi = self.nutation_phase(p, tau)
             env1 = self.envelope(p, tau)
             for side, sign in (("upper", 1.0), ("lower", -1.0)):
                 arg = psi + sign * p[ix["precession_rate_rad_s"]] * tau
                 c, sn = env1 * np.cos(arg), env1 * np.sin(arg)
                 th = th + p[ix[f"tilt_{side}_cos_rad"]] * c + p[ix[f"tilt_{side}_sin_rad"]] * sn
                 ph = ph + p[ix[f"azimuth_{side}_cos_rad"]] * c + p[ix[f"azimuth_{side}_sin_rad"]] * sn
-        for stem, factor, power in self._nutation_extras(tau):
-            f = factor * self.envelope(p, tau) ** power
-            psi = self.nutation_phase(p, tau)
+        extras = self._nutation_extras(tau)
+        if extras:
+            env1, psi = self.envelope(p, tau), self.nutation_phase(p, tau)
+        for stem, unit, factor, power in extras:
+            f = factor * env1**power
             c, sn = f * np.cos(psi), f * np.sin(psi)
-            u = self._unit(stem)
-            th = th + p[ix[f"tilt_{stem}_cos_{u}"]] * c + p[ix[f"tilt_{stem}_sin_{u}"]] * sn
-            ph = ph + p[ix[f"azimuth_{stem}_cos_{u}"]] * c + p[ix[f"azimuth_{stem}_sin_{u}"]] * sn
+            th = th + p[ix[f"tilt_{stem}_cos_{unit}"]] * c + p[ix[f"tilt_{stem}_sin_{unit}"]] * sn
+            ph = ph + p[ix[f"azimuth_{stem}_cos_{unit}"]] * c + p[ix[f"azimuth_{stem}_sin_{unit}"]] * sn
         if s.precession_second:
             c2, s2 = np.cos(2 * p[ix["precession_rate_rad_s"]] * tau), np.sin(2 * p[ix["precession_rate_rad_s"]] * tau)
             th = th + p[ix["tilt_precession2_cos_rad"]] * c2 + p[ix["tilt_precession2_sin_rad"]] * s2
@@ -517,12 +514,10 @@ class _Model:
             dth[:, ix["tilt_growth_curvature_per_s2"]] = tau**2 * e
             dph[:, ix["precession_acceleration_rad_s2"]] = 0.5 * tau**2
         if s.harmonics:
-            w = p[ix["nutation_frequency_rad_s"]]
             dt0 = tau - s.nutation_origin_s
             env1 = self.envelope(p, tau) if s.damped else np.ones_like(tau)
-            psi = w * tau
+            psi = self.nutation_phase(p, tau)
             if s.damped:
-                psi = psi + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
                 env2 = env1 * env1
                 a0, c0 = p[ix["tilt_decaying_offset_rad"]], p[ix["azimuth_decaying_offset_rad"]]
                 dth[:, ix["tilt_decaying_offset_rad"]] = env2
@@ -549,12 +544,7 @@ class _Model:
                     dph[:, ix["nutation_decay_rate_per_s"]] += -k * dt0 * env * (cc * c + dd * sn)
                     env = env * env1
         if s.damped and s.fit_axis:
-            w = p[ix["precession_rate_rad_s"]]
-            c, sn = np.cos(w * tau), np.sin(w * tau)
-            a, b = p[ix["azimuth_precession_cos_rad"]], p[ix["azimuth_precession_sin_rad"]]
-            dph[:, ix["azimuth_precession_cos_rad"]] = c
-            dph[:, ix["azimuth_precession_sin_rad"]] = sn
-            dph[:, ix["precession_rate_rad_s"]] += tau * (-a * sn + b * c)
+            self._sinusoid_columns(p, tau, dth, dph, "precession_rate_rad_s", "precession")
         if s.persistent:
             self._sinusoid_columns(p, tau, dth, dph, "persistent_frequency_rad_s", "persistent")
         if s.transient:
@@ -568,7 +558,7 @@ class _Model:
             dth[:, ix["transient_rate_logit"]] = -dk * dt0 * e * p[ix["transient_tilt_rad"]]
             dph[:, ix["transient_rate_logit"]] = -dk * dt0 * e * p[ix["transient_azimuth_rad"]]
         if s.sidebands:
-            psi = p[ix["nutation_frequency_rad_s"]] * tau + 0.5 * p[ix["nutation_chirp_rad_s2"]] * tau**2
+            psi = self.nutation_phase(p, tau)
             dt0 = tau - s.nutation_origin_s
             env1 = self.envelope(p, tau)
             for side, sign in (("upper", 1.0), ("lower", -1.0)):
@@ -585,13 +575,15 @@ class _Model:
                     d[:, ix["nutation_decay_rate_per_s"]] += -dt0 * (a * c + b * sn)
         if s.precession_second:
             self._sinusoid_columns(p, tau, dth, dph, "precession_rate_rad_s", "precession2", factor=2.0)
-        dt0 = tau - s.nutation_origin_s
-        for stem, factor, power in self._nutation_extras(tau):
-            f = factor * self.envelope(p, tau) ** power
-            psi = self.nutation_phase(p, tau)
+        extras = self._nutation_extras(tau)
+        if extras:
+            dt0 = tau - s.nutation_origin_s
+            env1, psi = self.envelope(p, tau), self.nutation_phase(p, tau)
+        for stem, unit, factor, power in extras:
+            f = factor * env1**power
             c, sn = f * np.cos(psi), f * np.sin(psi)
             for d, q in ((dth, "tilt"), (dph, "azimuth")):
-                nc, ns = f"{q}_{stem}_cos_{self._unit(stem)}", f"{q}_{stem}_sin_{self._unit(stem)}"
+                nc, ns = f"{q}_{stem}_cos_{unit}", f"{q}_{stem}_sin_{unit}"
                 a, b = p[ix[nc]], p[ix[ns]]
                 d[:, ix[nc]] = c
                 d[:, ix[ns]] = sn
@@ -601,36 +593,37 @@ class _Model:
                 d[:, ix["nutation_decay_rate_per_s"]] += -power * dt0 * (a * c + b * sn)
         return dth, dph
 
-    def _nutation_extras(self, tau: np.ndarray) -> list[tuple[str, np.ndarray, int]]:
-        """Damped-nutation terms at the fundamental beyond the harmonics: (stem, factor, envelope power).
+    def _nutation_extras(self, tau: np.ndarray) -> list[tuple[str, str, np.ndarray, int]]:
+        """Damped-nutation terms at the fundamental beyond the harmonics:
+        (name stem, amplitude unit, factor, envelope power).
 
         ``shape_drift``: ``(tau - tau0) e^{-mu (tau - tau0)}`` (the coefficients drift linearly);
         ``third_order``: ``e^{-3 mu (tau - tau0)}`` (third order in the amplitude)."""
         s = self.spec
         out = []
         if s.shape_drift:
-            out.append(("drift", tau - s.nutation_origin_s, 1))
+            out.append(("drift", "rad_s", tau - s.nutation_origin_s, 1))
         if s.third_order:
-            out.append(("third", np.ones_like(tau), 3))
+            out.append(("third", "rad", np.ones_like(tau), 3))
         return out
 
-    @staticmethod
-    def _unit(stem: str) -> str:
-        return "rad_s" if stem == "drift" else "rad"
-
     def _sinusoid_columns(self, p, tau, dth, dph, freq: str, stem: str, factor: float = 1.0) -> None:
-        """Columns of a pair of sinusoids ``X_cos cos(f w tau) + X_sin sin(f w tau)`` in tilt and azimuth.
+        """Columns of a pair of sinusoids ``X_cos cos(f w tau) + X_sin sin(f w tau)`` in tilt and azimuth
+        (or in the azimuth only, when the model has no tilt pair).
 
         ``stem`` names the amplitudes (``tilt_<stem>_cos_rad`` ..., or ``<stem>_tilt_cos_rad``
         ...); their derivative with respect to the frequency parameter ``freq`` is added.
         """
         ix = self.index
+        prefixed = f"azimuth_{stem}_cos_rad" in ix
         names = ([f"tilt_{stem}_cos_rad", f"tilt_{stem}_sin_rad", f"azimuth_{stem}_cos_rad", f"azimuth_{stem}_sin_rad"]
-                 if f"tilt_{stem}_cos_rad" in ix else
+                 if prefixed else
                  [f"{stem}_tilt_cos_rad", f"{stem}_tilt_sin_rad", f"{stem}_azimuth_cos_rad", f"{stem}_azimuth_sin_rad"])
         w = factor * p[ix[freq]]
         c, sn = np.cos(w * tau), np.sin(w * tau)
         for d, (nc, ns) in ((dth, names[:2]), (dph, names[2:])):
+            if nc not in ix:
+                continue
             d[:, ix[nc]] = c
             d[:, ix[ns]] = sn
             d[:, ix[freq]] += factor * tau * (-p[ix[nc]] * sn + p[ix[ns]] * c)
@@ -871,7 +864,8 @@ def _solve(spec: ModelSpec, data: FitData, start: dict[str, float]) -> _Solved:
     if n_res <= len(x0):
         raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
     # Levenberg-Marquardt with a modest budget, then undamped Gauss-Newton; again from there
-    # while the gradient has not vanished (LM alone can crawl for 10^4 steps in these models)
+    # until one more step would move no parameter by STATIONARY_STEP_SE (LM alone can crawl
+    # for 10^4 steps in these models).
     # Where the model is far from quadratic over one standard error (a term whose amplitude is
     # ~0 leaves its rate free), the Gauss-Newton step can point 1 s.e. away while no step
     # lowers the chi-square: a round of both solvers that gains nothing also ends it.
@@ -1117,7 +1111,7 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                                        "nutation sidebands at the nutation frequency +- the precession rate (damping "
                                        "about the lab vertical modulates the nutation)")
         if spec0.damped:
-            best = _without_unresolved_persistent(best, data, notes, sel)
+            best = _prune_persistent(best, data, notes, sel)
         if reason is not None:
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
@@ -1158,7 +1152,7 @@ def _persistent_unresolved(sol: _Solved, data: FitData, sel: _Selector) -> bool:
     return phase_uncertainty(sol.spec, sol.x, sol.cov, data)["persistent_frequency_rad_s"] > NONLINEAR_PHASE_RAD
 
 
-def _without_unresolved_persistent(best: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
+def _prune_persistent(best: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
     """Take the persistent oscillation out again when, with the terms added after it, the record
     no longer resolves its frequency or no longer needs it (it was tried before the transient
     and the axis terms, and can stand in for them).  A free frequency needs a clear detection
