@@ -195,7 +195,52 @@ def test_planned_terms_give_every_record_of_a_scene_the_same_model():
         assert any("test plan" in n for n in r.notes)
         lam = r.quantities["tilt_growth_rate_per_s"]
         assert abs(lam.pull) < 4
-    assert specs == {replace(terms, source="")}
+    assert specs == {replace(terms, source="", left_out_noncentrality=())}
+    # the plan says how strongly the noiseless motion showed each term it left out
+    left_out = dict(terms.left_out_noncentrality)
+    assert left_out and all(v >= 0 for v in left_out.values())
+    assert all(k == "harmonics" or not getattr(terms, k) for k in left_out)
+
+
+def test_a_term_the_plan_weighed_needs_more_than_the_plan_expected():
+    from scipy.stats import chi2, ncx2
+
+    from gyrorig.fit import TERM_P_VALUE, _Selector
+
+    planned = FitTerms(harmonics=3, shape_drift=True, left_out_noncentrality=(("persistent", 21.0),))
+    sel = _Selector(terms=planned)
+    # a term the plan did not weigh: the p-value test; one it weighed: the same tail of the
+    # non-central chi-square its noiseless motion predicts (64 for 5 parameters at lambda 21)
+    assert sel.need(4, "transient") == pytest.approx(chi2.isf(TERM_P_VALUE, 4))
+    assert sel.need(5, "persistent") == pytest.approx(ncx2.isf(TERM_P_VALUE, 5, 21.0))
+    assert 60 < sel.need(5, "persistent") < 70
+    assert _Selector().need(5, "persistent") == pytest.approx(chi2.isf(TERM_P_VALUE, 5))
+    # noiseless planning keeps its own rule
+    assert _Selector(terms=planned, noncentrality=1.0).need(5, "persistent") == 1.0
+
+
+def test_the_drifting_shape_leaves_the_nutation_frequency_and_decay_to_the_fundamental():
+    # B2 over 2 s through its camera at 640x480: the nutation's shape drifts (planned), but a drift of
+    # all four fundamental coefficients would also be, to first order, a change of the decay rate
+    # and of the frequency; the two-parameter shape drift must not take their information
+    # (with four coefficients the frequency's standard error was 4.5x and the decay rate's 23x larger)
+    from gyrorig.camera import with_image_size
+    from gyrorig.plan import _expected_angles
+
+    p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
+    pred = predict(p, simulate_damping=False)
+    angles = _expected_angles(p, 2.0).angles
+    fit = fit_angles(angles, p, prediction=pred, check_residuals=False,
+                     terms=FitTerms(harmonics=3, third_order=True, shape_drift=True))
+    assert fit.spec.shape_drift
+    # the Cramer-Rao bound of the same model without the drift, at the same motion
+    data = fit_data_from_angles(angles, None, model_for_scene(p, pred).precession_hint_rad_s)
+    bare = _Model(replace(fit.spec, shape_drift=False))
+    _, white = _residual_fn(bare, data)
+    J = white.jac(np.array([fit.params[n][0] for n in bare.names]))
+    se_bare = dict(zip(bare.names, np.sqrt(np.diag(np.linalg.inv(J.T @ J)))))
+    for name in ("nutation_frequency_rad_s", "nutation_decay_rate_per_s"):
+        assert fit.params[name][1] < 1.2 * se_bare[name], name
 
 
 def test_a_term_the_data_need_beyond_the_plan_is_added_and_said():
@@ -227,6 +272,12 @@ def test_fit_terms_round_trip_and_refuse_bad_keys_by_name():
         FitTerms.from_dict({"harmonics": 9})
     with pytest.raises(ValueError, match="transient must be true or false"):
         FitTerms.from_dict({"transient": "yes"})
+    t = FitTerms(harmonics=2, left_out_noncentrality=(("persistent", 18.5), ("harmonics", 0.2)))
+    assert FitTerms.from_dict(t.as_dict()) == t and t.as_dict()["left_out_noncentrality"]["persistent"] == 18.5
+    with pytest.raises(ValueError, match="left_out_noncentrality has unknown term 'wobble'"):
+        FitTerms.from_dict({"left_out_noncentrality": {"wobble": 1.0}})
+    with pytest.raises(ValueError, match="left_out_noncentrality.persistent must be a number >= 0"):
+        FitTerms.from_dict({"left_out_noncentrality": {"persistent": -1}})
     p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     angles, _ = _noisy(p, 0.5)
     with pytest.raises(ValueError, match="terms must be one of data, noiseless"):
@@ -257,23 +308,20 @@ def test_damped_fit_ends_at_a_stationary_point_of_the_chi_square():
 
 
 def test_a_record_too_short_for_the_model_is_flagged_not_trusted():
-    # the accelerated pivot over 1.5 s (0.4 precession periods) with a persistent oscillation in
-    # the (planned) model: its frequency is known only to ~1 rad of phase over the record, so the
-    # least-squares errors are not Cramer-Rao bounds (runs scatter beyond them); B2 over the
-    # same 2 s is resolved
+    # B2 over 0.4 s (4 nutation periods) with a persistent oscillation in the (planned) model: its
+    # frequency is known only to ~0.7 rad of phase over the record, so the least-squares errors
+    # are not Cramer-Rao bounds (runs scatter beyond them); the same rig over 2 s is resolved
     from gyrorig.camera import with_image_size
     from gyrorig.fit import NONLINEAR_PHASE_RAD
     from gyrorig.plan import _expected_angles
 
-    p = with_image_size(load_protocol(PROTOCOL_DIR / "accelerated-pivot.toml"), 640, 480)
-    pred = predict(p, simulate_damping=False)
+    b2 = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
+    pred = predict(b2, simulate_damping=False)
     planned = FitTerms(harmonics=3, persistent=True)
-    short = fit_angles(_expected_angles(p, 1.5).angles, p, prediction=pred, terms=planned, check_residuals=False)
+    short = fit_angles(_expected_angles(b2, 0.4).angles, b2, prediction=pred, terms=planned, check_residuals=False)
     assert short.spec.persistent and not short.linear_regime
     assert short.phase_uncertainty_rad["persistent_frequency_rad_s"] > NONLINEAR_PHASE_RAD
     assert any("too short for this model" in n and "persistent_frequency_rad_s" in n for n in short.notes)
     assert short.summary()["model"]["linear_regime"] is False
-    b2 = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
-    ok = fit_angles(_expected_angles(b2, 2.0).angles, b2, prediction=predict(b2, simulate_damping=False),
-                    terms="noiseless", check_residuals=False)
+    ok = fit_angles(_expected_angles(b2, 2.0).angles, b2, prediction=pred, terms="noiseless", check_residuals=False)
     assert ok.spec.shape_drift and ok.linear_regime and not any("too short" in n for n in ok.notes)

@@ -120,6 +120,9 @@ def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):
     assert main(["plan", str(proto), "--duration", "1.5", "--out", str(tmp_path / "plan")]) == 0
     terms = json.loads((tmp_path / "plan" / "plan.json").read_text())["fit_terms"]
     assert terms["harmonics"] >= 1 and "1.5 s records" in terms["source"]
+    # what the plan left out, with the chi-square change each would make on its noiseless record
+    assert isinstance(terms["left_out_noncentrality"], dict)
+    assert all(not terms.get(k) or k == "harmonics" for k in terms["left_out_noncentrality"])
     # a record of that length through that camera (simulated motion + the planned per-frame noise)
     ex = _expected_angles(load_protocol(proto), 1.5)
     e = np.einsum("nij,nj->ni", np.linalg.cholesky(ex.cov), np.random.default_rng(1).standard_normal((len(ex.theta), 2)))

@@ -58,7 +58,7 @@ import pandas as pd
 from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 from scipy.special import expit
-from scipy.stats import chi2
+from scipy.stats import chi2, ncx2
 
 from .protocols import Protocol
 from .smooth import measurement_covariance
@@ -66,7 +66,8 @@ from .smooth import measurement_covariance
 logger = logging.getLogger(__name__)
 
 __all__ = ["FitError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "model_for_scene",
-           "fit_data_from_angles", "fit_angles", "fit_model", "plan_terms", "phase_uncertainty", "QUANTITY_UNITS"]
+           "fit_data_from_angles", "fit_angles", "fit_model", "plan_terms", "phase_uncertainty", "left_out_noncentrality",
+           "OPTIONAL_TERMS", "QUANTITY_UNITS"]
 
 QUANTITY_UNITS = {
     "precession_rate_rad_s": "rad/s",
@@ -90,6 +91,19 @@ FREE_FREQUENCY_NONCENTRALITY = 25.0
 #: nutation counts as resolved by the camera below this fraction of the Nyquist frequency
 NYQUIST_FRACTION = 0.9
 MAX_HARMONICS = 6
+#: the drifting nutation shape's two parameters (real and imaginary part of ``s``, 1/s).  With the
+#: fundamental written as complex amplitudes ``z_t = a - i b`` (tilt) and ``z_p = c - i d`` (azimuth),
+#: the shape drift adds ``(tau - tau0) e^{-mu (tau - tau0)} Re[u e^{i psi}]`` with
+#: ``(u_t, u_p) = s (-conj(z_p), conj(z_t))``: the complex direction orthogonal to ``(z_t, z_p)``.
+#: A drift along ``(z_t, z_p)`` itself (four free coefficients) is, to first order, a change of the
+#: decay rate (real ``s``) or of the nutation frequency (imaginary ``s``): with it, those two were
+#: fixed only by the weak higher-order terms (the accelerated pivot over 5.7 s: the nutation
+#: frequency's standard error 23x, the decay rate's 36x larger) and the fit was not linear over one
+#: standard error.
+SHAPE_DRIFT_NAMES = ("shape_drift_re_per_s", "shape_drift_im_per_s")
+#: the optional terms of a damped model beyond the nutation harmonics, in the order they are tried
+#: (the nutation's own slow changes first: the later terms could otherwise stand in for them)
+OPTIONAL_TERMS = ("shape_drift", "third_order", "persistent", "transient", "precession_second", "sidebands")
 #: Levenberg-Marquardt tolerances (xtol, ftol, gtol); undamped Gauss-Newton steps finish the job
 LM_TOL = 1e-9
 #: a solution counts as converged when a further Gauss-Newton step would move no parameter by
@@ -141,8 +155,10 @@ class ModelSpec:
     #: three times as fast (the nutation's shape depends on its amplitude, so the ratio of its
     #: tilt and azimuth parts drifts as it decays; B2 rig over 4 s at full resolution)
     third_order: bool = False
-    #: the damped nutation's shape drifts: its fundamental's coefficients change linearly in time
-    #: (the mode shape depends on the tilt, which drifts; first order, like the frequency chirp)
+    #: the damped nutation's shape drifts: the ratio and relative phase of its tilt and azimuth parts
+    #: change linearly in time (the mode shape depends on the tilt, which drifts; first order, like
+    #: the frequency chirp).  Two parameters: a drift of all four fundamental coefficients would
+    #: contain the fundamental's own decay and frequency (see :data:`SHAPE_DRIFT_NAMES`)
     shape_drift: bool = False
     #: nuisance parameters for the camera model's uncertainty (one per mode, unit prior)
     camera_modes: int = 0
@@ -180,7 +196,7 @@ class ModelSpec:
             for side in ("upper", "lower"):
                 n += [f"tilt_{side}_cos_rad", f"tilt_{side}_sin_rad", f"azimuth_{side}_cos_rad", f"azimuth_{side}_sin_rad"]
         if self.shape_drift:
-            n += ["tilt_drift_cos_rad_s", "tilt_drift_sin_rad_s", "azimuth_drift_cos_rad_s", "azimuth_drift_sin_rad_s"]
+            n += list(SHAPE_DRIFT_NAMES)
         if self.third_order:
             n += ["tilt_third_cos_rad", "tilt_third_sin_rad", "azimuth_third_cos_rad", "azimuth_third_sin_rad"]
         if self.precession_second:
@@ -209,15 +225,32 @@ class FitTerms:
     shape_drift: bool = False
     #: where the terms come from (for the report)
     source: str = ""
+    #: for each optional term the plan left out, the chi-square change it made on the plan's noiseless
+    #: record (its expected non-centrality; ``harmonics``: the next harmonic): a record adds a left-out
+    #: term only when its chi-square gain is improbable (p < TERM_P_VALUE) for that non-centrality
+    left_out_noncentrality: tuple[tuple[str, float], ...] = ()
+
+    def __post_init__(self):
+        # one order, so that equal terms compare equal
+        object.__setattr__(self, "left_out_noncentrality",
+                           tuple(sorted((str(k), float(v)) for k, v in self.left_out_noncentrality)))
 
     @classmethod
-    def of(cls, spec: ModelSpec, source: str = "") -> "FitTerms":
+    def of(cls, spec: ModelSpec, source: str = "", left_out_noncentrality: dict[str, float] | None = None
+           ) -> "FitTerms":
         return cls(harmonics=spec.harmonics, transient=spec.transient, precession_second=spec.precession_second,
                    sidebands=spec.sidebands, persistent=spec.persistent, third_order=spec.third_order,
-                   shape_drift=spec.shape_drift, source=source)
+                   shape_drift=spec.shape_drift, source=source,
+                   left_out_noncentrality=tuple((left_out_noncentrality or {}).items()))
+
+    def noncentrality(self, flag: str) -> float:
+        """The plan's expected chi-square change for a term it left out (0 when it did not measure one)."""
+        return dict(self.left_out_noncentrality).get(flag, 0.0)
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["left_out_noncentrality"] = dict(self.left_out_noncentrality)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "FitTerms":
@@ -229,10 +262,20 @@ class FitTerms:
         h = d.get("harmonics", 0)
         if not isinstance(h, int) or isinstance(h, bool) or not 0 <= h <= MAX_HARMONICS:
             raise ValueError(f"fit terms: harmonics must be an integer in [0, {MAX_HARMONICS}]; got {h!r}")
-        for k in ("transient", "precession_second", "sidebands", "persistent", "third_order", "shape_drift"):
+        for k in OPTIONAL_TERMS:
             if k in d and not isinstance(d[k], bool):
                 raise ValueError(f"fit terms: {k} must be true or false; got {d[k]!r}")
-        return cls(**d)
+        d = dict(d)
+        lam = d.pop("left_out_noncentrality", {}) or {}
+        if not isinstance(lam, dict):
+            raise ValueError(f"fit terms: left_out_noncentrality must be an object {{term: chi-square change}}; got {lam!r}")
+        for k, v in lam.items():
+            if k not in ("harmonics",) + OPTIONAL_TERMS:
+                raise ValueError(f"fit terms: left_out_noncentrality has unknown term {k!r}; allowed: harmonics, "
+                                 + ", ".join(OPTIONAL_TERMS))
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"fit terms: left_out_noncentrality.{k} must be a number >= 0; got {v!r}")
+        return cls(**d, left_out_noncentrality=tuple(lam.items()))
 
     def describe(self) -> str:
         parts = [f"{self.harmonics} nutation harmonic(s)" if self.harmonics else "no nutation"]
@@ -253,8 +296,20 @@ class _Selector:
     #: noiseless data: keep a term whose chi-square change exceeds this (instead of the p-value test)
     noncentrality: float | None = None
 
-    def need(self, ddof: int) -> float:
-        return self.noncentrality if self.noncentrality is not None else float(chi2.isf(TERM_P_VALUE, ddof))
+    def need(self, ddof: int, flag: str = "", k: int = 0) -> float:
+        """The chi-square change that adds a term of ``ddof`` parameters.
+
+        On noisy data: the p < TERM_P_VALUE point of chi-square(ddof); for a term the plan left out
+        although it changed the plan's noiseless chi-square by lambda, the same point of the
+        non-central chi-square(ddof, lambda): a record adds it only when it needs the term more than
+        the plan's own simulated motion does (the plan weighed that term and left it out)."""
+        if self.noncentrality is not None:
+            return self.noncentrality
+        need = float(chi2.isf(TERM_P_VALUE, ddof))
+        lam = 0.0
+        if self.terms is not None and flag and (flag != "harmonics" or k == self.terms.harmonics + 1):
+            lam = self.terms.noncentrality(flag)
+        return max(need, float(ncx2.isf(TERM_P_VALUE, ddof, lam))) if lam > 0 else need
 
     def planned(self, flag: str, k: int = 0) -> bool:
         if self.terms is None:
@@ -270,7 +325,7 @@ class _Selector:
             return False
         if planned:
             return True
-        if ref.chi2 - sol.chi2 > self.need(ref.dof - sol.dof):
+        if ref.chi2 - sol.chi2 > self.need(ref.dof - sol.dof, flag, k):
             if self.terms is not None:
                 notes.append(f"the data need a term the plan did not have ({note}): it is added")
             return True
@@ -481,6 +536,13 @@ class _Model:
                 c, sn = env1 * np.cos(arg), env1 * np.sin(arg)
                 th = th + p[ix[f"tilt_{side}_cos_rad"]] * c + p[ix[f"tilt_{side}_sin_rad"]] * sn
                 ph = ph + p[ix[f"azimuth_{side}_cos_rad"]] * c + p[ix[f"azimuth_{side}_sin_rad"]] * sn
+        if s.shape_drift:
+            f = (tau - s.nutation_origin_s) * self.envelope(p, tau)
+            psi = self.nutation_phase(p, tau)
+            (at, bt, ap, bp), _ = self._shape_drift(p)
+            c, sn = f * np.cos(psi), f * np.sin(psi)
+            th = th + at * c + bt * sn
+            ph = ph + ap * c + bp * sn
         extras = self._nutation_extras(tau)
         if extras:
             env1, psi = self.envelope(p, tau), self.nutation_phase(p, tau)
@@ -575,6 +637,20 @@ class _Model:
                     d[:, ix["nutation_decay_rate_per_s"]] += -dt0 * (a * c + b * sn)
         if s.precession_second:
             self._sinusoid_columns(p, tau, dth, dph, "precession_rate_rad_s", "precession2", factor=2.0)
+        if s.shape_drift:
+            dt0 = tau - s.nutation_origin_s
+            f = dt0 * self.envelope(p, tau)
+            psi = self.nutation_phase(p, tau)
+            c, sn = f * np.cos(psi), f * np.sin(psi)
+            (at, bt, ap, bp), (names, dcoef) = self._shape_drift(p)
+            for j, name in enumerate(names):
+                dth[:, ix[name]] += dcoef[0, j] * c + dcoef[1, j] * sn
+                dph[:, ix[name]] += dcoef[2, j] * c + dcoef[3, j] * sn
+            for d, a, b in ((dth, at, bt), (dph, ap, bp)):
+                dpsi = -a * sn + b * c
+                d[:, ix["nutation_frequency_rad_s"]] += dpsi * tau
+                d[:, ix["nutation_chirp_rad_s2"]] += dpsi * 0.5 * tau**2
+                d[:, ix["nutation_decay_rate_per_s"]] += -dt0 * (a * c + b * sn)
         extras = self._nutation_extras(tau)
         if extras:
             dt0 = tau - s.nutation_origin_s
@@ -594,18 +670,32 @@ class _Model:
         return dth, dph
 
     def _nutation_extras(self, tau: np.ndarray) -> list[tuple[str, str, np.ndarray, int]]:
-        """Damped-nutation terms at the fundamental beyond the harmonics:
+        """Damped-nutation terms at the fundamental beyond the harmonics, with four free coefficients:
         (name stem, amplitude unit, factor, envelope power).
 
-        ``shape_drift``: ``(tau - tau0) e^{-mu (tau - tau0)}`` (the coefficients drift linearly);
         ``third_order``: ``e^{-3 mu (tau - tau0)}`` (third order in the amplitude)."""
         s = self.spec
         out = []
-        if s.shape_drift:
-            out.append(("drift", "rad_s", tau - s.nutation_origin_s, 1))
         if s.third_order:
             out.append(("third", "rad", np.ones_like(tau), 3))
         return out
+
+    def _shape_drift(self, p: np.ndarray) -> tuple[tuple[float, float, float, float], tuple[list[str], np.ndarray]]:
+        """The drifting shape's coefficients of ``f cos psi, f sin psi`` in tilt and azimuth
+        ``(A_t, B_t, A_p, B_p)`` (see :data:`SHAPE_DRIFT_NAMES`), and their derivatives (4 x 6) with
+        respect to the parameters they depend on (``s`` and the fundamental's amplitudes)."""
+        ix = self.index
+        sr, si = (p[ix[n]] for n in SHAPE_DRIFT_NAMES)
+        fund = ["tilt_cos_1_rad", "tilt_sin_1_rad", "azimuth_cos_1_rad", "azimuth_sin_1_rad"]
+        a, b, c, d = (p[ix[n]] for n in fund)
+        # u_t = -s conj(z_p), u_p = s conj(z_t); a term Re[u e^{i psi}] = Re(u) cos psi - Im(u) sin psi
+        coef = (-(sr * c - si * d), sr * d + si * c, sr * a - si * b, -(sr * b + si * a))
+        #              d/d sr, si,  a,   b,   c,   d
+        dcoef = np.array([[-c, d, 0.0, 0.0, -sr, si],
+                          [d, c, 0.0, 0.0, si, sr],
+                          [a, -b, sr, -si, 0.0, 0.0],
+                          [-b, -a, -si, -sr, 0.0, 0.0]])
+        return coef, (list(SHAPE_DRIFT_NAMES) + fund, dcoef)
 
     def _sinusoid_columns(self, p, tau, dth, dph, freq: str, stem: str, factor: float = 1.0) -> None:
         """Columns of a pair of sinusoids ``X_cos cos(f w tau) + X_sin sin(f w tau)`` in tilt and azimuth
@@ -1091,39 +1181,94 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                     cur = None
             if cur is not None:
                 best = cur
-        if spec0.damped and best.spec.harmonics:
-            # the nutation's own slow changes first: terms further down (a persistent
-            # oscillation, a transient) could otherwise stand in for them
-            best = _with_extension(best, data, notes, sel, "shape_drift",
-                                   "a drifting nutation shape (its tilt and azimuth parts change linearly in time "
-                                   "as the tilt drifts)")
-            best = _with_extension(best, data, notes, sel, "third_order",
-                                   "a third-order nutation term decaying three times as fast (the nutation's shape "
-                                   "changes with its amplitude)")
-            best = _with_persistent(best, data, notes, sel)
         if spec0.damped:
-            best = _with_transient(best, data, notes, sel)
-        if spec0.damped and spec0.fit_axis:
-            best = _with_extension(best, data, notes, sel, "precession_second",
-                                   "a second harmonic of the precession (an elliptical cone)")
-            if best.spec.harmonics:
-                best = _with_extension(best, data, notes, sel, "sidebands",
-                                       "nutation sidebands at the nutation frequency +- the precession rate (damping "
-                                       "about the lab vertical modulates the nutation)")
-        if spec0.damped:
-            best = _prune_persistent(best, data, notes, sel)
+            best = _with_optional_terms(best, data, notes, sel)
         if reason is not None:
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
     return best, notes, undetermined
 
 
-def _with_persistent(cur: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
-    """Add a persistent oscillation near the nutation frequency if the data show one (chi-square test).
+_TERM_NOTES = {
+    "shape_drift": "a drifting nutation shape (its tilt and azimuth parts change linearly in time as the tilt drifts)",
+    "third_order": "a third-order nutation term decaying three times as fast (the nutation's shape changes with its "
+                   "amplitude)",
+    "persistent": "a persistent oscillation near the nutation frequency",
+    "transient": "a fast transient from the first frame",
+    "precession_second": "a second harmonic of the precession (an elliptical cone)",
+    "sidebands": "nutation sidebands at the nutation frequency +- the precession rate (damping about the lab vertical "
+                 "modulates the nutation)",
+}
 
-    Under damping the drifting slow mode keeps a small undamped oscillation alive (B2 rig,
-    ~3e-5 rad); started one frequency bin either side of the nutation.
+
+def _term_applies(flag: str, spec: ModelSpec) -> bool:
+    """Whether the optional term ``flag`` can be added to a damped model ``spec`` (and is not in it)."""
+    if getattr(spec, flag):
+        return False
+    if flag in ("shape_drift", "third_order", "persistent") and not spec.harmonics:
+        return False
+    if flag == "precession_second" and not spec.fit_axis:
+        return False
+    if flag == "sidebands" and not (spec.fit_axis and spec.harmonics):
+        return False
+    return True
+
+
+def _with_optional_terms(best: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
+    """A damped model's optional terms (:data:`OPTIONAL_TERMS`), each kept as the selector decides.
+
+    Chosen by the data (or on noiseless planning data), they are tried in order, each against
+    the model so far, and a persistent oscillation is dropped again at the end if the later
+    terms leave it little to do.  With planned terms, the planned model is built first; then
+    each term the plan left out is tried against the whole planned model (not against a part
+    of it, where it could stand in for a planned term that is not yet in), with the threshold
+    of :meth:`_Selector.need`.
     """
+    if sel.terms is None:
+        for flag in OPTIONAL_TERMS:
+            if _term_applies(flag, best.spec):
+                best = _consider_term(best, data, notes, sel, flag)
+        return _prune_persistent(best, data, notes, sel)
+    for flag in OPTIONAL_TERMS:
+        if sel.planned(flag) and _term_applies(flag, best.spec):
+            best = _consider_term(best, data, notes, sel, flag)
+    for flag in OPTIONAL_TERMS:
+        if not sel.planned(flag) and _term_applies(flag, best.spec):
+            best = _consider_term(best, data, notes, sel, flag)
+    return _prune_persistent(best, data, notes, sel)
+
+
+def _consider_term(cur: _Solved, data: FitData, notes: list[str], sel: _Selector, flag: str) -> _Solved:
+    """``cur`` with the optional term ``flag`` if the selector wants it, else ``cur``."""
+    sol, note = _trial_term(cur, data, flag)
+    if flag == "persistent" and _persistent_unresolved(sol, data, sel):
+        return cur
+    if sel.wants(cur, sol, flag, notes, note):
+        notes.append(f"{note}: modelled")
+        return sol
+    return cur
+
+
+def _trial_term(cur: _Solved, data: FitData, flag: str) -> tuple[_Solved, str]:
+    """The fit of ``cur``'s model plus the optional term ``flag`` (or the next nutation harmonic,
+    ``"harmonics"``), started from ``cur``'s solution; and the term's description."""
+    if flag == "persistent":
+        return _trial_persistent(cur, data), _TERM_NOTES[flag]
+    if flag == "transient":
+        return _trial_transient(cur, data)
+    spec_x = replace(cur.spec, harmonics=cur.spec.harmonics + 1) if flag == "harmonics" else \
+        replace(cur.spec, **{flag: True})
+    new = [n for n in _Model(spec_x).names if n not in _Model(cur.spec).index]
+    st, _ = _conditional_amplitudes(spec_x, data, dict(zip(_Model(cur.spec).names, cur.x)), new)
+    note = f"nutation harmonic {spec_x.harmonics}" if flag == "harmonics" else _TERM_NOTES[flag]
+    return _solve(spec_x, data, st), note
+
+
+def _trial_persistent(cur: _Solved, data: FitData) -> _Solved:
+    """Add a persistent oscillation near the nutation frequency, started one frequency bin either side of it.
+
+    Under damping the drifting slow mode can keep a small undamped oscillation alive (B2 rig,
+    ~3e-5 rad, before the drifting-shape term described it)."""
     p_cur = dict(zip(_Model(cur.spec).names, cur.x))
     w_n = p_cur["nutation_frequency_rad_s"]
     trial = []
@@ -1135,14 +1280,7 @@ def _with_persistent(cur: _Solved, data: FitData, notes: list[str], sel: _Select
         st, _ = _conditional_amplitudes(spec_p, data, st, amps)
         trial.append(_solve(spec_p, data, st))
     ok = [s_ for s_ in trial if s_.ok] or trial
-    sol_p = min(ok, key=lambda s_: s_.chi2)
-    note = "a persistent oscillation near the nutation frequency"
-    if _persistent_unresolved(sol_p, data, sel):
-        return cur
-    if sel.wants(cur, sol_p, "persistent", notes, note):
-        notes.append(f"{note} is modelled")
-        return sol_p
-    return cur
+    return min(ok, key=lambda s_: s_.chi2)
 
 
 def _persistent_unresolved(sol: _Solved, data: FitData, sel: _Selector) -> bool:
@@ -1164,35 +1302,27 @@ def _prune_persistent(best: _Solved, data: FitData, notes: list[str], sel: _Sele
     if not sol.ok:
         return best
     gain, ddof = sol.chi2 - best.chi2, sol.dof - best.dof
-    need = max(sel.need(ddof), FREE_FREQUENCY_NONCENTRALITY) if sel.noncentrality is not None else sel.need(ddof)
+    need = sel.need(ddof, "persistent")
+    if sel.noncentrality is not None:
+        need = max(need, FREE_FREQUENCY_NONCENTRALITY)
     unresolved = _persistent_unresolved(best, data, sel)
     if not unresolved and gain > need:
         return best
-    notes[:] = [n for n in notes if not n.startswith("a persistent oscillation")]
+    notes[:] = [n for n in notes if not n.startswith(_TERM_NOTES["persistent"])
+                and not n.endswith(f"({_TERM_NOTES['persistent']}): it is added")]
     why = ("the record does not resolve its frequency" if unresolved else
            f"the other terms leave it little to do (chi-square {gain:+.3g} without it; {need:.3g} needed)")
-    notes.append(f"a persistent oscillation near the nutation frequency is left out: {why}")
+    notes.append(f"{_TERM_NOTES['persistent']} is left out: {why}")
     return sol
 
 
-def _with_extension(cur: _Solved, data: FitData, notes: list[str], sel: _Selector, flag: str, note: str) -> _Solved:
-    """Add the linear-amplitude terms ``flag`` of the spec (started at zero) if the selector wants them."""
-    spec_x = replace(cur.spec, **{flag: True})
-    new = [n for n in _Model(spec_x).names if n not in _Model(cur.spec).index]
-    st, _ = _conditional_amplitudes(spec_x, data, dict(zip(_Model(cur.spec).names, cur.x)), new)
-    sol = _solve(spec_x, data, st)
-    if sel.wants(cur, sol, flag, notes, note):
-        notes.append(f"{note}: modelled")
-        return sol
-    return cur
-
-
-def _with_transient(cur: _Solved, data: FitData, notes: list[str], sel: _Selector) -> _Solved:
-    """Add a fast exponential transient from the first frame if the data show one (chi-square test).
+def _trial_transient(cur: _Solved, data: FitData) -> tuple[_Solved, str]:
+    """Add a fast exponential transient from the first frame.
 
     After release, a damped gyrostat's frame spin relaxes in ``I_frame / c`` (27 ms on the
     bundled rigs), which moves the tip by ~1e-4 rad for a few frames; the rates tried span
-    what a frame rate can see.
+    what a frame rate can see (at least 10 e-folds per record, so that it cannot stand in for
+    the slow terms, at most 3 per frame).
     """
     p_cur = dict(zip(_Model(cur.spec).names, cur.x))
     floor = 10.0 / data.duration_s
@@ -1208,12 +1338,27 @@ def _with_transient(cur: _Solved, data: FitData, notes: list[str], sel: _Selecto
         st, c2 = _conditional_amplitudes(spec_t, data, st, ["transient_tilt_rad", "transient_azimuth_rad"])
         if c2 < best_chi2:
             best_start, best_chi2 = st, c2
-    sol_t = _solve(spec_t, data, best_start)
-    note = f"a fast transient from the first frame (decaying faster than {floor:.3g} 1/s)"
-    if sel.wants(cur, sol_t, "transient", notes, note):
-        notes.append(f"{note} is modelled")
-        return sol_t
-    return cur
+    return _solve(spec_t, data, best_start), f"{_TERM_NOTES['transient']} (decaying faster than {floor:.3g} 1/s)"
+
+
+def left_out_noncentrality(sol: _Solved, data: FitData) -> dict[str, float]:
+    """For a model chosen on noiseless data: the chi-square change each term it left out would make
+    (the next nutation harmonic, and in a damped model the optional terms).  A noisy record of the
+    scene shows these terms with that non-centrality; see :meth:`_Selector.need`."""
+    out = {}
+    spec = sol.spec
+    if spec.harmonics and spec.harmonics < (3 if spec.damped else MAX_HARMONICS) and \
+            (spec.harmonics + 1) * sol.x[_Model(spec).index["nutation_frequency_rad_s"]] < data.nyquist_rad_s:
+        trial, _ = _trial_term(sol, data, "harmonics")
+        if trial.ok:
+            out["harmonics"] = max(sol.chi2 - trial.chi2, 0.0)
+    if spec.damped:
+        for flag in OPTIONAL_TERMS:
+            if _term_applies(flag, spec):
+                trial, _ = _trial_term(sol, data, flag)
+                if trial.ok:
+                    out[flag] = max(sol.chi2 - trial.chi2, 0.0)
+    return out
 
 
 # --------------------------------------------------------------------------------- derived quantities
@@ -1366,7 +1511,7 @@ def plan_terms(data: FitData, scene: SceneModel, source: str = "") -> FitTerms:
     sizeable fraction of its standard error."""
     d = replace(data, camera_shift=None)
     sol, _, _ = fit_model(d, scene, noncentrality=PLANNED_NONCENTRALITY)
-    return FitTerms.of(sol.spec, source)
+    return FitTerms.of(sol.spec, source, left_out_noncentrality(sol, d))
 
 
 TERM_CHOICES = ("data", "noiseless")
@@ -1419,9 +1564,9 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     else:
         sol, notes, undetermined = fit_model(
             data, scene, noncentrality=PLANNED_NONCENTRALITY if terms == "noiseless" else None)
-        terms = FitTerms.of(sol.spec, "chosen by chi-square tests on the data" if terms == "data" else
-                            "chosen on noiseless data (non-centrality above "
-                            f"{PLANNED_NONCENTRALITY:g})")
+        terms = (FitTerms.of(sol.spec, "chosen by chi-square tests on the data") if terms == "data" else
+                 FitTerms.of(sol.spec, f"chosen on noiseless data (non-centrality above {PLANNED_NONCENTRALITY:g})",
+                             left_out_noncentrality(sol, data)))
     notes = pre_notes + notes
     names = _Model(sol.spec).names
     fns = _quantity_functions(sol.spec, names)
