@@ -1027,8 +1027,9 @@ def _gauss_newton_polish(white, x: np.ndarray, r: np.ndarray, J: np.ndarray, max
             break
         for _half in range(12):
             x_new = x + dx
-            r_new = white(x_new)
-            c_new = float(r_new @ r_new)
+            with np.errstate(over="ignore", invalid="ignore"):  # a trial step can overflow: it is then halved
+                r_new = white(x_new)
+                c_new = float(r_new @ r_new)
             if np.isfinite(c_new) and c_new < c:
                 break
             dx = 0.5 * dx
