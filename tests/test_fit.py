@@ -325,3 +325,24 @@ def test_a_record_too_short_for_the_model_is_flagged_not_trusted():
     assert short.summary()["model"]["linear_regime"] is False
     ok = fit_angles(_expected_angles(b2, 2.0).angles, b2, prediction=pred, terms="noiseless", check_residuals=False)
     assert ok.spec.shape_drift and ok.linear_regime and not any("too short" in n for n in ok.notes)
+
+
+def test_persistent_oscillation_score_matches_the_fitted_chi_square_gain():
+    """The score statistic that screens the persistent oscillation (a free frequency) is its
+    chi-square gain to first order: checked against the full nonlinear fit of that term."""
+    from gyrorig.camera import with_image_size
+    from gyrorig.fit import PLANNED_NONCENTRALITY, _persistent_score, _trial_persistent, fit_model
+    from gyrorig.plan import _expected_angles
+
+    p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
+    pred = predict(p, simulate_damping=False)
+    scene = model_for_scene(p, pred)
+    ex = _expected_angles(p, 2.0)
+    data = fit_data_from_angles(ex.angles, None, scene.precession_hint_rad_s)
+    sol, _, _ = fit_model(data, scene, noncentrality=PLANNED_NONCENTRALITY)
+    assert not sol.spec.persistent
+    w, score = _persistent_score(sol, data)
+    trial = _trial_persistent(sol, data, w)
+    assert trial.ok
+    gain = sol.chi2 - trial.chi2
+    assert score > 0.5 and gain == pytest.approx(score, rel=0.1)

@@ -300,7 +300,7 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
-    from .plan import monte_carlo_check, parse_sweep, plan_experiment, plot_sweep, sweep
+    from .plan import DEFAULT_PLAN_DRAWS, monte_carlo_check, parse_sweep, plan_experiment, plot_sweep, sweep
 
     out = Path(args.out) if args.out else None
     if args.sweep:
@@ -320,7 +320,9 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if not args.protocol:
         raise ValueError("plan needs a protocol file")
     protocol = load_protocol(args.protocol)
-    plan = plan_experiment(protocol, duration_s=args.duration)
+    plan = plan_experiment(protocol, duration_s=args.duration,
+                           draws=args.draws if args.draws is not None else DEFAULT_PLAN_DRAWS,
+                           rng=np.random.default_rng(args.seed))
     if args.monte_carlo:
         table = monte_carlo_check(protocol, args.monte_carlo, duration_s=args.mc_duration, scheduler=args.scheduler,
                                   progress=_progress_printer("monte carlo"))
@@ -361,7 +363,17 @@ def _print_plan(plan: dict) -> None:
                 continue
             pe = q.get("paper_vs_exact_in_se")
             print(f"    {name}: {q['simulated']:.6g} +- {q['expected_standard_error']:.2g} {q['units']}"
-                  + (f" (paper {q['predicted_paper']:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else ""))
+                  + (f" (paper {q['predicted_paper']:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else "")
+                  + ("" if q.get("reliable", True) else "  [not reliable at this length]"))
+        draws = rec.get("noisy_draws")
+        if draws and draws["draws"]:
+            rms = draws["rms_departure_se"]
+            print(f"  {draws['draws']} noisy records fitted in full: {draws['draws'] - draws['failed']} converged; "
+                  f"distance from the linearised fit (root mean square) at most "
+                  f"{max(rms.values(), default=0.0):.2g} s.e."
+                  + (f" ({max(rms, key=rms.get)})" if rms else "")
+                  + (": linear over the noise" if draws["ok"] else
+                     f": NOT linear over the noise ({', '.join(draws['nonlinear']) or 'failed draws'})"))
         print(f"  note: {plan['note']}")
     for r in plan["recommendations"]:
         print(f"  - {r}")
@@ -726,6 +738,10 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--json", action="store_true", help="print JSON")
     pl.add_argument("--out", default=None, help="write plan.json (and sweep tables/plots) here")
     pl.add_argument("--duration", type=float, default=None, help="recording length [s] (default: scene.duration_s, at most 20)")
+    pl.add_argument("--draws", type=int, default=None, metavar="N",
+                    help="noisy records fitted in full to check that the fit converges and is linear over the noise "
+                         "at this length (default 8; 0 skips)")
+    pl.add_argument("--seed", type=int, default=0, help="seed of those draws")
     pl.add_argument("--monte-carlo", type=int, default=0, metavar="N",
                     help="confirm the expected errors with N runs of render -> track -> smooth -> fit")
     pl.add_argument("--mc-duration", type=float, default=2.0, help="video length of each Monte Carlo run [s]")
