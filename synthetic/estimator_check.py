@@ -63,6 +63,7 @@ J0 = white0.jac(truth_fit.x)
 cov0 = np.linalg.pinv(J0.T @ J0, rcond=1e-14, hermitian=True)
 fns = F._quantity_functions(truth_fit.spec, model.names)
 L = np.linalg.cholesky(ex.cov)
+respond = F.linear_response(ex.angles, truth_fit, p, prediction=pred)
 
 
 def one(seed: int) -> tuple[int, dict[str, float], dict[str, float], str]:
@@ -70,14 +71,13 @@ def one(seed: int) -> tuple[int, dict[str, float], dict[str, float], str]:
     e = np.einsum("nij,nj->ni", L, np.random.default_rng(100 + seed).standard_normal((len(ex.theta), 2)))
     a = ex.angles.assign(theta_rad=ex.theta + e[:, 0], phi_rad=ex.phi + e[:, 1])
     f = F.fit_angles(a, p, prediction=pred, terms=terms, check_residuals=False)
-    _, white = F._residual_fn(model, F.fit_data_from_angles(a, None, scene.precession_hint_rad_s))
-    x_lin = truth_fit.x - cov0 @ (J0.T @ white(truth_fit.x))
+    lin = respond(a)
     pulls, linear = {}, {}
     for k, q in f.quantities.items():
-        if q.status == "determined" and k in fns:
+        if q.status == "determined" and k in lin:
             t = truth_fit.quantities[k]
             pulls[k] = (q.value - t.value) / q.standard_error
-            linear[k] = (fns[k](x_lin) - t.value) / t.standard_error
+            linear[k] = (lin[k] - t.value) / t.standard_error
     return seed, pulls, linear, "" if f.spec == truth_fit.spec else f"; model differs: {F.FitTerms.of(f.spec).describe()}"
 
 
