@@ -131,6 +131,7 @@ def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
         duration = plan["recording"]["length_for_linear_regime_s"]
         assert duration is not None and duration <= p.scene.duration_s
     table = monte_carlo_check(p, 12, duration_s=duration)
+    print(f"{name}, {duration:g} s:\n{table.to_string()}")  # shown with -s
     assert table.attrs["failed_runs"] == 0 and table.attrs["linear_regime"]
     # 12 runs estimate a spread to ~20 %: the plan must not be optimistic beyond that
     # (measured 0.49-1.43; below 1 where part of the per-frame error repeats in every run)
@@ -138,8 +139,11 @@ def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
         if np.isfinite(row.sd_over_planned):
             assert row.sd_over_planned < 1.8, row
     # every run is fitted with the model the plan chose, so the errors it reports are the plan's
+    # (not for tau = 1/rate: it is reported only in the runs whose rate is not consistent with zero,
+    # and its error, se(rate)/rate^2, is smaller in just those runs)
     for row in table.itertuples():
-        assert 0.8 < row.median_fit_se / row.planned_se < 1.25, row
+        if row.quantity != "tilt_time_constant_s":
+            assert 0.8 < row.median_fit_se / row.planned_se < 1.25, row
 
 
 def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):
