@@ -527,7 +527,9 @@ def summarize_fit_monte_carlo(runs: pd.DataFrame) -> pd.DataFrame:
     efficiency figure; the tracker's own errors are within a few percent of the localisation
     bound (``bench track``).  ``median_se`` is what the fit reported.
     """
-    ok = runs[(runs.get("error", "") == "") & (runs.status == "determined")] if "status" in runs else runs.iloc[0:0]
+    # runs.csv read back gives NaN where a run had no error
+    err = runs["error"].fillna("").astype(str) if "error" in runs else pd.Series("", index=runs.index)
+    ok = runs[(err == "") & (runs.status == "determined")] if "status" in runs else runs.iloc[0:0]
     rows = []
     for (scene, name), g in ok.groupby(["scene", "quantity"], sort=False):
         n = len(g)
@@ -541,7 +543,7 @@ def summarize_fit_monte_carlo(runs: pd.DataFrame) -> pd.DataFrame:
                      "sd_over_crb": sd_est / crb if crb > 0 else math.nan, "median_crb": crb,
                      "median_se": float(np.median(g.standard_error.astype(float))),
                      "bootstrap_runs": int((g.errors.str.startswith("moving-block")).sum())})
-    failed = runs[runs.get("error", pd.Series("", index=runs.index)).fillna("") != ""] if "error" in runs else None
+    failed = runs[err != ""] if "error" in runs else None
     table = pd.DataFrame(rows)
     if failed is not None and len(failed):
         table.attrs["failed_runs"] = int(failed[["scene", "seed"]].drop_duplicates().shape[0])

@@ -322,7 +322,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     protocol = load_protocol(args.protocol)
     plan = plan_experiment(protocol, duration_s=args.duration,
                            draws=args.draws if args.draws is not None else DEFAULT_PLAN_DRAWS,
-                           rng=np.random.default_rng(args.seed))
+                           rng=np.random.default_rng(args.seed), progress=_progress_printer("noisy draws"))
     if args.monte_carlo:
         table = monte_carlo_check(protocol, args.monte_carlo, duration_s=args.mc_duration, scheduler=args.scheduler,
                                   progress=_progress_printer("monte carlo"))

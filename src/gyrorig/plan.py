@@ -170,7 +170,7 @@ def _draw_rng(seed: int, duration_s: float) -> np.random.Generator:
 
 
 def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws: int,
-                 rng: np.random.Generator) -> dict:
+                 rng: np.random.Generator, progress=None) -> dict:
     """Fit ``draws`` noisy versions of the expected record with the planned model.
 
     Each draw adds Gaussian noise with the per-frame covariance to the simulated angles and is
@@ -204,6 +204,8 @@ def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws
         except FitError as exc:
             out["failed"] += 1
             out["failures"].append(f"draw {i + 1}: {exc}")
+            if progress:
+                progress(i + 1, draws)
             continue
         if f.spec != fit.spec:
             out["model_changed"] += 1
@@ -218,6 +220,8 @@ def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws
             departures.setdefault(k, []).append(d)
             if d > out["max_departure_se"]:
                 out["max_departure_se"], out["worst_quantity"] = float(d), k
+        if progress:
+            progress(i + 1, draws)
     out["rms_departure_se"] = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in departures.items()}
     out["nonlinear"] = [k for k, v in out["rms_departure_se"].items() if v > LINEAR_DEPARTURE_SE]
     out["ok"] = out["failed"] == 0 and not out["nonlinear"]
@@ -226,7 +230,7 @@ def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws
 
 def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, prediction: dict | None = None,
                     simulate_damping: bool = True, draws: int = DEFAULT_PLAN_DRAWS,
-                    rng: np.random.Generator | None = None) -> dict:
+                    rng: np.random.Generator | None = None, progress=None) -> dict:
     """What the rig and camera of ``protocol`` will measure (see the module docstring).
 
     Parameters
@@ -237,6 +241,8 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         noise at this length (:func:`_noisy_draws`); 0 skips the check.
     rng : numpy Generator, optional
         Seeds those draws (default: a fixed seed, so a plan is reproducible).
+    progress : callable, optional
+        ``progress(done, total)`` after each draw.
 
     Returns a JSON-ready dict: ``prediction``, ``camera`` (resolution checks),
     ``quantities`` (predicted value, expected standard error, resolvable, reason),
@@ -357,7 +363,8 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         rec.append(f"recording length: {longest[0]:.3g} s for every quantity to reach its target precision "
                    f"(set by {longest[1]}); precession periods in {T:g} s: "
                    f"{recording.get('precession_periods_in_record', float('nan')):.2g}")
-    checks = _noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T)) if fit.linear_regime else None
+    checks = (_noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T), progress)
+              if fit.linear_regime else None)
     if checks is not None:
         out["recording"]["noisy_draws"] = checks
         if checks["model_changed"]:
