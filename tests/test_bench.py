@@ -6,6 +6,7 @@ accuracy and the verdicts.
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from gyrorig.bench import speed_ratio, work_precision, benchmark_top
 from gyrorig.cli import main
@@ -50,8 +51,8 @@ def test_bench_stability_quick_cli(tmp_path, capsys):
     assert auto.set_index("case").loc["damping-faster-than-spin", "resolved_method"] == "gyro-radau"
 
 
-def test_fit_monte_carlo_runs_the_chain_and_summarises():
-    from gyrorig.bench import fit_monte_carlo, summarize_fit_monte_carlo
+def test_fit_monte_carlo_runs_the_chain_and_summarises(tmp_path, capsys):
+    from gyrorig.bench import combine_fit_runs, fit_monte_carlo, summarize_fit_monte_carlo
 
     runs = fit_monte_carlo(["air-cushion-heavy-top"], seeds=2, duration_s=1.0, workers=1)
     assert (runs.error.fillna("") == "").all()
@@ -59,3 +60,16 @@ def test_fit_monte_carlo_runs_the_chain_and_summarises():
     row = table[table.quantity == "precession_rate_rad_s"].iloc[0]
     assert row.runs == 2 and np.isfinite(row.sd_pull) and row.median_se > 0
     assert (runs.truth.notna() & runs.pull.notna()).all()
+
+    # batches written with --out and read back combine to the same table; an overlap is refused
+    for seed in (0, 1):
+        (tmp_path / f"b{seed}").mkdir()
+        runs[runs.seed == seed].to_csv(tmp_path / f"b{seed}" / "runs.csv", index=False)
+    back = summarize_fit_monte_carlo(combine_fit_runs([tmp_path / "b0", tmp_path / "b1" / "runs.csv"]))
+    pd.testing.assert_frame_equal(back, table, check_dtype=False)
+    assert main(["bench", "fit", "--combine", str(tmp_path / "b0"), str(tmp_path / "b1")]) == 0
+    assert "precession_rate_rad_s" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="seed 0 of air-cushion-heavy-top is in more than one batch"):
+        combine_fit_runs([tmp_path / "b0", tmp_path / "b0" / "runs.csv"])
+    with pytest.raises(ValueError, match="no runs.csv"):
+        combine_fit_runs([tmp_path / "nowhere"])

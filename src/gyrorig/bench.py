@@ -447,15 +447,49 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
         fit = fit_angles(angles, p, prediction=prediction, exclude=(sm.table.status == "outlier").to_numpy(),
                          truth=truth, rng=np.random.default_rng(seed), terms=terms)
     except Exception as exc:  # reported in the table, not hidden
-        return [{"scene": scene, "seed": seed, "error": f"{type(exc).__name__}: {exc}"}]
+        return [{"scene": scene, "seed": seed, "duration_s": duration_s, "error": f"{type(exc).__name__}: {exc}"}]
     rows = []
     for name, q in fit.quantities.items():
-        rows.append({"scene": scene, "seed": seed, "quantity": name, "status": q.status, "value": q.value,
+        rows.append({"scene": scene, "seed": seed, "duration_s": duration_s, "quantity": name, "status": q.status,
+                     "value": q.value,
                      "standard_error": q.standard_error, "formal_standard_error": q.formal_standard_error, "truth": q.truth, "pull": q.pull, "chi2_red": fit.chi2_red,
                      "errors": fit.errors, "harmonics": fit.spec.harmonics, "terms": fit.terms.describe(),
                      "wall_s": time.perf_counter() - start,
                      "error": ""})
     return rows
+
+
+def combine_fit_runs(paths: Sequence[str | Path]) -> pd.DataFrame:
+    """Concatenate the ``runs.csv`` of several ``bench fit --out`` batches into one table.
+
+    Each path is a ``runs.csv`` or the folder holding it.  Refuses a seed that appears in two
+    batches for the same scene and record length (it would be counted twice: a seed
+    reproduces its run exactly), and batches of one scene at different lengths.
+    """
+    tables = []
+    for k, path in enumerate(paths):
+        f = Path(path)
+        f = f / "runs.csv" if f.is_dir() else f
+        if not f.is_file():
+            raise ValueError(f"bench fit --combine: {path}: no runs.csv there")
+        t = pd.read_csv(f)
+        missing = {"scene", "seed"} - set(t.columns)
+        if missing:
+            raise ValueError(f"bench fit --combine: {f}: missing column(s) {sorted(missing)}")
+        tables.append(t.assign(batch=k))
+    runs = pd.concat(tables, ignore_index=True)
+    if "duration_s" in runs:
+        lengths = runs.dropna(subset=["duration_s"]).groupby("scene").duration_s.unique()
+        mixed = {s: sorted(v) for s, v in lengths.items() if len(v) > 1}
+        if mixed:
+            raise ValueError(f"bench fit --combine: record lengths differ within a scene: {mixed}")
+    seen = runs[["scene", "seed", "batch"]].drop_duplicates()
+    twice = seen[seen.duplicated(["scene", "seed"], keep=False)]
+    if len(twice):
+        first = twice.iloc[0]
+        raise ValueError(f"bench fit --combine: seed {first.seed} of {first.scene} is in more than one batch "
+                         f"({len(twice)} batch rows overlap); run batches with distinct --first-seed")
+    return runs.drop(columns="batch")
 
 
 def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: int = 40, duration_s: float = 2.0,
@@ -528,7 +562,8 @@ def summarize_fit_monte_carlo(runs: pd.DataFrame) -> pd.DataFrame:
     bound (``bench track``).  ``median_se`` is what the fit reported.
     """
     # runs.csv read back gives NaN where a run had no error
-    err = runs["error"].fillna("").astype(str) if "error" in runs else pd.Series("", index=runs.index)
+    err = (runs["error"].map(lambda v: "" if pd.isna(v) else str(v)) if "error" in runs
+           else pd.Series("", index=runs.index))
     ok = runs[(err == "") & (runs.status == "determined")] if "status" in runs else runs.iloc[0:0]
     rows = []
     for (scene, name), g in ok.groupby(["scene", "quantity"], sort=False):

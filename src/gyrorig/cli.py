@@ -279,16 +279,24 @@ def _cmd_bench_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_fit(args: argparse.Namespace) -> int:
-    from .bench import FIT_MC_SCENES, fit_monte_carlo, summarize_fit_monte_carlo
+    from .bench import FIT_MC_SCENES, combine_fit_runs, fit_monte_carlo, summarize_fit_monte_carlo
 
-    scenes = args.scenes or (FIT_MC_SCENES[:1] if args.quick else FIT_MC_SCENES)
-    seeds = args.seeds if args.seeds is not None else (4 if args.quick else 40)
-    start = time.perf_counter()
-    runs = fit_monte_carlo(scenes, seeds=seeds, duration_s=args.duration, workers=args.workers,
-                           progress=_progress_printer("runs"), first_seed=args.first_seed, terms=args.terms)
-    table = summarize_fit_monte_carlo(runs)
-    print(f"{len(scenes)} scene(s) x {seeds} seeds (from {args.first_seed}), {args.duration:g} s of 640x480 video "
-          f"each, model terms {args.terms}, {time.perf_counter() - start:.0f} s")
+    if args.combine:
+        runs = combine_fit_runs(args.combine)
+        table = summarize_fit_monte_carlo(runs)
+        lengths = (", ".join(f"{s} {d:g} s" for s, d in runs.groupby("scene").duration_s.first().items())
+                   if "duration_s" in runs else "lengths not recorded")
+        print(f"{len(args.combine)} batch(es) combined: {runs.groupby('scene').seed.nunique().to_dict()} seeds "
+              f"({lengths})")
+    else:
+        scenes = args.scenes or (FIT_MC_SCENES[:1] if args.quick else FIT_MC_SCENES)
+        seeds = args.seeds if args.seeds is not None else (4 if args.quick else 40)
+        start = time.perf_counter()
+        runs = fit_monte_carlo(scenes, seeds=seeds, duration_s=args.duration, workers=args.workers,
+                               progress=_progress_printer("runs"), first_seed=args.first_seed, terms=args.terms)
+        table = summarize_fit_monte_carlo(runs)
+        print(f"{len(scenes)} scene(s) x {seeds} seeds (from {args.first_seed}), {args.duration:g} s of 640x480 "
+              f"video each, model terms {args.terms}, {time.perf_counter() - start:.0f} s")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if table.attrs.get("failed_runs"):
         print(f"{table.attrs['failed_runs']} run(s) failed: see runs.csv")
@@ -731,6 +739,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "record length, before the runs; 'data': by chi-square tests in each run")
     bf.add_argument("--quick", action="store_true", help="one scene, 4 seeds")
     bf.add_argument("--out", default=None, help="also write runs.csv and fit.csv here")
+    bf.add_argument("--combine", nargs="+", default=None, metavar="DIR",
+                    help="run nothing: summarise the runs.csv of earlier --out batches together "
+                         "(batches must have distinct seeds)")
     bf.set_defaults(func=_cmd_bench_fit)
 
     pl = sub.add_parser("plan", help="what a rig and camera will measure: resolution, expected errors, advice")
