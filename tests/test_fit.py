@@ -346,3 +346,47 @@ def test_persistent_oscillation_score_matches_the_fitted_chi_square_gain():
     assert trial.ok
     gain = sol.chi2 - trial.chi2
     assert score > 0.5 and gain == pytest.approx(score, rel=0.1)
+
+
+def test_exposure_average_is_modelled_and_the_nutation_amplitude_is_not_shrunk():
+    """A blurred spot's centroid is the tip averaged over the exposure: an oscillation of angular
+    frequency w shrinks by sinc(w T / 2).  With ``exposure_s`` in the angle table the fit models
+    that average and returns the instantaneous amplitude."""
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    fps, exposure, sub = 200.0, 4.0e-3, 64  # 4 ms: 0.24 rad of nutation phase per exposure
+    dense = simulate(p, duration_s=1.02, rate_hz=fps * sub)
+    frames = np.arange(200)
+    # frame i exposes [i/fps, i/fps + T]: mean of the midpoint samples inside (truth at mid-exposure)
+    t_start = frames / fps
+    offsets = (np.arange(sub) + 0.5) / sub * exposure
+    th = np.interp(t_start[:, None] + offsets, dense.t_s, dense.theta_rad)
+    ph = np.interp(t_start[:, None] + offsets, dense.t_s, np.unwrap(dense.phi_rad))
+    t_mid = t_start + exposure / 2
+    sigma = 1e-6
+    base = pd.DataFrame({"frame": frames, "t_s": t_mid, "theta_sigma_rad": sigma, "phi_sigma_rad": sigma,
+                         "theta_phi_corr": 0.0})
+    inst = base.assign(theta_rad=np.interp(t_mid, dense.t_s, dense.theta_rad),
+                       phi_rad=np.interp(t_mid, dense.t_s, np.unwrap(dense.phi_rad)))
+    blurred = base.assign(theta_rad=th.mean(axis=1), phi_rad=ph.mean(axis=1))
+    pred = predict(p, simulate_damping=False)
+    ref = fit_angles(inst, p, prediction=pred, terms="noiseless", check_residuals=False)
+    terms = ref.terms
+    plain = fit_angles(blurred, p, prediction=pred, terms=terms, check_residuals=False)
+    modelled = fit_angles(blurred.assign(exposure_s=exposure), p, prediction=pred, terms=terms,
+                          check_residuals=False)
+    a_ref = ref.quantities["nutation_amplitude_rad"].value
+    w = ref.quantities["nutation_frequency_rad_s"].value
+    shrink = 1 - np.sinc(w * exposure / 2 / np.pi)  # np.sinc(x) = sin(pi x) / (pi x)
+    assert shrink > 1e-3
+    # without the exposure the amplitude shrinks as the sinc says ...
+    got = 1 - plain.quantities["nutation_amplitude_rad"].value / a_ref
+    assert abs(got - shrink) < 0.1 * shrink, (got, shrink)
+    # ... with it the instantaneous amplitude comes back (to 2 % of the shrink), and rates are untouched
+    back = 1 - modelled.quantities["nutation_amplitude_rad"].value / a_ref
+    assert abs(back) < 0.02 * shrink, (back, shrink)
+    for k in ("precession_rate_rad_s", "nutation_frequency_rad_s"):
+        assert abs(modelled.quantities[k].value / ref.quantities[k].value - 1) < 1e-6, k
+    with pytest.raises(FitError, match="exposure_s"):
+        fit_data_from_angles(blurred.assign(exposure_s=-1.0))
+    with pytest.raises(FitError, match="longer than the frame interval"):
+        fit_data_from_angles(blurred.assign(exposure_s=0.05))

@@ -31,6 +31,8 @@ Per frame:
 
 Outputs (``track_video``): ``angles.csv`` (``frame, t_s, theta_rad, phi_rad,
 theta_sigma_rad, phi_sigma_rad, theta_phi_corr, tip_x, tip_y, tip_z, quality``, then
+``exposure_s`` (the camera's exposure; ``t_s`` is its middle, and the angles are those of the
+spot's centroid, i.e. averaged over it: the fit models that average), and
 ``theta_cam_k_rad, phi_cam_k_rad`` for each camera mode) and ``markers.csv`` (raw
 detections: ``frame, t_s, marker, x_px, y_px, sigma_x_px, sigma_y_px, radius_px,
 amplitude_adu, background_adu, chi2_red, quality``).
@@ -1008,6 +1010,7 @@ def track_video(video: str | Path, camera: TrackingCamera, protocol: Protocol, o
         for r_, v_ in psi_rows.items():
             psi_col[r_] = v_
         angles["psi_rad"], angles["psi_sigma_rad"] = psi_col[:, 0], psi_col[:, 1]
+    angles["exposure_s"] = float(camera.exposure_s)
     rows = np.array(sorted(tip_px))
     min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
     modes = camera_modes(np.array([tip_px[r] for r in rows]), camera, spec.length_m, pose_info, min_effect)
