@@ -328,10 +328,12 @@ def test_a_record_too_short_for_the_model_is_flagged_not_trusted():
 
 
 def test_persistent_oscillation_score_matches_the_fitted_chi_square_gain():
-    """The score statistic that screens the persistent oscillation (a free frequency) is its
-    chi-square gain to first order: checked against the full nonlinear fit of that term."""
+    """The score statistics that screen the persistent oscillation (a free frequency) and the fast
+    transient (a free rate) are their chi-square gains to first order: checked against the full
+    nonlinear fit of each term."""
     from gyrorig.camera import with_image_size
-    from gyrorig.fit import PLANNED_NONCENTRALITY, _persistent_score, _trial_persistent, fit_model
+    from gyrorig.fit import (PLANNED_NONCENTRALITY, _persistent_score, _transient_score, _trial_persistent,
+                             _trial_transient, fit_model)
     from gyrorig.plan import _expected_angles
 
     p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
@@ -346,6 +348,12 @@ def test_persistent_oscillation_score_matches_the_fitted_chi_square_gain():
     assert trial.ok
     gain = sol.chi2 - trial.chi2
     assert score > 0.5 and gain == pytest.approx(score, rel=0.1)
+    # the fast transient (a free rate) is screened the same way
+    assert not sol.spec.transient
+    _, score_t = _transient_score(sol, data)
+    trial_t, _ = _trial_transient(sol, data)
+    assert trial_t.ok
+    assert score_t > 0.01 and sol.chi2 - trial_t.chi2 == pytest.approx(score_t, rel=0.1)
 
 
 def test_exposure_average_is_modelled_and_the_nutation_amplitude_is_not_shrunk():

@@ -39,6 +39,8 @@ def test_plan_of_the_air_cushion_rig():
     assert set(draws["rms_departure_se"]) == {"precession_rate_rad_s", "nutation_frequency_rad_s",
                                               "nutation_amplitude_rad", "cone_angle_rad"}
     assert max(draws["rms_departure_se"].values()) < 0.01
+    # the undamped model describes the simulated record (to its harmonics)
+    assert plan["recording"]["model_misfit"]["chi2_per_dof"] < 0.01
     # reproducible: the same seed gives the same draws
     again = plan_experiment(p, duration_s=4.0, simulate_damping=False, rng=np.random.default_rng(0))
     assert again["recording"]["noisy_draws"]["rms_departure_se"] == draws["rms_departure_se"]
@@ -177,3 +179,18 @@ def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):
                  "--terms", str(tmp_path / "nope.json")]) == 2
     assert "--terms" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.slow
+def test_plan_says_when_the_fit_model_does_not_describe_a_long_damped_record():
+    """B2 over 20 s at 1440x1080: the tilt grows by 0.2 rad and the damped model's linear shape
+    drift no longer describes the motion (noiseless chi-square ~4e6 for 8,000 degrees of
+    freedom); the plan must say so, mark its errors not reliable and name a shorter record."""
+    p = load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml")
+    plan = plan_experiment(p, duration_s=20.0)
+    mf = plan["recording"]["model_misfit"]
+    assert mf["chi2_per_dof"] > 1.0
+    assert 0 < mf["adequate_length_s"] < 20.0
+    assert all(not q["reliable"] for q in plan["quantities"].values())
+    assert "noisy_draws" not in plan["recording"]
+    assert any("misses part of the simulated motion" in r for r in plan["recommendations"])

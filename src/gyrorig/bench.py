@@ -454,6 +454,7 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
                      "value": q.value,
                      "standard_error": q.standard_error, "formal_standard_error": q.formal_standard_error, "truth": q.truth, "pull": q.pull, "chi2_red": fit.chi2_red,
                      "errors": fit.errors, "harmonics": fit.spec.harmonics, "terms": fit.terms.describe(),
+                     "added_terms": "; ".join(n for n in fit.notes if "a term the plan did not have" in n),
                      "wall_s": time.perf_counter() - start,
                      "error": ""})
     return rows

@@ -350,6 +350,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _print_plan(plan: dict) -> None:
+    from .plan import MISFIT_NOTE
+
     print(f"plan for {plan['protocol']}")
     cam = plan.get("camera")
     if cam:
@@ -373,6 +375,11 @@ def _print_plan(plan: dict) -> None:
             print(f"    {name}: {q['simulated']:.6g} +- {q['expected_standard_error']:.2g} {q['units']}"
                   + (f" (paper {q['predicted_paper']:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else "")
                   + ("" if q.get("reliable", True) else "  [not reliable at this length]"))
+        mf = rec.get("model_misfit")
+        if mf:
+            print(f"  fit model on the simulated record: chi-square {mf['noiseless_chi2']:.3g} for {mf['dof']} degrees "
+                  f"of freedom ({mf['chi2_per_dof']:.2g} per degree of freedom"
+                  + ("; describes the motion)" if mf["chi2_per_dof"] <= MISFIT_NOTE else "; MISSES part of the motion)"))
         draws = rec.get("noisy_draws")
         if draws and draws["draws"]:
             rms = draws["rms_departure_se"]

@@ -51,6 +51,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
@@ -332,9 +333,37 @@ class _Selector:
             return True
         if ref.chi2 - sol.chi2 > self.need(ref.dof - sol.dof, flag, k):
             if self.terms is not None:
+                grown = _degenerate_growth(ref, sol)
+                if grown is not None:
+                    notes.append(f"the data ask for a term the plan did not have ({note}), but on this record it "
+                                 f"cannot be told apart from the planned model (the error of {grown[0]} would grow "
+                                 f"{grown[1]:.3g}x): it is left out")
+                    return False
                 notes.append(f"the data need a term the plan did not have ({note}): it is added")
             return True
         return False
+
+
+#: an unplanned term that would widen the error of a parameter of the planned model by more than
+#: this factor is not identifiable on the record: it is left out (B2 over 2 s at 640x480, 1 record
+#: in 200: an unplanned persistent oscillation gained chi-square 28 by cancelling against a shape
+#: drift 2e4 times its planned size, widening the amplitude's error 18x)
+DEGENERATE_SE_GROWTH = 5.0
+
+
+def _degenerate_growth(ref: _Solved, sol: _Solved) -> tuple[str, float] | None:
+    """The parameter of ``ref`` whose standard error grows most in ``sol`` (``ref`` plus a term), with
+    the factor, when that exceeds :data:`DEGENERATE_SE_GROWTH`; else None."""
+    names_ref, names_sol = _Model(ref.spec).names, _Model(sol.spec).index
+    worst = (None, 1.0)
+    for i, n in enumerate(names_ref):
+        j = names_sol.get(n)
+        if j is None or not ref.cov[i, i] > 0:
+            continue
+        g = math.sqrt(max(sol.cov[j, j], 0.0) / ref.cov[i, i])
+        if g > worst[1]:
+            worst = (n, g)
+    return worst if worst[0] is not None and worst[1] > DEGENERATE_SE_GROWTH else None
 
 
 @dataclass(frozen=True)
@@ -1309,6 +1338,13 @@ def _consider_term(cur: _Solved, data: FitData, notes: list[str], sel: _Selector
         if score < SCORE_SCREEN_FRACTION * sel.need(5, flag):
             return cur
         sol, note = _trial_persistent(cur, data, w_best), _TERM_NOTES[flag]
+    elif flag == "transient" and not sel.planned(flag) and cur.ok:
+        # likewise: a transient of ~0 amplitude leaves its rate free (a 20 s B2 record: 74 s of
+        # solver for a term that is then rejected); its score over the rates screens it
+        _, score = _transient_score(cur, data)
+        if score < SCORE_SCREEN_FRACTION * sel.need(3, flag):
+            return cur
+        sol, note = _trial_term(cur, data, flag)
     else:
         sol, note = _trial_term(cur, data, flag)
     if flag == "persistent" and _persistent_unresolved(sol, data, sel):
@@ -1338,41 +1374,79 @@ _PERSISTENT_AMPLITUDES = ("persistent_tilt_cos_rad", "persistent_tilt_sin_rad", 
                           "persistent_azimuth_sin_rad")
 
 
-def _persistent_score(cur: _Solved, data: FitData) -> tuple[float, float]:
-    """The frequency near the nutation (within 3 frequency bins ``2 pi / T``) at which a persistent
-    oscillation would lower the chi-square of ``cur`` most, and that drop to first order.
+def _score_over_grid(cur: _Solved, data: FitData, spec_x: ModelSpec, amplitudes: Sequence[str], knob: str,
+                     grid: np.ndarray) -> tuple[float, float]:
+    """Score (Lagrange-multiplier) statistic of a new term whose ``amplitudes`` enter linearly,
+    for each value of its nonlinear parameter ``knob`` on ``grid``; returns the best value and its
+    score.
 
-    For each frequency on a grid of 0.1 bin this is the score (Lagrange-multiplier) statistic of
-    the four amplitudes with every parameter of ``cur`` free: ``g^T M^-1 g`` with ``g = A^T r``
-    and ``M = A^T (1 - P_J) A``, ``A`` the amplitudes' whitened columns, ``P_J`` the projection
-    on ``cur``'s Jacobian, ``r`` its residuals.  It equals the fitted chi-square gain for a small
-    oscillation and is computed without a nonlinear fit.
+    For each value the score is ``g^T M^-1 g`` with ``g = A^T r`` and ``M = A^T (1 - P_J) A``,
+    ``A`` the amplitudes' whitened columns, ``P_J`` the projection on ``cur``'s Jacobian, ``r``
+    its residuals: the chi-square gain to first order with every parameter of ``cur`` free.  It
+    equals the fitted gain for a small term and needs no nonlinear fit.
     """
     model = _Model(cur.spec)
     _, white = _residual_fn(model, data)
     r = white(cur.x)
     Q, _ = np.linalg.qr(white.jac(cur.x))
     r = r - Q @ (Q.T @ r)
-    spec_p = replace(cur.spec, persistent=True)
-    model_p = _Model(spec_p)
-    _, white_p = _residual_fn(model_p, data)
+    model_x = _Model(spec_x)
+    _, white_x = _residual_fn(model_x, data)
     p_cur = dict(zip(model.names, cur.x))
-    w_n = p_cur["nutation_frequency_rad_s"]
-    cols = [model_p.index[k] for k in _PERSISTENT_AMPLITUDES]
-    bin_w = 2 * np.pi / data.duration_s
-    best = (w_n + bin_w, -math.inf)
-    for dw in np.arange(-3.0, 3.0001, 0.1) * bin_w:
-        if abs(dw) < 1e-9:
-            continue
-        x = np.array([p_cur.get(n, 0.0) for n in model_p.names])
-        x[model_p.index["persistent_frequency_rad_s"]] = w_n + dw
-        A = white_p.jac(x)[:, cols]
-        A = A - Q @ (Q.T @ A)
-        g = A.T @ r
-        score = float(g @ np.linalg.lstsq(A.T @ A, g, rcond=1e-10)[0])
+    cols = [model_x.index[k] for k in amplitudes]
+    best = (float(grid[0]), -math.inf)
+    for v in grid:
+        x = np.array([p_cur.get(n, 0.0) for n in model_x.names])
+        x[model_x.index[knob]] = v
+        A0 = white_x.jac(x)[:, cols]
+        norms = np.linalg.norm(A0, axis=0)
+        norms[norms == 0] = 1.0
+        A = A0 - Q @ (Q.T @ A0)
+        # directions of the term that the model already spans (to 1e-6 of the columns' size: the
+        # projection leaves ~1e-12 of rounding) can gain nothing; without the cut, noise over
+        # noise (e.g. a transient as slow as the record, 2.7e6 for a term that gains nothing)
+        U, sv, _ = np.linalg.svd(A / norms, full_matrices=False)
+        keep = sv > 1e-6
+        score = float(np.sum((U[:, keep].T @ r) ** 2))
         if score > best[1]:
-            best = (w_n + dw, score)
+            best = (float(v), score)
     return best
+
+
+def _persistent_score(cur: _Solved, data: FitData) -> tuple[float, float]:
+    """The frequency near the nutation (within 3 frequency bins ``2 pi / T``) at which a persistent
+    oscillation would lower the chi-square of ``cur`` most, and that drop to first order
+    (:func:`_score_over_grid` on a grid of 0.1 bin)."""
+    w_n = float(cur.x[_Model(cur.spec).index["nutation_frequency_rad_s"]])
+    bin_w = 2 * np.pi / data.duration_s
+    grid = np.array([w_n + dw for dw in np.arange(-3.0, 3.0001, 0.1) * bin_w if abs(dw) > 1e-9])
+    return _score_over_grid(cur, data, replace(cur.spec, persistent=True), _PERSISTENT_AMPLITUDES,
+                            "persistent_frequency_rad_s", grid)
+
+
+def _transient_spec(cur: _Solved, data: FitData) -> ModelSpec:
+    """``cur``'s model plus the fast transient, its rate bounded to what the record can see: at
+    least 10 e-folds per record (so that it cannot stand in for the slow terms), at most 3 per frame."""
+    floor = 10.0 / data.duration_s
+    dt = float(np.median(np.diff(data.t_s)))
+    cap = max(3.0 / dt, 2 * floor)
+    return replace(cur.spec, transient=True, transient_min_rate_per_s=floor, transient_max_rate_per_s=cap)
+
+
+def _transient_logit(spec_t: ModelSpec, rate_per_s: float) -> float:
+    lo, hi = spec_t.transient_min_rate_per_s, spec_t.transient_max_rate_per_s
+    frac = (rate_per_s - lo) / (hi - lo)
+    return math.log(frac / (1 - frac))
+
+
+def _transient_score(cur: _Solved, data: FitData) -> tuple[float, float]:
+    """The transient's rate logit (over 48 rates spanning its range) at which it would lower the
+    chi-square of ``cur`` most, and that drop to first order (:func:`_score_over_grid`)."""
+    spec_t = _transient_spec(cur, data)
+    lo, hi = spec_t.transient_min_rate_per_s, spec_t.transient_max_rate_per_s
+    grid = np.array([_transient_logit(spec_t, k) for k in np.geomspace(1.02 * lo, 0.98 * hi, 48)])
+    return _score_over_grid(cur, data, spec_t, ("transient_tilt_rad", "transient_azimuth_rad"),
+                            "transient_rate_logit", grid)
 
 
 def _trial_persistent(cur: _Solved, data: FitData, w_start: float | None = None) -> _Solved:
@@ -1438,15 +1512,12 @@ def _trial_transient(cur: _Solved, data: FitData) -> tuple[_Solved, str]:
     the slow terms, at most 3 per frame).
     """
     p_cur = dict(zip(_Model(cur.spec).names, cur.x))
-    floor = 10.0 / data.duration_s
-    dt = float(np.median(np.diff(data.t_s)))
-    cap = max(3.0 / dt, 2 * floor)
-    spec_t = replace(cur.spec, transient=True, transient_min_rate_per_s=floor, transient_max_rate_per_s=cap)
+    spec_t = _transient_spec(cur, data)
+    floor, cap = spec_t.transient_min_rate_per_s, spec_t.transient_max_rate_per_s
     # the amplitudes are linear: solve them for a ladder of rates, start from the best rate
     best_start, best_chi2 = None, math.inf
     for kappa in np.geomspace(1.05 * floor, 0.95 * cap, 16):
-        frac = (kappa - floor) / (cap - floor)
-        st = dict(p_cur, transient_rate_logit=math.log(frac / (1 - frac)), transient_tilt_rad=0.0,
+        st = dict(p_cur, transient_rate_logit=_transient_logit(spec_t, kappa), transient_tilt_rad=0.0,
                   transient_azimuth_rad=0.0)
         st, c2 = _conditional_amplitudes(spec_t, data, st, ["transient_tilt_rad", "transient_azimuth_rad"])
         if c2 < best_chi2:

@@ -63,6 +63,15 @@ DEFAULT_PLAN_DRAWS = 8
 #: pivot over 5.7 s at 640x480: largest of 7 quantities per record, median 0.02, at most 0.09 in 200
 #: records)
 LINEAR_DEPARTURE_SE = 0.3
+#: the fit model "misses part of the motion" when its fit to the simulated (noiseless) record
+#: leaves a chi-square above this fraction of the degrees of freedom: real records then show a
+#: reduced chi-square of about 1 + this, residuals that are not white, and quantities that can be
+#: off by up to sqrt(chi-square) standard errors (the accelerated pivot over 5.7 s at 1440x1080:
+#: 0.17, with lag-1 residual correlation 0.19 and bootstrap errors)
+MISFIT_NOTE = 0.1
+#: above this the model does not describe the record at all (B2 over 20 s at 1440x1080: 441,
+#: against 0.02 over 4 s): every expected error is marked not reliable and a shorter record named
+MISFIT_LIMIT = 1.0
 _T_EXPONENT = {"nutation_amplitude_rad": 0.5, "cone_angle_rad": 0.5, "equilibrium_tilt_rad": 0.5,
                "equilibrium_azimuth_rad": 0.5}
 
@@ -320,6 +329,7 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
 
     # the expected errors: Cramer-Rao bound of the fit model for this motion and camera
     fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
+    misfit = {"noiseless_chi2": float(fit.chi2), "dof": int(fit.dof), "chi2_per_dof": float(fit.chi2 / max(fit.dof, 1))}
     quantities = {}
     recording = {}
     for name, q in fit.quantities.items():
@@ -354,7 +364,7 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     out["note"] = ("expected errors are statistical (Cramer-Rao) bounds for the camera's per-frame localisation "
                    "limit; camera-model systematics (calibration, pose: ~3e-4 rad with a 12-view calibration, see "
                    "'gyrorig bench track') and marker blends add to them")
-    out["recording"] = {"length_s": T, **recording}
+    out["recording"] = {"length_s": T, **recording, "model_misfit": misfit}
     out["fit_model"] = fit.summary()["model"]
     # the model every record of this length should be fitted with: gyrorig fit --terms plan.json
     out["fit_terms"] = {**fit.terms.as_dict(), "source": f"gyrorig plan of {protocol.name} for {T:g} s records"}
@@ -363,6 +373,24 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         rec.append(f"recording length: {longest[0]:.3g} s for every quantity to reach its target precision "
                    f"(set by {longest[1]}); precession periods in {T:g} s: "
                    f"{recording.get('precession_periods_in_record', float('nan')):.2g}")
+    if misfit["chi2_per_dof"] > MISFIT_NOTE:
+        shorter = _adequate_length(protocol, T, pred) if misfit["chi2_per_dof"] > MISFIT_LIMIT else None
+        misfit["adequate_length_s"] = shorter
+        rec.append(f"over {T:g} s the fit model misses part of the simulated motion: noiseless chi-square "
+                   f"{fit.chi2:.3g} for {fit.dof} degrees of freedom, so real records show a reduced chi-square of "
+                   f"about {1 + misfit['chi2_per_dof']:.3g}, residuals that are not white (errors from the bootstrap) "
+                   f"and quantities off by up to {math.sqrt(fit.chi2):.3g} standard errors"
+                   + ("" if misfit["chi2_per_dof"] <= MISFIT_LIMIT else
+                      "; the expected errors above are not reliable; "
+                      + (f"a {shorter:.3g} s record is described by the model" if shorter else
+                         "no shorter record tried is described by it")))
+    if misfit["chi2_per_dof"] > MISFIT_LIMIT:
+        for entry in quantities.values():
+            entry["reliable"] = False
+        out["recording"]["linear_regime"] = None  # not assessed: the model does not describe the record
+        rec.extend(_damping_advice(protocol, pred))
+        out["wall_time_s"] = time.perf_counter() - start
+        return out
     checks = (_noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T), progress)
               if fit.linear_regime else None)
     if checks is not None:
@@ -421,7 +449,26 @@ def _linear_length(protocol: Protocol, duration_s: float, pred: dict, draws: int
             fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
         except FitError:
             continue
+        if fit.chi2 > MISFIT_LIMIT * max(fit.dof, 1):
+            return None  # longer records are described no better
         if fit.linear_regime and _noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T))["ok"]:
+            return T
+    return None
+
+
+def _adequate_length(protocol: Protocol, duration_s: float, pred: dict) -> float | None:
+    """The longest of ``duration_s`` / 2, / 4, / 8 whose simulated record the fit model describes
+    (noiseless chi-square per degree of freedom at most :data:`MISFIT_LIMIT`), or None."""
+    from .fit import FitError, fit_angles
+
+    for k in (2, 4, 8):
+        T = duration_s / k
+        try:
+            fit = fit_angles(_expected_angles(protocol, T).angles, protocol, prediction=pred, check_residuals=False,
+                             terms="noiseless")
+        except FitError:
+            continue
+        if fit.chi2 <= MISFIT_LIMIT * max(fit.dof, 1):
             return T
     return None
 
