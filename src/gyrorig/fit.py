@@ -1330,21 +1330,17 @@ def _with_optional_terms(best: _Solved, data: FitData, notes: list[str], sel: _S
 
 def _consider_term(cur: _Solved, data: FitData, notes: list[str], sel: _Selector, flag: str) -> _Solved:
     """``cur`` with the optional term ``flag`` if the selector wants it, else ``cur``."""
-    if flag == "persistent" and not sel.planned(flag) and cur.ok:
-        # a free frequency makes the full trial slow (its amplitude ~0 leaves the frequency free and
-        # the solver creeps); the score statistic over a frequency grid approximates its chi-square
-        # gain to first order, and a term far below the threshold is not tried
-        w_best, score = _persistent_score(cur, data)
-        if score < SCORE_SCREEN_FRACTION * sel.need(5, flag):
+    if flag in _SCREENED and not sel.planned(flag) and cur.ok:
+        # a term with a free frequency or rate makes the full trial slow (where its amplitude is ~0
+        # the solver creeps along it: a 20 s B2 record spent 74 s on a transient it then rejected);
+        # its score statistic approximates the chi-square gain to first order, and a term far below
+        # the threshold is not tried
+        score_fn, ddof = _SCREENED[flag]
+        knob, score = score_fn(cur, data)
+        if score < SCORE_SCREEN_FRACTION * sel.need(ddof, flag):
             return cur
-        sol, note = _trial_persistent(cur, data, w_best), _TERM_NOTES[flag]
-    elif flag == "transient" and not sel.planned(flag) and cur.ok:
-        # likewise: a transient of ~0 amplitude leaves its rate free (a 20 s B2 record: 74 s of
-        # solver for a term that is then rejected); its score over the rates screens it
-        _, score = _transient_score(cur, data)
-        if score < SCORE_SCREEN_FRACTION * sel.need(3, flag):
-            return cur
-        sol, note = _trial_term(cur, data, flag)
+        sol, note = ((_trial_persistent(cur, data, knob), _TERM_NOTES[flag]) if flag == "persistent"
+                     else _trial_term(cur, data, flag))
     else:
         sol, note = _trial_term(cur, data, flag)
     if flag == "persistent" and _persistent_unresolved(sol, data, sel):
@@ -1449,6 +1445,11 @@ def _transient_score(cur: _Solved, data: FitData) -> tuple[float, float]:
                             "transient_rate_logit", grid)
 
 
+#: optional terms with a free nonlinear parameter, screened by their score statistic before a
+#: trial fit: (score function, number of parameters the term adds)
+_SCREENED = {"persistent": (_persistent_score, 5), "transient": (_transient_score, 3)}
+
+
 def _trial_persistent(cur: _Solved, data: FitData, w_start: float | None = None) -> _Solved:
     """Add a persistent oscillation near the nutation frequency, started at ``w_start`` or else one
     frequency bin either side of the nutation.
@@ -1528,7 +1529,8 @@ def _trial_transient(cur: _Solved, data: FitData) -> tuple[_Solved, str]:
 def left_out_noncentrality(sol: _Solved, data: FitData) -> dict[str, float]:
     """For a model chosen on noiseless data: the chi-square change each term it left out would make
     (the next nutation harmonic, and in a damped model the optional terms; for the persistent
-    oscillation, with its free frequency, the first-order change, :func:`_persistent_score`).  A noisy record of the
+    oscillation and the transient, with a free frequency or rate, the first-order change: their
+    score statistics).  A noisy record of the
     scene shows these terms with that non-centrality; see :meth:`_Selector.need`."""
     out = {}
     spec = sol.spec
@@ -1541,10 +1543,11 @@ def left_out_noncentrality(sol: _Solved, data: FitData) -> dict[str, float]:
         for flag in OPTIONAL_TERMS:
             if not _term_applies(flag, spec):
                 continue
-            if flag == "persistent":
-                # its first-order gain (the score statistic; within ~10 % of the fitted gain on the
-                # bundled rigs, 0.1 s instead of up to 20 s of a solver creeping along a free frequency)
-                out[flag] = max(_persistent_score(sol, data)[1], 0.0)
+            if flag in _SCREENED:
+                # its first-order gain (the score statistic; within 10 % (persistent) and 1 %
+                # (transient) of the fitted gain on the bundled rigs, without a solver creeping along
+                # a free frequency or rate)
+                out[flag] = max(_SCREENED[flag][0](sol, data)[1], 0.0)
                 continue
             trial, _ = _trial_term(sol, data, flag)
             if trial.ok:
