@@ -16,7 +16,7 @@ import pandas as pd
 
 from conftest import PROTOCOL_DIR
 from gyrorig.camera import camera_setup
-from gyrorig.fit import fit_angles
+from gyrorig.fit import ErrorKind, NoteKind, fit_angles
 from gyrorig.physics.simulate import simulate
 from gyrorig.protocols import load_protocol
 from gyrorig.tracking import TrackingCamera, camera_modes, tips_from_pixels
@@ -110,9 +110,9 @@ def test_fit_error_bars_cover_the_calibration_error_only_with_the_camera_modes()
     full = fit_angles(angles, p, truth=truth, rng=np.random.default_rng(0))
     # without the camera: the residuals are far above the noise (systematic), with it: consistent
     assert plain.chi2_red > 5
-    assert 0.7 < full.chi2_red < 1.3 and full.errors == "formal"
+    assert 0.7 < full.chi2_red < 1.3 and full.error_kind is ErrorKind.FORMAL
     for k in ("precession_rate_rad_s", "nutation_amplitude_rad", "cone_angle_rad"):
         q = full.quantities[k]
         assert q.camera_standard_error > 0.5 * q.standard_error, k  # the camera dominates here
         assert abs(q.pull) < 4, (k, q.pull)
-    assert any("camera model" in n for n in full.notes)
+    assert len(full.notes_of(NoteKind.CAMERA_MODES)) == 1

@@ -260,24 +260,24 @@ def test_uncompressed_video_tracks_exactly_like_the_lossless_one(tmp_path):
 
 def test_compiled_spot_kernel_matches_the_numpy_model():
     """The tracker's compiled normal equations are the readable numpy model's, to rounding."""
-    from gyrorig.tracking import _model, _normal_equations, _variance
+    from gyrorig.tracking.spot import normal_equations, pixel_variance, spot_model
 
     cam = _bare_camera()
     rng = np.random.default_rng(0)
     yy, xx = np.mgrid[10:41, 20:51].astype(float)
     for params in (np.array([35.3, 25.7, 6.2, 180.0, 12.0]),
                    np.array([35.3, 25.7, 6.2, 180.0, 44.0, 30.5, 4.0, 90.0, 12.0])):  # two blended discs
-        mu_true, _ = _model(params, xx, yy, cam.psf_sigma_px)
+        mu_true, _ = spot_model(params, xx, yy, cam.psf_sigma_px)
         win = mu_true + rng.normal(size=mu_true.shape) * 3
         use = rng.random(win.shape) > 0.05
         p = params * (1 + 0.01 * rng.normal(size=params.shape))
-        mu_ref, jac = _model(p, xx, yy, cam.psf_sigma_px)
-        wgt = np.where(use, 1 / _variance(mu_ref, cam, 1.0), 0.0)
+        mu_ref, jac = spot_model(p, xx, yy, cam.psf_sigma_px)
+        wgt = np.where(use, 1 / pixel_variance(mu_ref, cam, 1.0), 0.0)
         jf = jac.reshape(-1, len(p))
         A_ref = (jf * wgt.reshape(-1, 1)).T @ jf
         g_ref = (jf * wgt.reshape(-1, 1)).T @ (win - mu_ref).ravel()
         mu = np.empty_like(win)
-        A, g, chi2 = _normal_equations(win, 20.0, 10.0, use, p, cam.psf_sigma_px, cam.gain_e_per_adu,
+        A, g, chi2 = normal_equations(win, 20.0, 10.0, use, p, cam.psf_sigma_px, cam.gain_e_per_adu,
                                        (cam.read_noise_e / cam.gain_e_per_adu) ** 2, 1.0, mu)
         np.testing.assert_allclose(mu, mu_ref, rtol=1e-12, atol=1e-9)
         np.testing.assert_allclose(A, A_ref, rtol=1e-9, atol=1e-9 * np.abs(A_ref).max())

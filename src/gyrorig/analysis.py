@@ -176,7 +176,7 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
         if isinstance(v, dict) and v.get("sign_agrees") is False:
             validity.append(f"<code>{key}</code>: the paper's formula has the <b>wrong sign</b> "
                             f"(paper {_fmt(v.get('paper'))}, exact {_fmt(v.get('exact'))}); see docs/theory.md")
-    notes = "".join(f"<li>{html.escape(n)}</li>" for n in fit.notes)
+    notes = "".join(f"<li>{html.escape(n.text)}</li>" for n in fit.notes)
     fig = plot_fit(angles, smooth.table if smooth else None, fit)
     img = _fig_data_uri(fig)
     sm = ""

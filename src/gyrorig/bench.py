@@ -307,26 +307,6 @@ def render_throughput(n_frames: int = 100) -> pd.DataFrame:
 # tracking precision and speed (gyrorig bench track)
 
 
-def spot_crb_px(x: float, y: float, radius_px: float, amplitude_adu: float, background_adu: float, cam) -> float:
-    """Cramer-Rao bound (standard deviation per axis, px) of the disc-spot centre.
-
-    Exact Fisher matrix of the rendered model (disc of ``radius_px`` convolved with the
-    Gaussian PSF, on a flat background) for pixel variances ``mu / gain + (read noise /
-    gain)^2 + 1/12`` [ADU^2], all five parameters free.
-    """
-    from .tracking import _model
-
-    half = int(math.ceil(radius_px + 6 * cam.psf_sigma_px + 4))
-    xi, yi = int(round(x)), int(round(y))
-    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    mu, jac = _model(np.array([x, y, radius_px, amplitude_adu, background_adu]), xx, yy, cam.psf_sigma_px)
-    var = mu / cam.gain_e_per_adu + (cam.read_noise_e / cam.gain_e_per_adu) ** 2 + 1.0 / 12.0
-    jf = jac.reshape(-1, 5)
-    fisher = (jf / var.reshape(-1, 1)).T @ jf
-    cov = np.linalg.inv(fisher)
-    return float(math.sqrt(0.5 * (cov[0, 0] + cov[1, 1])))
-
-
 def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480)), seed: int = 0) -> pd.DataFrame:
     """Render the air-cushion rig, track it, and compare with the truth and the bound.
 
@@ -346,9 +326,7 @@ def track_benchmark(*, duration_s: float = 1.0, sizes=((1440, 1080), (640, 480))
     from .physics import simulate as _simulate
     from .protocols import load_protocol
     from .render import render_video
-    from .tracking import load_camera, track_video
-
-    from .tracking import warm_up
+    from .tracking import load_camera, spot_crb_px, track_video, warm_up
 
     warm_up()
     base = load_protocol(BUNDLED_PROTOCOL_DIR / "air-cushion-heavy-top.toml")
@@ -453,8 +431,9 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
         rows.append({"scene": scene, "seed": seed, "duration_s": duration_s, "quantity": name, "status": q.status,
                      "value": q.value,
                      "standard_error": q.standard_error, "formal_standard_error": q.formal_standard_error, "truth": q.truth, "pull": q.pull, "chi2_red": fit.chi2_red,
-                     "errors": fit.errors, "harmonics": fit.spec.harmonics, "terms": fit.terms.describe(),
-                     "added_terms": "; ".join(n for n in fit.notes if "a term the plan did not have" in n),
+                     "errors": fit.errors, "error_kind": str(fit.error_kind), "harmonics": fit.spec.harmonics,
+                     "terms": fit.terms.describe(), "added_terms": ",".join(fit.terms_beyond_plan),
+                     "refused_terms": ",".join(fit.terms_not_identifiable),
                      "wall_s": time.perf_counter() - start,
                      "error": ""})
     return rows
@@ -578,7 +557,8 @@ def summarize_fit_monte_carlo(runs: pd.DataFrame) -> pd.DataFrame:
                      "sd_pull": float(pulls.std(ddof=1)) if n > 1 else math.nan,
                      "sd_over_crb": sd_est / crb if crb > 0 else math.nan, "median_crb": crb,
                      "median_se": float(np.median(g.standard_error.astype(float))),
-                     "bootstrap_runs": int((g.errors.str.startswith("moving-block")).sum())})
+                     "bootstrap_runs": (int((g.error_kind == "bootstrap").sum()) if "error_kind" in g
+                                        else math.nan)})
     failed = runs[err != ""] if "error" in runs else None
     table = pd.DataFrame(rows)
     if failed is not None and len(failed):

@@ -20,12 +20,7 @@ default 8; 1 = no motion blur).
 ``[camera.sensor]``: ``bit_depth`` (8, 10 or 12), ``full_well_e``, ``read_noise_e``,
 ``gain_e_per_adu``, ``background_e_per_s`` (lighting: electrons per pixel per second).
 
-``[markers.NAME]``: ``body = "frame" | "lab"`` ("frame": fixed to the non-spinning
-frame, coordinates with ``z`` along the symmetry axis; for a top without a frame, fixed
-to the top), ``position_m = [x, y, z]``, ``radius_m`` (rendered as a sphere of this
-radius), ``brightness_e_per_s`` (electrons per pixel per second inside the dot).
-``kind = "occluder"`` instead describes an opaque cylinder about the axis
-(``radius_m, z_min_m, z_max_m``, on the frame), e.g. the rotor can.
+``[markers]``: see :mod:`gyrorig.markers` (the renderer needs every dot's ``brightness_e_per_s``).
 """
 
 from __future__ import annotations
@@ -37,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from .markers import Marker, Occluder, parse_markers
 from .protocols import Protocol, ProtocolError, _check_keys, _number, _vector3
 
 __all__ = ["Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose", "with_image_size"]
@@ -108,27 +104,6 @@ class Camera:
             "conventions": "x_cam = R(rvec) X_lab + tvec (OpenCV); pixel centres at integer coordinates; "
                            "rolling shutter: row y starts its exposure at t_frame + (y / height_px) * readout_time_s",
         }
-
-
-@dataclass(frozen=True)
-class Marker:
-    """A bright spherical dot on the frame (``body="frame"``) or fixed in the lab (``body="lab"``)."""
-
-    name: str
-    body: str
-    position_m: tuple[float, float, float]
-    radius_m: float
-    brightness_e_per_s: float
-
-
-@dataclass(frozen=True)
-class Occluder:
-    """An opaque cylinder about the top's axis, ``z_min_m <= z <= z_max_m`` in frame coordinates."""
-
-    name: str
-    radius_m: float
-    z_min_m: float
-    z_max_m: float
 
 
 @dataclass(frozen=True)
@@ -225,36 +200,6 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
     return Camera(w, h, fps, exposure, k, dist, rvec, tvec, shutter, readout, sigma, nsub, _parse_sensor(t["sensor"]))
 
 
-def _parse_markers(t: Mapping[str, Any]) -> tuple[tuple[Marker, ...], tuple[Occluder, ...]]:
-    if not isinstance(t, Mapping) or not t:
-        raise ProtocolError("[markers] must contain at least one [markers.NAME] table")
-    markers, occluders = [], []
-    for name, m in t.items():
-        s = f"markers.{name}"
-        if not isinstance(m, Mapping):
-            raise ProtocolError(f"[{s}] must be a table")
-        if m.get("kind", "dot") == "occluder":
-            _check_keys(s, m, {"kind", "radius_m", "z_min_m", "z_max_m"}, set())
-            occluders.append(Occluder(name, _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True),
-                                      _finite_z(s, "z_min_m", m["z_min_m"]), _finite_z(s, "z_max_m", m["z_max_m"])))
-            continue
-        _check_keys(s, m, {"body", "position_m", "radius_m", "brightness_e_per_s"}, {"kind"})
-        if m.get("kind", "dot") != "dot":
-            raise ProtocolError(f"{s}.kind = {m['kind']!r}: allowed 'dot', 'occluder'")
-        if m["body"] not in ("frame", "lab"):
-            raise ProtocolError(f"{s}.body = {m['body']!r}: allowed 'frame', 'lab'")
-        markers.append(Marker(name, m["body"], _vector3(s, "position_m", m["position_m"]),
-                              _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1),
-                              _number(s, "brightness_e_per_s", m["brightness_e_per_s"], lo=0.0, lo_open=True)))
-    if not markers:
-        raise ProtocolError("[markers] has no dot (kind = 'dot'): nothing to track")
-    return tuple(markers), tuple(occluders)
-
-
-def _finite_z(section: str, key: str, value: Any) -> float:
-    return _number(section, key, value, lo=-1.0, hi=1.0)
-
-
 def with_image_size(protocol: Protocol, width_px: int, height_px: int) -> Protocol:
     """The protocol with its camera's sensor cropped or binned to ``width_px x height_px``.
 
@@ -283,7 +228,8 @@ def camera_setup(protocol: Protocol) -> CameraSetup:
         missing = [k for k in ("camera", "markers") if k not in protocol.extra]
         raise ProtocolError(f"{protocol.name}: rendering needs the section(s) {', '.join(missing)}")
     cam = _parse_camera(protocol.extra["camera"])
-    markers, occluders = _parse_markers(protocol.extra["markers"])
+    marker_set = parse_markers(protocol.extra["markers"])
+    marker_set.require_brightness("rendering")
     # the pivot must be in front of the camera and inside the image
     import cv2
 
@@ -292,4 +238,4 @@ def camera_setup(protocol: Protocol) -> CameraSetup:
     if pc[2] <= 0 or not (0 <= px[0] <= cam.width_px - 1 and 0 <= px[1] <= cam.height_px - 1):
         raise ProtocolError(f"camera.position_m / look_at_m: the pivot projects to pixel ({px[0]:.1f}, {px[1]:.1f}), "
                             f"outside the {cam.width_px} x {cam.height_px} image")
-    return CameraSetup(cam, markers, occluders)
+    return CameraSetup(cam, marker_set.dots, marker_set.occluders)

@@ -88,7 +88,7 @@ def _tip_marker(protocol: Protocol):
 
 def _pixel_bound(setup, marker, depth_m: float) -> dict:
     """Spot size, signal and the localisation bound of the marker at a given depth."""
-    from .bench import spot_crb_px
+    from .tracking import spot_crb_px
 
     cam, sensor = setup.camera, setup.camera.sensor
     f_px = float(cam.camera_matrix[0, 0])

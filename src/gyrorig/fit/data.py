@@ -1,0 +1,119 @@
+"""What the fit is given: the measured frames with their covariances (:class:`FitData`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..smooth import measurement_covariance
+from ..tables import camera_mode_columns, camera_mode_count, missing_columns
+
+__all__ = ["FitError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
+
+#: columns the fit needs of an angle table (``theta_phi_corr``, ``frame``, ``exposure_s`` and the camera
+#: modes are used when present)
+FIT_REQUIRED = ("t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad")
+
+
+class FitError(ValueError):
+    """The angles cannot be fitted (missing columns, too few frames for the model, no data)."""
+
+
+@dataclass(frozen=True)
+class FitData:
+    """Measurements for the fit: times, angles and the covariance of each frame."""
+
+    frame: np.ndarray
+    t_s: np.ndarray
+    theta_rad: np.ndarray
+    phi_rad: np.ndarray
+    cov: np.ndarray  # (n, 2, 2)
+    segment: np.ndarray  # (n,) int
+    t_ref_s: float
+    #: (m, n, 2) angle shifts (theta, phi) of each frame for a one-sigma move of camera mode k
+    camera_shift: np.ndarray | None = None
+    #: (n,) exposure of each frame [s], ``t_s`` at its middle: the model is averaged over it
+    #: (a blurred spot's centroid is the mean position over the exposure, which shrinks an
+    #: oscillation of angular frequency w by sinc(w T / 2)); None: instantaneous samples
+    exposure_s: np.ndarray | None = None
+
+    @property
+    def camera_modes(self) -> int:
+        return 0 if self.camera_shift is None else int(self.camera_shift.shape[0])
+
+    @property
+    def n(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+    @property
+    def tau(self) -> np.ndarray:
+        """Times relative to the reference time (the middle of the record). [s]"""
+        return self.t_s - self.t_ref_s
+
+    @property
+    def nyquist_rad_s(self) -> float:
+        dt = float(np.median(np.diff(self.t_s)))
+        return math.pi / dt
+
+
+def _camera_shifts(a: pd.DataFrame) -> np.ndarray | None:
+    k_modes = camera_mode_count(a.columns)
+    if not k_modes:
+        return None
+    shift = np.stack([np.column_stack([a[c].to_numpy(float) for c in camera_mode_columns(k)])
+                      for k in range(1, k_modes + 1)])
+    if not np.all(np.isfinite(shift)):
+        raise FitError("theta_cam_k_rad / phi_cam_k_rad (camera modes) must be finite wherever there are angles")
+    return shift
+
+
+def _exposures(a: pd.DataFrame, t: np.ndarray) -> np.ndarray | None:
+    if "exposure_s" not in a.columns:
+        return None
+    exposure = a["exposure_s"].to_numpy(float)
+    if not (np.all(np.isfinite(exposure)) and np.all(exposure >= 0)):
+        raise FitError("exposure_s must be finite and >= 0 wherever there are angles")
+    frame_interval = float(np.median(np.diff(t))) if len(t) > 1 else np.inf
+    if np.any(exposure > 1.5 * frame_interval):
+        raise FitError(f"exposure_s reaches {exposure.max():.3g} s, longer than the frame interval "
+                       f"({frame_interval:.3g} s, median): not an exposure time")
+    return exposure
+
+
+def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None,
+                         precession_hint_rad_s: float | None = None) -> FitData:
+    """The measured frames of an angle table (:mod:`gyrorig.tables`), minus ``exclude`` (e.g. the
+    smoother's outliers).  A gap longer than half a precession period (``precession_hint_rad_s``)
+    starts a new azimuth segment."""
+    missing = missing_columns(angles, FIT_REQUIRED)
+    if missing:
+        raise FitError(f"angle table lacks column(s) {missing}; required: {list(FIT_REQUIRED)}")
+    ok = np.isfinite(angles["theta_rad"].to_numpy(float)) & np.isfinite(angles["phi_rad"].to_numpy(float))
+    if exclude is not None:
+        ok &= ~np.asarray(exclude, bool)
+    a = angles.loc[ok]
+    if len(a) < 10:
+        raise FitError(f"only {len(a)} frames have usable angles; a fit needs at least 10")
+    sth = a["theta_sigma_rad"].to_numpy(float)
+    sph = a["phi_sigma_rad"].to_numpy(float)
+    if not (np.all(np.isfinite(sth)) and np.all(np.isfinite(sph)) and np.all(sth > 0) and np.all(sph > 0)):
+        raise FitError("theta_sigma_rad and phi_sigma_rad must be finite and > 0 wherever there are angles")
+    cov = measurement_covariance(sth, sph, a["theta_phi_corr"] if "theta_phi_corr" in a.columns else None)
+    t = a["t_s"].to_numpy(float)
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise FitError("t_s must be finite and non-decreasing")
+    frame = a["frame"].to_numpy() if "frame" in a.columns else np.arange(len(a))
+    segment = np.zeros(len(a), int)
+    if precession_hint_rad_s is not None and precession_hint_rad_s != 0:
+        half_period = math.pi / abs(precession_hint_rad_s)
+        segment = np.concatenate([[0], np.cumsum(np.diff(t) > half_period)])
+    return FitData(frame=frame, t_s=t, theta_rad=a["theta_rad"].to_numpy(float), phi_rad=a["phi_rad"].to_numpy(float),
+                   cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]), camera_shift=_camera_shifts(a),
+                   exposure_s=_exposures(a, t))

@@ -1,0 +1,186 @@
+"""``fit_angles``: the fit of an angle table against the scene's model, compared with theory."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pandas as pd
+
+from ..protocols import Protocol
+from .data import FitData, fit_data_from_angles
+from .model import FitModel, Residuals, model_for_scene
+from .quantities import build_quantities, quantity_functions, truth_values
+from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, Note, NoteKind
+from .selection import PLANNED_NONCENTRALITY, fit_model, left_out_noncentrality
+from .solver import Solution
+from .spec import FitTerms
+from .uncertainty import choose_errors, delta_se, phase_uncertainty, statistical_covariance
+
+__all__ = ["fit_angles", "linear_response", "TERM_CHOICES"]
+
+TERM_CHOICES = ("data", "noiseless")
+#: above this reduced chi-square the residuals are dominated by a systematic, and the report says so
+SYSTEMATIC_CHI2_RED = 10.0
+
+
+def _choose_model(data: FitData, scene, terms: FitTerms | str) -> tuple[Solution, list[Note], dict, FitTerms]:
+    """The solution with its terms chosen as ``terms`` says; notes; undetermined quantities; the terms."""
+    if isinstance(terms, str) and terms not in TERM_CHOICES:
+        raise ValueError(f"terms must be one of {', '.join(TERM_CHOICES)} or a FitTerms; got {terms!r}")
+    if isinstance(terms, FitTerms):
+        sol, notes, undetermined = fit_model(data, scene, terms=terms)
+        notes = [Note(NoteKind.TERMS_GIVEN, f"model terms ({terms.describe()}) {terms.source or 'given'}")] + notes
+        return sol, notes, undetermined, terms
+    sol, notes, undetermined = fit_model(data, scene,
+                                         noncentrality=PLANNED_NONCENTRALITY if terms == "noiseless" else None)
+    chosen = (FitTerms.of(sol.spec, "chosen by chi-square tests on the data") if terms == "data" else
+              FitTerms.of(sol.spec, f"chosen on noiseless data (non-centrality above {PLANNED_NONCENTRALITY:g})",
+                          left_out_noncentrality(sol, data)))
+    return sol, notes, undetermined, chosen
+
+
+def _standard_errors(sol: Solution, data: FitData, fns: dict, error_kind: ErrorKind, bootstrap_sd: dict
+                     ) -> tuple[dict, dict, dict]:
+    """Each quantity's value and reported standard error, its formal (Cramér-Rao) error, and the camera
+    model's share."""
+    values, formal, camera_se = {}, {}, {}
+    cov_stat = statistical_covariance(sol.spec, sol.x, sol.cov, data)
+    chi2_red = sol.chi2 / max(sol.dof, 1)
+    for k, f in fns.items():
+        v, se = delta_se(f, sol.x, sol.cov)
+        formal[k] = se
+        se_stat = se
+        if cov_stat is not None:
+            se_stat = delta_se(f, sol.x, cov_stat)[1]
+            camera_se[k] = math.sqrt(max(se * se - se_stat * se_stat, 0.0))
+        if error_kind is ErrorKind.SCALED:
+            se_stat *= math.sqrt(chi2_red)
+        if k in bootstrap_sd:
+            se_stat = max(se_stat, bootstrap_sd[k])
+        values[k] = (v, math.hypot(se_stat, camera_se.get(k, 0.0)))
+    return values, formal, camera_se
+
+
+def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, check_residuals: bool) -> list[Note]:
+    """Notes on the record: too short for the model, a dominating systematic, the camera's share."""
+    notes = []
+    nonlinear = {k: v for k, v in phases.items() if v > NONLINEAR_PHASE_RAD}
+    if nonlinear:
+        notes.append(Note(NoteKind.RECORD_TOO_SHORT, "the record is too short for this model: " + ", ".join(
+            f"{k} leaves {v:.2g} rad of phase uncertain over the record" for k, v in nonlinear.items())
+            + f" (above {NONLINEAR_PHASE_RAD:g}); the model is not linear over one standard error, so the standard "
+            "errors are not reliable (they vary from record to record); a longer record resolves the terms"))
+    chi2_red = sol.chi2 / max(sol.dof, 1)
+    if check_residuals and chi2_red > SYSTEMATIC_CHI2_RED:
+        notes.append(Note(NoteKind.SYSTEMATIC,
+                          f"the residuals are far larger than the tracker's errors (reduced chi-square {chi2_red:.3g}): "
+                          "a systematic error dominates (camera calibration or pose, or a motion the model does not "
+                          "describe); the standard errors cover the statistical part only and understate the true "
+                          "error"))
+    if camera_se:
+        notes.append(Note(NoteKind.CAMERA_MODES,
+                          f"the camera model's uncertainty ({data.camera_modes} modes from the tracker) is in the fit "
+                          "as nuisance parameters with their priors: every standard error includes it (camera share: "
+                          + ", ".join(f"{k} {camera_se[k]:.2g}" for k in ("precession_rate_rad_s",
+                                                                          "nutation_amplitude_rad",
+                                                                          "tilt_growth_rate_per_s",
+                                                                          "equilibrium_tilt_rad") if k in camera_se)
+                          + ")"))
+    return notes
+
+
+def _residual_tables(sol: Solution, data: FitData) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per-frame residuals (raw and normalised), and the model curve on a fine grid."""
+    model = FitModel(sol.spec)
+    res = Residuals(model, data)
+    r0, r1 = res.raw(sol.x)
+    wr = res(sol.x)[:2 * data.n].reshape(2, -1)
+    residuals = pd.DataFrame({"frame": data.frame, "t_s": data.t_s, "theta_resid_rad": r0, "phi_resid_rad": r1,
+                              "theta_resid_norm": wr[0], "phi_resid_norm": wr[1]})
+    tt = np.linspace(data.t_s[0], data.t_s[-1], min(20000, max(2000, 20 * data.n)))
+    seg = np.searchsorted(data.t_s, tt, side="right") - 1
+    th_c, ph_c = model.lab(sol.x, tt - data.t_ref_s, data.segment[np.clip(seg, 0, data.n - 1)])
+    return residuals, pd.DataFrame({"t_s": tt, "theta_rad": th_c, "phi_rad": ph_c})
+
+
+def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
+               exclude: np.ndarray | None = None, truth: pd.DataFrame | None = None,
+               rng: np.random.Generator | None = None, bootstrap_replicates: int = 50,
+               check_residuals: bool = True, terms: FitTerms | str = "data") -> FitResult:
+    """Fit an angle table with the scene's model and compare with theory (and truth, if given).
+
+    Parameters
+    ----------
+    angles : DataFrame
+        ``t_s, theta_rad, phi_rad, theta_sigma_rad, phi_sigma_rad[, theta_phi_corr, frame, exposure_s,
+        theta_cam_k_rad, phi_cam_k_rad]`` (:mod:`gyrorig.tables`).
+    protocol : Protocol
+        The scene (decides the model).
+    prediction : dict, optional
+        :func:`gyrorig.theory.predict` output, for the comparison columns and for hints
+        (predicted nutation frequency: resolvable by the camera or not).
+    exclude : bool array, optional
+        Rows to leave out (the smoother's outliers).
+    truth : DataFrame, optional
+        Noiseless angles of a synthetic run (``t_s, theta_rad, phi_rad``), e.g. the tip rows of
+        a renderer's ``truth.csv``: the same model is fitted to them, giving the true value
+        of each quantity and the pull ``(fit - truth) / standard error``.
+    rng : numpy Generator, optional
+        For the block bootstrap (used only when residuals are not white).
+    check_residuals : bool
+        Test the residuals (whiteness, chi-square) and fall back on the bootstrap or scaled
+        errors.  Off only for noiseless model data (planning: the formal errors are then the
+        Cramér-Rao bound for the stated per-frame errors).
+    terms : {"data", "noiseless"} or FitTerms
+        How the optional model terms are chosen (:mod:`gyrorig.fit.selection`).  ``"data"``
+        (default): by chi-square tests on these data.  A :class:`FitTerms` (from
+        :func:`gyrorig.expectation.plan_fit_terms`, i.e. ``gyrorig plan``): these terms, the same for
+        every record of the scene; a term the data need beyond them is still added (noted).
+        ``"noiseless"``: the angles are noiseless model data (planning): a term is kept above a
+        non-centrality of :data:`~gyrorig.fit.selection.PLANNED_NONCENTRALITY`.
+    """
+    start_time = time.perf_counter()
+    scene = model_for_scene(protocol, prediction)
+    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s)
+    sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
+    fns = quantity_functions(sol.spec)
+    error_kind, bootstrap, bootstrap_sd, error_notes = choose_errors(
+        sol.spec, sol.x, sol.chi2, sol.dof, data, fns, rng, bootstrap_replicates, check_residuals)
+    phases = phase_uncertainty(sol.spec, sol.x, sol.cov, data)
+    values, formal, camera_se = _standard_errors(sol, data, fns, error_kind, bootstrap_sd)
+    notes += error_notes + _record_notes(sol, data, phases, camera_se, check_residuals)
+    truth_vals = truth_values(truth, data, sol.spec, sol.x) if truth is not None else {}
+    quantities = build_quantities(sol.spec, values, formal, camera_se, undetermined, protocol, prediction, truth_vals)
+    residuals, curve = _residual_tables(sol, data)
+    names = sol.spec.names()
+    params = {n: (float(v), float(np.sqrt(max(sol.cov[i, i], 0.0)))) for i, (n, v) in enumerate(zip(names, sol.x))}
+    return FitResult(spec=sol.spec, params=params, quantities=quantities, chi2=sol.chi2, dof=sol.dof,
+                     residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, error_kind=error_kind,
+                     notes=tuple(notes), x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time,
+                     terms=chosen, phase_uncertainty_rad=phases, bootstrap=bootstrap)
+
+
+def linear_response(angles: pd.DataFrame, fit: FitResult, protocol: Protocol, *, prediction: dict | None = None):
+    """The linearised estimator about a fit of noiseless ``angles``.
+
+    Returns a function that takes other angles at the same frames (the same motion plus noise)
+    and gives each determined quantity after one Gauss-Newton step from ``fit.x``:
+    ``x = x0 - (J^T J)^-1 J^T r(x0)``.  That is what the fit would return if the model were
+    linear over the noise; where a real fit of the same record lands elsewhere (by a sizeable
+    fraction of a standard error), its error bars are not Cramér-Rao bounds.
+    """
+    scene = model_for_scene(protocol, prediction)
+    model = FitModel(fit.spec)
+    J0 = Residuals(model, fit_data_from_angles(angles, None, scene.precession_hint_rad_s)).jac(fit.x)
+    cov0 = np.linalg.pinv(J0.T @ J0, rcond=1e-14, hermitian=True)
+    fns = quantity_functions(fit.spec)
+    keys = [k for k in fns if k in fit.quantities and fit.quantities[k].determined]
+
+    def respond(noisy: pd.DataFrame) -> dict[str, float]:
+        white = Residuals(model, fit_data_from_angles(noisy, None, scene.precession_hint_rad_s))
+        x = fit.x - cov0 @ (J0.T @ white(fit.x))
+        return {k: float(fns[k](x)) for k in keys}
+
+    return respond

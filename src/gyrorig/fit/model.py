@@ -1,0 +1,243 @@
+"""The fit model: which one the scene calls for, its evaluation and Jacobian in the lab, and its residuals.
+
+The tip moves on a cone about an axis ``n``: the vertical under gravity, the *fitted* effective
+vertical when the pivot accelerates, the fitted angular-momentum direction for a free top.
+:class:`FitModel` sums the terms of :mod:`gyrorig.fit.terms` in the frame whose z is ``n`` and
+rotates the result to the lab.  :class:`Residuals` compares it with :class:`~gyrorig.fit.data.FitData`:
+residuals whitened with each frame's covariance, the model averaged over each exposure, and one
+prior residual per camera-model mode.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import angles_from_tip, axis_rotation, tip_from_angles, wrap_angle
+from ..protocols import Protocol
+from .data import FitData, FitError
+from .spec import ModelSpec
+from .terms import TERMS
+
+__all__ = ["FitModel", "Residuals", "SceneModel", "model_for_scene", "whitener"]
+
+
+class FitModel:
+    """Evaluates the fit model of a :class:`ModelSpec` at given times (``tau = t - t_ref``)."""
+
+    def __init__(self, spec: ModelSpec):
+        self.spec = spec
+        self.names = spec.names()
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self._terms = [t for t in TERMS if t.present(spec)]
+
+    def vector(self, values: dict[str, float]) -> np.ndarray:
+        """The parameter vector from named values (0 for a name not given)."""
+        return np.array([values.get(n, 0.0) for n in self.names], float)
+
+    def values(self, p: np.ndarray) -> dict[str, float]:
+        """Named values of a parameter vector."""
+        return dict(zip(self.names, p))
+
+    def envelope(self, p: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """The damped nutation's envelope, 1 at the first frame: ``exp(-mu (tau - tau0))``."""
+        return np.exp(-p[self.index["nutation_decay_rate_per_s"]] * (tau - self.spec.nutation_origin_s))
+
+    def nutation_phase(self, p: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """``psi = w tau (+ w' tau^2 / 2 when damped)``."""
+        psi = p[self.index["nutation_frequency_rad_s"]] * tau
+        if self.spec.damped:
+            psi = psi + 0.5 * p[self.index["nutation_chirp_rad_s2"]] * tau**2
+        return psi
+
+    def axis_frame(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """theta', phi' in the axis frame."""
+        th, ph = np.zeros_like(tau), np.zeros_like(tau)
+        for term in self._terms:
+            th, ph = term.add(self, p, tau, segment, th, ph)
+        return th, ph
+
+    def axis_frame_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """d(theta')/dp and d(phi')/dp, each (n, P), analytic (axis columns zero)."""
+        dth = np.zeros((len(tau), len(p)))
+        dph = np.zeros((len(tau), len(p)))
+        for term in self._terms:
+            term.jacobian(self, p, tau, segment, dth, dph)
+        return dth, dph
+
+    def rotation(self, p: np.ndarray) -> np.ndarray | None:
+        """Rotation from the axis frame to the lab (None for the vertical)."""
+        if not self.spec.fit_axis:
+            return None
+        return axis_rotation(p[self.index["axis_tilt_rad"]], p[self.index["axis_azimuth_rad"]])
+
+    def lab(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """theta, phi in the lab."""
+        th, ph = self.axis_frame(p, tau, segment)
+        R = self.rotation(p)
+        return (th, ph) if R is None else angles_from_tip(tip_from_angles(th, ph) @ R.T)
+
+    def lab_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """d(theta, phi)_lab / dp, each (n, P): analytic in the axis frame, chain rule to the lab."""
+        dth, dph = self.axis_frame_jacobian(p, tau, segment)
+        if not self.spec.fit_axis:
+            return dth, dph
+        ix = self.index
+        th, ph = self.axis_frame(p, tau, segment)
+        a, b = p[ix["axis_tilt_rad"]], p[ix["axis_azimuth_rad"]]
+
+        def conv(t_, p_, a_=a, b_=b):
+            return angles_from_tip(tip_from_angles(t_, p_) @ axis_rotation(a_, b_).T)
+
+        h = 1e-7
+        tp, pp = conv(th + h, ph)
+        tm, pm = conv(th - h, ph)
+        g00, g10 = (tp - tm) / (2 * h), wrap_angle(pp - pm) / (2 * h)
+        tp, pp = conv(th, ph + h)
+        tm, pm = conv(th, ph - h)
+        g01, g11 = (tp - tm) / (2 * h), wrap_angle(pp - pm) / (2 * h)
+        jt = g00[:, None] * dth + g01[:, None] * dph
+        jp = g10[:, None] * dth + g11[:, None] * dph
+        for name, da, db in (("axis_tilt_rad", h, 0.0), ("axis_azimuth_rad", 0.0, h)):
+            tp, pp = conv(th, ph, a + da, b + db)
+            tm, pm = conv(th, ph, a - da, b - db)
+            jt[:, ix[name]] = (tp - tm) / (2 * h)
+            jp[:, ix[name]] = wrap_angle(pp - pm) / (2 * h)
+        return jt, jp
+
+    def in_axis_frame(self, p: np.ndarray, data: FitData) -> tuple[np.ndarray, np.ndarray]:
+        """The measured angles in this model's axis frame (the lab angles for the vertical)."""
+        R = self.rotation(p)
+        if R is None:
+            return data.theta_rad, data.phi_rad
+        return angles_from_tip(tip_from_angles(data.theta_rad, data.phi_rad) @ R)
+
+
+def whitener(cov: np.ndarray) -> np.ndarray:
+    """Per-frame W with W^T W = cov^-1 (inverse Cholesky factor), shape (n, 2, 2)."""
+    a, b, c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    l00 = np.sqrt(a)
+    l10 = b / l00
+    l11 = np.sqrt(c - l10**2)
+    W = np.zeros_like(cov)
+    W[:, 0, 0] = 1 / l00
+    W[:, 1, 0] = -l10 / (l00 * l11)
+    W[:, 1, 1] = 1 / l11
+    return W
+
+
+class Residuals:
+    """A model against the data: raw residuals (theta, phi), whitened ones (2n, then one prior residual
+    per camera mode) and their Jacobian.
+
+    With exposures the model is the mean over each frame's exposure, by two-point Gauss-Legendre
+    (exact for a cubic; for a sinusoid of angular frequency w off by (w T)^4 / 2900, 1e-11 at
+    59 rad/s and 300 us).  With camera modes the model adds ``sum_k a_k (theta_cam_k, phi_cam_k)``
+    and each ``a_k`` has a unit Gaussian prior.
+    """
+
+    def __init__(self, model: FitModel, data: FitData):
+        m = model.spec.camera_modes
+        if m and data.camera_modes != m:
+            raise FitError(f"the model has {m} camera modes, the data {data.camera_modes}")
+        self.model, self.data, self.modes = model, data, m
+        self.tau = data.tau
+        self.W = whitener(data.cov)
+        self.shift = data.camera_shift if m else None
+        ex = data.exposure_s
+        if ex is not None and np.any(ex > 0):
+            half = ex / (2.0 * math.sqrt(3.0))
+            self.taus = (self.tau - half, self.tau + half)
+        else:
+            self.taus = None
+
+    @property
+    def size(self) -> int:
+        """Number of whitened residuals."""
+        return 2 * self.data.n + self.modes
+
+    def lab(self, p: np.ndarray):
+        seg = self.data.segment
+        if self.taus is None:
+            return self.model.lab(p, self.tau, seg)
+        (t1, p1), (t2, p2) = (self.model.lab(p, tt, seg) for tt in self.taus)
+        return 0.5 * (t1 + t2), p1 + 0.5 * wrap_angle(p2 - p1)
+
+    def lab_jacobian(self, p: np.ndarray):
+        seg = self.data.segment
+        if self.taus is None:
+            return self.model.lab_jacobian(p, self.tau, seg)
+        (a1, b1), (a2, b2) = (self.model.lab_jacobian(p, tt, seg) for tt in self.taus)
+        return 0.5 * (a1 + a2), 0.5 * (b1 + b2)
+
+    def raw(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Measured minus model, (theta, phi) [rad]."""
+        th, ph = self.lab(p)
+        m = self.modes
+        if m:
+            a = p[-m:]
+            th = th + np.tensordot(a, self.shift[:, :, 0], axes=1)
+            ph = ph + np.tensordot(a, self.shift[:, :, 1], axes=1)
+        return self.data.theta_rad - th, wrap_angle(self.data.phi_rad - ph)
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        """Whitened residuals."""
+        r0, r1 = self.raw(p)
+        W = self.W
+        parts = [W[:, 0, 0] * r0, W[:, 1, 0] * r0 + W[:, 1, 1] * r1]
+        if self.modes:
+            parts.append(p[-self.modes:])  # unit Gaussian prior on each camera mode
+        return np.concatenate(parts)
+
+    def jac(self, p: np.ndarray) -> np.ndarray:
+        """Jacobian of the whitened residuals."""
+        jt, jp = self.lab_jacobian(p)
+        m, W = self.modes, self.W
+        if m:
+            jt[:, -m:] = self.shift[:, :, 0].T
+            jp[:, -m:] = self.shift[:, :, 1].T
+        J = -np.concatenate([W[:, 0, 0, None] * jt, W[:, 1, 0, None] * jt + W[:, 1, 1, None] * jp])
+        if m:
+            prior = np.zeros((m, J.shape[1]))
+            prior[:, -m:] = np.eye(m)
+            J = np.vstack([J, prior])
+        return J
+
+
+@dataclass(frozen=True)
+class SceneModel:
+    """What the scene says the fit should contain."""
+
+    spec: ModelSpec
+    nutation_expected: bool
+    nutation_frequency_hint_rad_s: float | None
+    precession_hint_rad_s: float | None
+    reasons: tuple[str, ...] = ()
+
+
+def model_for_scene(protocol: Protocol, prediction: dict | None = None) -> SceneModel:
+    """The fit model the scene calls for, with hints from theory (never used as fitted values).
+
+    A fitted axis when the pivot accelerates (the effective vertical) or without gravity (the
+    angular momentum); damped terms only with damping; nutation only under gravity (a free top
+    has none about ``L``).  The nutation harmonics and optional terms are chosen by the data
+    (:func:`gyrorig.fit.selection.fit_model`).
+    """
+    gravity = bool(protocol.rig.gravity_m_s2)
+    acc = protocol.pivot.acceleration
+    accelerating = acc is not None and any(any(v != 0 for v in a) for a in acc.acceleration_m_s2)
+    damped = bool(protocol.pivot.damping)
+    pred = prediction or {}
+    reasons = []
+    if accelerating and not acc.is_constant:
+        reasons.append("the pivot acceleration varies in time: no fixed equilibrium direction to fit; the "
+                       "cone axis is fitted as if constant")
+    fit_axis = accelerating or not gravity
+    nut = pred.get("nutation_frequency_rad_s", {}).get("exact") if gravity else None
+    prec_key = "mean_precession_rate_rad_s" if gravity else "precession_rate_rad_s"
+    prec = pred.get(prec_key, {}).get("exact")
+    spec = ModelSpec(fit_axis=fit_axis, damped=damped)
+    return SceneModel(spec=spec, nutation_expected=gravity, nutation_frequency_hint_rad_s=nut,
+                      precession_hint_rad_s=prec, reasons=tuple(reasons))

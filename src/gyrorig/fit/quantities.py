@@ -1,0 +1,208 @@
+"""The fitted quantities: derived from the parameters, compared with theory, and with a synthetic truth.
+
+``precession_rate_rad_s``, ``nutation_frequency_rad_s``, ``nutation_amplitude_rad`` (half the
+peak-to-peak of the periodic tilt; under damping, at the first frame, the third-order term
+included), ``tilt_growth_rate_per_s`` and ``tilt_time_constant_s = 1 / rate`` (damping),
+``equilibrium_tilt_rad`` / ``equilibrium_azimuth_rad`` (a fitted axis), ``cone_angle_rad``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+from scipy.interpolate import CubicSpline
+
+from ..geometry import angles_from_tip, wrap_angle
+from ..protocols import Protocol
+from .data import FitData, FitError
+from .result import QUANTITY_UNITS, Quantity, QuantityStatus, Reason, Undetermined
+from .spec import ModelSpec
+
+__all__ = ["quantity_functions", "nutation_amplitude", "theory_values", "build_quantities", "truth_values"]
+
+
+def nutation_amplitude(spec: ModelSpec, names: list[str], x: np.ndarray) -> float:
+    """Half the peak-to-peak of the nutation's tilt over one period (at the first frame when damped). [rad]"""
+    ix = {n: i for i, n in enumerate(names)}
+    psi = np.linspace(0, 2 * np.pi, 721)[:-1]
+    y = np.zeros_like(psi)
+    for k in range(1, spec.harmonics + 1):
+        y += x[ix[f"tilt_cos_{k}_rad"]] * np.cos(k * psi) + x[ix[f"tilt_sin_{k}_rad"]] * np.sin(k * psi)
+    if spec.third_order:
+        # at the first frame the third-order term is part of the fundamental (it only decays faster);
+        # the two are nearly degenerate, their sum is what the record determines
+        y += x[ix["tilt_third_cos_rad"]] * np.cos(psi) + x[ix["tilt_third_sin_rad"]] * np.sin(psi)
+
+    def extreme(sign: float) -> float:  # refined with a parabola through the grid's best points
+        i = int(np.argmax(sign * y))
+        a, b, c = y[i - 1], y[i], y[(i + 1) % len(y)]
+        den = a - 2 * b + c
+        return b - 0.125 * (a - c) ** 2 / den if den != 0 else b
+
+    return 0.5 * (extreme(1.0) - extreme(-1.0))
+
+
+def quantity_functions(spec: ModelSpec) -> dict:
+    """Each quantity the model determines, as a function of the parameter vector."""
+    names = spec.names()
+    ix = {n: i for i, n in enumerate(names)}
+    fns = {
+        "precession_rate_rad_s": lambda x: x[ix["precession_rate_rad_s"]],
+        "cone_angle_rad": lambda x: math.exp(x[ix["log_cone_angle"]]),
+    }
+    if spec.harmonics:
+        fns["nutation_frequency_rad_s"] = lambda x: x[ix["nutation_frequency_rad_s"]]
+        fns["nutation_amplitude_rad"] = lambda x: nutation_amplitude(spec, names, x)
+    if spec.damped:
+        fns["tilt_growth_rate_per_s"] = lambda x: x[ix["tilt_growth_rate_per_s"]]
+    if spec.fit_axis:
+        fns["equilibrium_tilt_rad"] = lambda x: x[ix["axis_tilt_rad"]]
+        fns["equilibrium_azimuth_rad"] = lambda x: wrap_angle(x[ix["axis_azimuth_rad"]])
+    return fns
+
+
+def theory_values(prediction: dict | None) -> dict:
+    """Theory predictions (:func:`gyrorig.theory.predict`) keyed by fit quantity (angles for the
+    equilibrium direction)."""
+    if not prediction:
+        return {}
+    out = {}
+    for key in ("nutation_frequency_rad_s", "nutation_amplitude_rad", "tilt_growth_rate_per_s",
+                "tilt_time_constant_s"):
+        if key in prediction:
+            out[key] = prediction[key]
+    if "mean_precession_rate_rad_s" in prediction:
+        out["precession_rate_rad_s"] = prediction["mean_precession_rate_rad_s"]
+    elif "precession_rate_rad_s" in prediction:
+        out["precession_rate_rad_s"] = prediction["precession_rate_rad_s"]
+    if "equilibrium_tip" in prediction:
+        e = prediction["equilibrium_tip"]
+        tilts, azis = {}, {}
+        for k in ("paper", "exact"):
+            v = np.asarray(e[k], float)
+            th, ph = angles_from_tip(v / np.linalg.norm(v))
+            tilts[k], azis[k] = float(th), float(ph)
+        out["equilibrium_tilt_rad"] = {**tilts, "exact_source": e.get("exact_source", "")}
+        out["equilibrium_azimuth_rad"] = {**azis, "exact_source": e.get("exact_source", "")}
+    return out
+
+
+def _difference(name: str, a: float, b: float) -> float:
+    """``a - b``, wrapped for an azimuth."""
+    return wrap_angle(a - b) if name.endswith("azimuth_rad") else a - b
+
+
+def _compare(q: Quantity, theory: dict, comparable: bool, note: str = "") -> Quantity:
+    """``q`` with the theory's values beside it and, where comparable, the differences in standard errors."""
+    if q.name not in theory:
+        return q
+    p = theory[q.name]
+    paper, corr, exact = p.get("paper"), p.get("corrected"), p.get("exact")
+    upd = dict(paper=paper, corrected=corr, exact=exact, exact_source=p.get("exact_source", ""),
+               note="; ".join(n for n in (q.note, note) if n))
+    if comparable and q.value is not None and q.standard_error:
+        if paper is not None and np.isfinite(paper):
+            upd["diff_paper_se"] = _difference(q.name, q.value, paper) / q.standard_error
+        if exact is not None and np.isfinite(exact):
+            upd["diff_exact_se"] = _difference(q.name, q.value, exact) / q.standard_error
+    return replace(q, **upd)
+
+
+def _comparison_note(name: str, spec: ModelSpec, protocol: Protocol, cone_rad: float) -> tuple[bool, str]:
+    """Whether the prediction is comparable with the fitted value, and what to say beside it."""
+    if name == "nutation_amplitude_rad" and spec.damped:
+        return False, ("prediction is for the undamped launch; under damping the fitted amplitude is the one at the "
+                       "first frame of the record")
+    if name in ("precession_rate_rad_s", "nutation_frequency_rad_s") and spec.damped:
+        return False, ("predictions are for the undamped top at the launch tilt; under damping the tilt, and with it "
+                       "this quantity, drift: no difference in standard errors is given")
+    if name in ("tilt_growth_rate_per_s", "tilt_time_constant_s"):
+        launch = protocol.launch.tilt_rad
+        if abs(cone_rad - launch) > 1e-3:
+            return True, (f"theory is for steady precession at the launch tilt {launch:.4g} rad; the fitted cone is at "
+                          f"{cone_rad:.4g} rad at t_ref, and the rate depends on the tilt")
+        return True, ""
+    if name in ("equilibrium_tilt_rad", "equilibrium_azimuth_rad") and spec.damped:
+        return True, ("the effective vertical is the cone axis of the undamped top; damping displaces the axis "
+                      "from it, so a difference of many standard errors can be the damping rather than the formula")
+    return True, ""
+
+
+def _time_constant(values: dict, formal: dict) -> Quantity:
+    """``tau = 1 / rate``, undetermined while the rate is within 2 standard errors of zero."""
+    name = "tilt_time_constant_s"
+    lam, se = values["tilt_growth_rate_per_s"]
+    if abs(lam) < 2 * se:
+        return Quantity(name, QUANTITY_UNITS[name], None, None, QuantityStatus.UNDETERMINED,
+                        f"the tilt rate {lam:.3g} +- {se:.2g} 1/s is consistent with zero: |tau| > "
+                        f"{1 / (abs(lam) + 2 * se):.3g} s (2 standard errors)",
+                        reason_kind=Undetermined.CONSISTENT_WITH_ZERO)
+    return Quantity(name, QUANTITY_UNITS[name], 1 / lam, se / lam**2, QuantityStatus.DETERMINED,
+                    formal_standard_error=formal["tilt_growth_rate_per_s"] / lam**2,
+                    note=("tilt grows: tau is an e-folding time of growth" if lam > 0
+                          else "tilt decays: tau is an e-folding time of decay"))
+
+
+def build_quantities(spec: ModelSpec, values: dict, formal: dict, camera_se: dict, undetermined: dict[str, Reason],
+                     protocol: Protocol, prediction: dict | None, truth: dict[str, float]) -> dict[str, Quantity]:
+    """The quantities of the scene, with theory and truth beside them.
+
+    ``values``: quantity -> (value, standard error); ``formal``: quantity -> formal standard error;
+    ``camera_se``: the camera model's share; ``undetermined``: quantity -> why not; ``truth``:
+    quantity -> true value (synthetic runs).
+    """
+    theory = theory_values(prediction)
+    out: dict[str, Quantity] = {}
+    for name, units in QUANTITY_UNITS.items():
+        in_scene = (name in values or name in undetermined
+                    or (name == "tilt_time_constant_s" and "tilt_growth_rate_per_s" in values))
+        if not in_scene:
+            continue
+        if name in undetermined:
+            why = undetermined[name]
+            q = Quantity(name, units, None, None, QuantityStatus.UNDETERMINED, why.text, reason_kind=why.kind)
+        elif name == "tilt_time_constant_s":
+            q = _time_constant(values, formal)
+        else:
+            v, se = values[name]
+            q = Quantity(name, units, v, se, QuantityStatus.DETERMINED, formal_standard_error=formal[name],
+                         camera_standard_error=camera_se.get(name))
+        comparable, cnote = _comparison_note(name, spec, protocol, values["cone_angle_rad"][0])
+        if name == "tilt_time_constant_s":
+            comparable = q.value is not None
+        q = _compare(q, theory, comparable and q.determined, cnote)
+        if name in truth and q.determined:
+            tv = truth[name]
+            pull = _difference(name, q.value, tv) / q.standard_error if q.standard_error else None
+            q = replace(q, truth=tv, pull=pull)
+        out[name] = q
+    return out
+
+
+def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndarray) -> dict[str, float]:
+    """The quantities of the same model fitted to noiseless truth (``t_s, theta_rad, phi_rad``) at the
+    measured frame times, with the data's weights: the truth is what this estimator converges to
+    without noise."""
+    from .solver import solve
+
+    t = truth["t_s"].to_numpy(float)
+    order = np.argsort(t)
+    t = t[order]
+    th = truth["theta_rad"].to_numpy(float)[order]
+    ph = np.unwrap(truth["phi_rad"].to_numpy(float)[order])
+    lo, hi = data.t_s[0], data.t_s[-1]
+    # container timestamps are rounded (to 1 ms, say): allow half a frame at either end
+    slack = 0.5 * float(np.median(np.diff(data.t_s))) if data.n > 1 else 0.0
+    if t[0] > lo + slack or t[-1] < hi - slack:
+        raise FitError(f"the truth table ({t[0]:.6g}..{t[-1]:.6g} s) does not cover the measured times "
+                       f"({lo:.6g}..{hi:.6g} s)")
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    th_i = CubicSpline(t[keep], th[keep])(data.t_s)
+    ph_i = wrap_angle(CubicSpline(t[keep], ph[keep])(data.t_s))
+    d = replace(data, theta_rad=th_i, phi_rad=ph_i, camera_shift=None, exposure_s=None)  # instantaneous
+    spec0 = replace(spec, camera_modes=0)
+    sol = solve(spec0, d, dict(zip(spec0.names(), x)))
+    return {k: float(f(sol.x)) for k, f in quantity_functions(spec).items()}

@@ -1,0 +1,216 @@
+"""What a fit returns: quantities with theory beside them, the model, and its outcomes as data.
+
+Outcomes that other code acts on are fields and enums, never text to search: a quantity's
+:class:`QuantityStatus` and :class:`Undetermined` reason, the fit's :class:`ErrorKind`, and its
+notes as :class:`Note` records (a :class:`NoteKind` and the model term concerned, with the text
+for people).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+import pandas as pd
+
+from .spec import FitTerms, ModelSpec
+
+__all__ = ["QUANTITY_UNITS", "QuantityStatus", "Undetermined", "Reason", "ErrorKind", "NoteKind", "Note", "Quantity",
+           "FitResult", "NONLINEAR_PHASE_RAD"]
+
+QUANTITY_UNITS = {
+    "precession_rate_rad_s": "rad/s",
+    "nutation_frequency_rad_s": "rad/s",
+    "nutation_amplitude_rad": "rad",
+    "tilt_growth_rate_per_s": "1/s",
+    "tilt_time_constant_s": "s",
+    "equilibrium_tilt_rad": "rad",
+    "equilibrium_azimuth_rad": "rad",
+    "cone_angle_rad": "rad",
+}
+#: a rate-like parameter whose standard error leaves more than this phase (rad) uncertain at the
+#: record's ends puts the fit outside its linear regime (see :func:`gyrorig.fit.uncertainty.phase_uncertainty`)
+NONLINEAR_PHASE_RAD = 0.3
+
+
+class QuantityStatus(StrEnum):
+    DETERMINED = "determined"
+    UNDETERMINED = "undetermined"
+
+
+class Undetermined(StrEnum):
+    """Why a quantity is not determined."""
+
+    #: the frame rate does not resolve the predicted nutation frequency
+    CAMERA_TOO_SLOW = "camera-too-slow"
+    #: the record covers fewer than two predicted nutation periods
+    TOO_FEW_PERIODS = "too-few-periods"
+    #: the chi-square does not want a nutation term
+    NOT_SIGNIFICANT = "not-significant"
+    #: the fit with the term did not converge
+    NOT_CONVERGED = "not-converged"
+    #: the fitted frequency left the band (0, Nyquist)
+    OUT_OF_BAND = "out-of-band"
+    #: tau = 1 / rate with a rate consistent with zero
+    CONSISTENT_WITH_ZERO = "consistent-with-zero"
+
+
+@dataclass(frozen=True)
+class Reason:
+    """Why something is not determined: the kind, and the text for people."""
+
+    kind: Undetermined
+    text: str
+
+
+class ErrorKind(StrEnum):
+    """Where the standard errors come from."""
+
+    #: the Cramer-Rao bound of the model for the tracker's errors, ``(J^T J)^-1``
+    FORMAL = "formal"
+    #: formal, times sqrt(chi2_red) (reduced chi-square significantly above 1)
+    SCALED = "scaled"
+    #: a moving-block bootstrap of the residuals (residuals not white)
+    BOOTSTRAP = "bootstrap"
+
+
+class NoteKind(StrEnum):
+    """What a note of the fit is about."""
+
+    SCENE = "scene"
+    TERMS_GIVEN = "terms-given"
+    AZIMUTH_SEGMENTS = "azimuth-segments"
+    HARMONIC_ABOVE_NYQUIST = "harmonic-above-nyquist"
+    TERM_MODELLED = "term-modelled"
+    #: the record needed a term the plan did not have: added
+    TERM_BEYOND_PLAN = "term-beyond-plan"
+    #: ... but it cannot be told apart from the planned model on this record: left out
+    TERM_NOT_IDENTIFIABLE = "term-not-identifiable"
+    PLANNED_TERM_FAILED = "planned-term-failed"
+    TERM_LEFT_OUT = "term-left-out"
+    RESIDUALS_NOT_WHITE = "residuals-not-white"
+    ERRORS_SCALED = "errors-scaled"
+    RECORD_TOO_SHORT = "record-too-short"
+    SYSTEMATIC = "systematic"
+    CAMERA_MODES = "camera-modes"
+
+
+@dataclass(frozen=True)
+class Note:
+    """A note of the fit: its kind, the model term it concerns (``""``: none), and the text for people."""
+
+    kind: NoteKind
+    text: str
+    term: str = ""
+
+    def __str__(self) -> str:
+        return self.text
+
+    def as_dict(self) -> dict:
+        return {"kind": str(self.kind), "term": self.term, "text": self.text}
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One fitted quantity with what theory says about it."""
+
+    name: str
+    units: str
+    value: float | None
+    standard_error: float | None
+    status: QuantityStatus
+    reason: str = ""
+    paper: float | None = None
+    corrected: float | None = None
+    exact: float | None = None
+    exact_source: str = ""
+    diff_paper_se: float | None = None
+    diff_exact_se: float | None = None
+    truth: float | None = None
+    pull: float | None = None
+    note: str = ""
+    #: the Cramer-Rao bound of the fit model for the tracker's errors ((J^T J)^-1, before any
+    #: chi-square scaling or bootstrap)
+    formal_standard_error: float | None = None
+    #: the camera model's share of the standard error (in quadrature; 0 for an exact camera)
+    camera_standard_error: float | None = None
+    #: why the quantity is undetermined (None when it is determined)
+    reason_kind: Undetermined | None = None
+
+    @property
+    def determined(self) -> bool:
+        return self.status is QuantityStatus.DETERMINED
+
+    def as_dict(self) -> dict:
+        return {k: (str(v) if isinstance(v, StrEnum) else v)
+                for k, v in ((k, getattr(self, k)) for k in self.__dataclass_fields__)}
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Outcome of :func:`gyrorig.fit.fit_angles`."""
+
+    spec: ModelSpec
+    params: dict[str, tuple[float, float]]
+    quantities: dict[str, Quantity]
+    chi2: float
+    dof: int
+    residuals: pd.DataFrame
+    model_curve: pd.DataFrame
+    t_ref_s: float
+    error_kind: ErrorKind
+    notes: tuple[Note, ...] = ()
+    x: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    wall_time_s: float = 0.0
+    #: how the optional model terms were chosen
+    terms: FitTerms | None = None
+    #: phase left uncertain at the record's ends by each rate-like parameter
+    phase_uncertainty_rad: dict[str, float] = field(default_factory=dict)
+    #: with bootstrap errors: (replicates, block length in frames)
+    bootstrap: tuple[int, int] | None = None
+
+    @property
+    def linear_regime(self) -> bool:
+        """True when every rate-like parameter is known well enough for the errors to be Cramer-Rao bounds."""
+        return all(v <= NONLINEAR_PHASE_RAD for v in self.phase_uncertainty_rad.values())
+
+    @property
+    def chi2_red(self) -> float:
+        return self.chi2 / max(self.dof, 1)
+
+    @property
+    def errors(self) -> str:
+        """Where the standard errors come from, for people."""
+        if self.error_kind is ErrorKind.BOOTSTRAP:
+            reps, block = self.bootstrap
+            return f"moving-block bootstrap ({reps} replicates, block {block} frames)"
+        return "formal x sqrt(chi2_red)" if self.error_kind is ErrorKind.SCALED else "formal"
+
+    def notes_of(self, *kinds: NoteKind) -> tuple[Note, ...]:
+        """The notes of the given kinds."""
+        return tuple(n for n in self.notes if n.kind in kinds)
+
+    @property
+    def terms_beyond_plan(self) -> tuple[str, ...]:
+        """Optional terms the record needed beyond the planned model (added)."""
+        return tuple(n.term for n in self.notes_of(NoteKind.TERM_BEYOND_PLAN))
+
+    @property
+    def terms_not_identifiable(self) -> tuple[str, ...]:
+        """Optional terms the record asked for but could not tell apart from the planned model (left out)."""
+        return tuple(n.term for n in self.notes_of(NoteKind.TERM_NOT_IDENTIFIABLE))
+
+    def summary(self) -> dict:
+        """The content of ``fit.json`` that comes from the fit."""
+        model = {**self.spec.summary(), "terms_chosen": self.terms.source if self.terms is not None else "",
+                 "linear_regime": self.linear_regime, "phase_uncertainty_rad": dict(self.phase_uncertainty_rad)}
+        return {
+            "model": model, "t_ref_s": self.t_ref_s, "chi2": self.chi2, "dof": self.dof, "chi2_red": self.chi2_red,
+            "errors": self.errors, "error_kind": str(self.error_kind), "notes": [n.as_dict() for n in self.notes],
+            "quantities": {k: q.as_dict() for k, q in self.quantities.items()},
+            "parameters": {k: {"value": v, "standard_error": s} for k, (v, s) in self.params.items()},
+            "wall_time_s": self.wall_time_s,
+        }
+

@@ -1,0 +1,137 @@
+"""Standard errors: the delta method, the checks on the residuals, the bootstrap, the camera's share.
+
+The parameter covariance is ``(J^T J)^-1`` of the whitened residuals: the Cramér-Rao bound of the
+model for the tracker's per-frame errors.  It is what the fit reports when the residuals are
+consistent with those errors.  Where they are not white (lag-1 autocorrelation beyond
+``4 / sqrt(N)``) a moving-block bootstrap of the residuals gives the errors instead; where the
+reduced chi-square is significantly above 1 the errors are scaled by ``sqrt(chi2_red)``.  The
+least-squares errors are Cramér-Rao bounds only while the model is linear over one standard
+error: :func:`phase_uncertainty` says whether the record is long enough for that.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.stats import chi2
+
+from .data import FitData
+from .model import FitModel, Residuals
+from .result import ErrorKind, Note, NoteKind
+from .spec import ModelSpec
+
+__all__ = ["delta_se", "phase_uncertainty", "lag1_autocorrelation", "block_bootstrap", "statistical_covariance",
+           "choose_errors", "RATE_PARAMETERS"]
+
+#: parameters that enter the model as phase or log-amplitude rates: (name, power of tau)
+RATE_PARAMETERS = (("precession_rate_rad_s", 1), ("nutation_frequency_rad_s", 1), ("persistent_frequency_rad_s", 1),
+                   ("nutation_decay_rate_per_s", 1), ("tilt_growth_rate_per_s", 1),
+                   ("precession_acceleration_rad_s2", 2), ("nutation_chirp_rad_s2", 2),
+                   ("tilt_growth_curvature_per_s2", 2))
+
+
+def delta_se(f, x: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+    """``f(x)`` and its standard error by the delta method (central differences)."""
+    v = f(x)
+    g = np.zeros_like(x)
+    for i in range(len(x)):
+        h = 1e-6 * max(abs(x[i]), np.sqrt(max(cov[i, i], 0.0)), 1e-12)
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        g[i] = (f(xp) - f(xm)) / (2 * h)
+    return float(v), float(np.sqrt(max(g @ cov @ g, 0.0)))
+
+
+def phase_uncertainty(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data: FitData) -> dict[str, float]:
+    """For each rate-like parameter, one standard error times the longest ``|tau|`` (``tau^2 / 2``
+    for second-order terms): the phase or log-amplitude it leaves uncertain at the record's
+    ends, in radians.  The least-squares errors are Cramér-Rao bounds only while these are
+    well below 1 (the model is linear over one standard error); above
+    :data:`gyrorig.fit.result.NONLINEAR_PHASE_RAD` the record is too short for the model."""
+    names = spec.names()
+    tau = float(np.max(np.abs(data.tau)))
+    out = {}
+    for name, power in RATE_PARAMETERS:
+        if name in names:
+            i = names.index(name)
+            se = math.sqrt(max(float(cov[i, i]), 0.0))
+            out[name] = se * (tau if power == 1 else 0.5 * tau * tau)
+    return out
+
+
+def lag1_autocorrelation(model: FitModel, data: FitData, x: np.ndarray) -> tuple[float, float]:
+    """Lag-1 autocorrelation of the whitened residuals in theta and in phi."""
+    r = Residuals(model, data)(x)[:2 * data.n].reshape(2, -1)
+    rho = [float(np.sum(ri[1:] * ri[:-1]) / np.sum(ri * ri)) for ri in r]
+    return rho[0], rho[1]
+
+
+def block_bootstrap(spec: ModelSpec, x: np.ndarray, data: FitData, fns: dict, rng: np.random.Generator,
+                    replicates: int, block: int) -> dict[str, float]:
+    """Moving-block bootstrap of the residuals (refits start at the solution): the SD of each quantity."""
+    from .solver import solve
+
+    model = FitModel(spec)
+    r0, r1 = Residuals(model, data).raw(x)
+    th_fit, ph_fit = data.theta_rad - r0, data.phi_rad - r1
+    n = data.n
+    out = {k: [] for k in fns}
+    for _ in range(replicates):
+        starts = rng.integers(0, max(n - block, 1), size=int(math.ceil(n / block)))
+        idx = np.concatenate([np.arange(s, s + block) for s in starts])[:n]
+        idx = np.minimum(idx, n - 1)
+        d = replace(data, theta_rad=th_fit + r0[idx], phi_rad=ph_fit + r1[idx])
+        s = solve(spec, d, model.values(x))
+        for k, f in fns.items():
+            out[k].append(f(s.x))
+    return {k: float(np.std(v, ddof=1)) for k, v in out.items()}
+
+
+def statistical_covariance(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data: FitData) -> np.ndarray | None:
+    """Parameter covariance with the camera modes held at their fitted values (None without modes).
+
+    Padded with zeros for the modes, so that the difference from the full covariance is the
+    camera model's share.
+    """
+    m = spec.camera_modes
+    if not m:
+        return None
+    nb = len(x) - m
+    J = Residuals(FitModel(spec), data).jac(x)[:2 * data.n, :nb]
+    out = np.zeros_like(cov)
+    out[:nb, :nb] = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
+    return out
+
+
+def choose_errors(spec: ModelSpec, x: np.ndarray, chi2_value: float, dof: int, data: FitData, fns: dict,
+                  rng: np.random.Generator | None, replicates: int, check_residuals: bool
+                  ) -> tuple[ErrorKind, tuple[int, int] | None, dict[str, float], list[Note]]:
+    """Where the standard errors come from, after the residual checks.
+
+    Returns the kind, the bootstrap's ``(replicates, block)`` (None without), the bootstrap's SD of
+    each quantity (empty without) and the notes saying why.
+    """
+    if not check_residuals:
+        return ErrorKind.FORMAL, None, {}, []
+    rho = lag1_autocorrelation(FitModel(spec), data, x)
+    white_limit = 4.0 / math.sqrt(data.n)
+    chi2_red = chi2_value / max(dof, 1)
+    if max(abs(rho[0]), abs(rho[1])) > white_limit:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        block = max(2, int(math.ceil(1 + 2 * max(abs(rho[0]), abs(rho[1])) / (1 - min(0.99, max(abs(r) for r in rho)))
+                                     * 5)))
+        block = min(block, max(2, data.n // 10))  # at least ten blocks, or the bootstrap has nothing to resample
+        sd = block_bootstrap(spec, x, data, fns, rng, replicates, block)
+        note = Note(NoteKind.RESIDUALS_NOT_WHITE,
+                    f"residuals are not white (lag-1 autocorrelation {rho[0]:.3f} in theta, {rho[1]:.3f} in phi; "
+                    f"limit {white_limit:.3f}): standard errors from the bootstrap")
+        return ErrorKind.BOOTSTRAP, (replicates, block), sd, [note]
+    if chi2.sf(chi2_value, dof) < 1e-3 and chi2_red > 1:
+        note = Note(NoteKind.ERRORS_SCALED,
+                    f"reduced chi-square {chi2_red:.3f} is significantly above 1 (the tracker's error bars are too "
+                    "small or the model misses something): standard errors scaled by sqrt(chi2_red)")
+        return ErrorKind.SCALED, None, {}, [note]
+    return ErrorKind.FORMAL, None, {}, []

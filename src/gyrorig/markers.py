@@ -1,0 +1,128 @@
+"""The protocol's ``[markers]`` section, parsed once into typed markers.
+
+``[markers.NAME]``: ``body = "frame" | "lab"`` ("frame": fixed to the non-spinning frame,
+coordinates with ``z`` along the symmetry axis; for a top without a frame, fixed to the top;
+"lab": a fiducial fixed in the lab, pivot at the origin), ``position_m = [x, y, z]``,
+``radius_m`` (a sphere of this radius), ``brightness_e_per_s`` (electrons per pixel per second
+inside the dot; needed to render or plan, not to track).  ``kind = "occluder"`` instead
+describes an opaque cylinder about the axis (``radius_m, z_min_m, z_max_m``, on the frame),
+e.g. the rotor can.
+
+The renderer draws every dot; the tracker follows the ``tip`` (on the axis), the frame's dots
+off the axis (their azimuth about the axis gives the frame angle ``psi``) and finds the
+camera pose from the lab fiducials; the plan assesses the tip.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .protocols import Protocol, ProtocolError, _check_keys, _number, _vector3
+
+__all__ = ["Marker", "Occluder", "MarkerSet", "parse_markers", "TIP_MARKER"]
+
+#: the marker the tracker follows (on the symmetry axis, on the frame)
+TIP_MARKER = "tip"
+
+
+@dataclass(frozen=True)
+class Marker:
+    """A bright spherical dot on the frame (``body="frame"``) or fixed in the lab (``body="lab"``)."""
+
+    name: str
+    body: str
+    position_m: tuple[float, float, float]
+    radius_m: float
+    #: electrons per pixel per second inside the dot (None: not given; tracking does not need it)
+    brightness_e_per_s: float | None = None
+
+    @property
+    def off_axis_m(self) -> float:
+        """Distance from the symmetry axis (frame dots). [m]"""
+        return math.hypot(self.position_m[0], self.position_m[1])
+
+    @property
+    def lever_m(self) -> float:
+        """Distance from the pivot. [m]"""
+        return float(np.linalg.norm(self.position_m))
+
+
+@dataclass(frozen=True)
+class Occluder:
+    """An opaque cylinder about the top's axis, ``z_min_m <= z <= z_max_m`` in frame coordinates."""
+
+    name: str
+    radius_m: float
+    z_min_m: float
+    z_max_m: float
+
+
+@dataclass(frozen=True)
+class MarkerSet:
+    """All markers of a protocol."""
+
+    dots: tuple[Marker, ...]
+    occluders: tuple[Occluder, ...]
+
+    def tip(self) -> Marker:
+        """The tip marker (named ``tip``, on the frame); :class:`ProtocolError` if there is none."""
+        for m in self.dots:
+            if m.name == TIP_MARKER:
+                if m.body != "frame":
+                    break
+                return m
+        raise ProtocolError(f"markers.{TIP_MARKER}: a marker named '{TIP_MARKER}' on the frame (body = 'frame') "
+                            "is needed")
+
+    def fiducials(self) -> tuple[Marker, ...]:
+        """Lab-fixed dots (for the camera pose)."""
+        return tuple(m for m in self.dots if m.body == "lab")
+
+    def frame_dots(self) -> tuple[Marker, ...]:
+        """Frame-fixed dots off the axis, other than the tip (they give the frame's angle about the axis)."""
+        return tuple(m for m in self.dots if m.name != TIP_MARKER and m.body == "frame" and m.off_axis_m > 1e-6)
+
+    def require_brightness(self, purpose: str) -> None:
+        """Raise :class:`ProtocolError` naming the first dot without ``brightness_e_per_s``."""
+        for m in self.dots:
+            if m.brightness_e_per_s is None:
+                raise ProtocolError(f"[markers.{m.name}] is missing required key(s) brightness_e_per_s ({purpose} "
+                                    "needs each dot's brightness)")
+
+
+def parse_markers(source: Protocol | Mapping[str, Any]) -> MarkerSet:
+    """Parse and validate a ``[markers]`` table (or a protocol's); errors name the key and the allowed range."""
+    if isinstance(source, Protocol):
+        if "markers" not in source.extra:
+            raise ProtocolError(f"{source.name}: the protocol has no [markers] section")
+        source = source.extra["markers"]
+    if not isinstance(source, Mapping) or not source:
+        raise ProtocolError("[markers] must contain at least one [markers.NAME] table")
+    dots, occluders = [], []
+    for name, m in source.items():
+        s = f"markers.{name}"
+        if not isinstance(m, Mapping):
+            raise ProtocolError(f"[{s}] must be a table")
+        if m.get("kind", "dot") == "occluder":
+            _check_keys(s, m, {"kind", "radius_m", "z_min_m", "z_max_m"}, set())
+            occluders.append(Occluder(name, _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True),
+                                      _number(s, "z_min_m", m["z_min_m"], lo=-1.0, hi=1.0),
+                                      _number(s, "z_max_m", m["z_max_m"], lo=-1.0, hi=1.0)))
+            continue
+        _check_keys(s, m, {"body", "position_m", "radius_m"}, {"kind", "brightness_e_per_s"})
+        if m.get("kind", "dot") != "dot":
+            raise ProtocolError(f"{s}.kind = {m['kind']!r}: allowed 'dot', 'occluder'")
+        if m["body"] not in ("frame", "lab"):
+            raise ProtocolError(f"{s}.body = {m['body']!r}: allowed 'frame', 'lab'")
+        brightness = (None if "brightness_e_per_s" not in m else
+                      _number(s, "brightness_e_per_s", m["brightness_e_per_s"], lo=0.0, lo_open=True))
+        dots.append(Marker(name, m["body"], _vector3(s, "position_m", m["position_m"]),
+                           _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1), brightness))
+    if not dots:
+        raise ProtocolError("[markers] has no dot (kind = 'dot'): nothing to track")
+    return MarkerSet(tuple(dots), tuple(occluders))

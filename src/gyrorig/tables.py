@@ -1,0 +1,57 @@
+"""The tables stages pass along: column names in one place, and the check that a table has them.
+
+**Angle table** (``angles.csv``, written by the tracker, read by the smoother and the fit):
+``frame, t_s`` (mid-exposure time; with a rolling shutter plus the tip's row delay),
+``theta_rad, phi_rad`` (unwrapped), ``theta_sigma_rad, phi_sigma_rad, theta_phi_corr``,
+``tip_x, tip_y, tip_z`` (unit tip vector), ``quality`` (:data:`QUALITY_FLAGS`, comma-separated
+when several apply); then, when present, ``psi_rad, psi_sigma_rad`` (the frame's angle about
+the axis), ``exposure_s`` (the angles are averaged over it) and ``theta_cam_k_rad,
+phi_cam_k_rad`` for each camera-model mode ``k = 1, 2, ...`` (each frame's angle shift for a
+one-sigma move of that mode).
+
+**Marker table** (``markers.csv``): one row per detected marker and frame, :data:`MARKER_COLUMNS`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import pandas as pd
+
+__all__ = ["ANGLE_COLUMNS", "ANGLE_REQUIRED", "MARKER_COLUMNS", "QUALITY_FLAGS", "camera_mode_columns",
+           "camera_mode_count", "missing_columns", "quality_counts"]
+
+ANGLE_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
+                 "tip_x", "tip_y", "tip_z", "quality")
+#: what the smoother needs of an angle table (the fit needs the same but ``frame``)
+ANGLE_REQUIRED = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad")
+MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma_y_px", "radius_px",
+                  "amplitude_adu", "background_adu", "chi2_red", "quality")
+#: ``ok``; ``blended`` (fitted jointly with a neighbouring spot); ``saturated``; ``reacquired`` (found
+#: by a full-frame search after a loss); ``missing`` (no position: a gap); ``off-sphere`` (the ray
+#: misses the tip's sphere); ``duplicate`` (a repeated frame)
+QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate")
+
+
+def camera_mode_columns(k: int) -> tuple[str, str]:
+    """The (theta, phi) columns of camera-model mode ``k`` (1-based)."""
+    return f"theta_cam_{k}_rad", f"phi_cam_{k}_rad"
+
+
+def camera_mode_count(columns: Iterable[str]) -> int:
+    """How many consecutive camera-model modes (1, 2, ...) a table has both columns of."""
+    cols = set(columns)
+    k = 0
+    while all(c in cols for c in camera_mode_columns(k + 1)):
+        k += 1
+    return k
+
+
+def missing_columns(table: pd.DataFrame, required: Iterable[str]) -> list[str]:
+    """The required columns the table lacks (in the order given)."""
+    return [c for c in required if c not in table.columns]
+
+
+def quality_counts(angles: pd.DataFrame) -> dict[str, int]:
+    """How many frames carry each tracking ``quality`` flag (a frame may carry several)."""
+    return angles["quality"].fillna("").str.split(",").explode().value_counts().to_dict()

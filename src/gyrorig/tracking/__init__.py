@@ -1,0 +1,29 @@
+"""Tracking: from a video to the tip direction theta(t), phi(t) with honest error bars.
+
+Works on any video OpenCV decodes, or on frames held in memory; it reads only the frames,
+``camera.json`` and the protocol's marker geometry, never the simulator or a renderer's
+``truth.csv`` (this package imports neither).
+
+* :mod:`~gyrorig.tracking.camera_file`: ``camera.json`` (:class:`TrackingCamera`, :func:`load_camera`);
+* :mod:`~gyrorig.tracking.sources`: video files and in-memory frames;
+* :mod:`~gyrorig.tracking.detect`: blobs above a threshold (start points);
+* :mod:`~gyrorig.tracking.spot`: the spot model, its weighted least-squares fit and its Cramér-Rao bound;
+* :mod:`~gyrorig.tracking.rays`: pixels -> rays -> the tip's sphere -> angles with covariance;
+* :mod:`~gyrorig.tracking.pose`: the pose from the fiducials, the camera model's uncertainty as modes;
+* :mod:`~gyrorig.tracking.dots`: the frame's dots and its angle ``psi``;
+* :mod:`~gyrorig.tracking.tracker`: the loop (:func:`track` returns the tables, :func:`track_video`
+  writes ``angles.csv`` and ``markers.csv``).
+"""
+
+from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS
+from .camera_file import INTRINSIC_PARAMETERS, TrackingCamera, load_camera
+from .errors import TrackingError
+from .pose import camera_modes, estimate_pose
+from .rays import tip_from_pixel, tips_from_pixels
+from .sources import FrameArrays, VideoFile
+from .spot import SpotFit, fit_spot, spot_crb_px, warm_up
+from .tracker import TrackResult, track, track_video
+
+__all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
+           "tip_from_pixel", "tips_from_pixels", "camera_modes", "track", "track_video", "TrackResult",
+           "TrackingError", "VideoFile", "FrameArrays", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]

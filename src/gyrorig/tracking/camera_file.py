@@ -1,0 +1,132 @@
+"""``camera.json``: what the tracker needs to know about the camera (OpenCV conventions).
+
+Written by ``gyrorig render`` (intrinsics, pose, sensor) or ``gyrorig calibrate`` (intrinsics
+and their covariance, no pose).  A lab point ``X`` maps to ``R(rvec) X + tvec``, then through
+the pinhole ``camera_matrix`` and the distortion ``dist_coeffs`` to pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from functools import cached_property
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .errors import TrackingError
+
+__all__ = ["TrackingCamera", "load_camera", "INTRINSIC_PARAMETERS"]
+
+#: intrinsics an ``intrinsics_covariance`` in ``camera.json`` may refer to (``gyrorig calibrate`` writes the
+#: first eight); a pose covariance is over ``(rvec, tvec)``
+INTRINSIC_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+@dataclass(frozen=True)
+class TrackingCamera:
+    """What the tracker needs from ``camera.json`` (OpenCV conventions)."""
+
+    camera_matrix: np.ndarray
+    dist_coeffs: np.ndarray
+    rvec: np.ndarray
+    tvec: np.ndarray
+    width_px: int
+    height_px: int
+    fps: float
+    exposure_s: float
+    shutter: str
+    readout_time_s: float
+    psf_sigma_px: float
+    gain_e_per_adu: float
+    read_noise_e: float
+    max_adu: int
+    #: covariance of the intrinsics named in ``intrinsics_parameters`` (None: exact)
+    intrinsics_covariance: np.ndarray | None = None
+    intrinsics_parameters: tuple[str, ...] = ()
+    #: covariance of ``(rvec, tvec)`` (None: exact, or found from the fiducials)
+    pose_covariance: np.ndarray | None = None
+
+    @property
+    def has_pose(self) -> bool:
+        """True when the pose relative to the pivot is known."""
+        return bool(np.all(np.isfinite(self.rvec)) and np.all(np.isfinite(self.tvec)))
+
+    @property
+    def sensor_known(self) -> bool:
+        """True when the sensor's gain is known (pixel variances from the noise model)."""
+        return math.isfinite(self.gain_e_per_adu)
+
+    @cached_property
+    def rotation(self) -> np.ndarray:
+        """World-to-camera rotation matrix ``R(rvec)`` (computed once per camera)."""
+        return cv2.Rodrigues(self.rvec)[0]
+
+    @cached_property
+    def centre_m(self) -> np.ndarray:
+        """Camera centre in the lab (pivot frame). [m]"""
+        return -self.rotation.T @ self.tvec
+
+    def row_delay_s(self, y_px: float) -> float:
+        """Start of row ``y_px``'s exposure after the frame's start (rolling shutter; 0 for a global one). [s]"""
+        return (y_px / self.height_px) * self.readout_time_s if self.shutter == "rolling" else 0.0
+
+    def with_intrinsics(self, names: tuple[str, ...], delta: np.ndarray) -> "TrackingCamera":
+        """The camera with the named intrinsics (:data:`INTRINSIC_PARAMETERS`) moved by ``delta``."""
+        K = self.camera_matrix.copy()
+        dist = np.zeros(max(5, self.dist_coeffs.size))
+        dist[:self.dist_coeffs.size] = self.dist_coeffs
+        where = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+        for name, d in zip(names, delta):
+            if name in where:
+                K[where[name]] += d
+            else:
+                dist[("k1", "k2", "p1", "p2", "k3").index(name)] += d
+        return replace(self, camera_matrix=K, dist_coeffs=dist)
+
+
+def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamera:
+    """Read ``camera.json`` (as written by ``gyrorig render``, or by ``gyrorig calibrate``).
+
+    Without a pose (``rvec``, ``tvec``) the camera is returned with NaN pose when
+    ``require_pose=False``; :func:`gyrorig.tracking.estimate_pose` then finds it from the fiducials.
+    """
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise TrackingError(f"cannot read camera file {path}: {exc}") from exc
+    missing = [k for k in ("camera_matrix", "dist_coeffs", "image_size") if k not in d]
+    if missing:
+        raise TrackingError(f"{path}: missing key(s) {', '.join(missing)}")
+    if ("rvec" not in d or "tvec" not in d) and require_pose:
+        raise TrackingError(f"{path}: no camera pose (rvec, tvec) relative to the pivot; "
+                            "the tracker needs it to turn pixels into directions")
+    sensor = d.get("sensor", {})
+    bits = int(sensor.get("bit_depth", 8))
+    cov_i = names = cov_p = None
+    if "intrinsics_covariance" in d:
+        names = tuple(d.get("intrinsics_parameters", INTRINSIC_PARAMETERS[:8]))
+        unknown = [n for n in names if n not in INTRINSIC_PARAMETERS]
+        cov_i = np.asarray(d["intrinsics_covariance"], dtype=float)
+        if unknown or cov_i.shape != (len(names), len(names)):
+            raise TrackingError(f"{path}: intrinsics_covariance must be a {len(names)} x {len(names)} matrix over "
+                                f"intrinsics_parameters (any of {', '.join(INTRINSIC_PARAMETERS)}); unknown: {unknown}")
+    if "pose_covariance" in d:
+        cov_p = np.asarray(d["pose_covariance"], dtype=float)
+        if cov_p.shape != (6, 6):
+            raise TrackingError(f"{path}: pose_covariance must be 6 x 6 over (rvec, tvec), not {cov_p.shape}")
+    for key, c in (("intrinsics_covariance", cov_i), ("pose_covariance", cov_p)):
+        if c is not None and (not np.all(np.isfinite(c)) or np.linalg.eigvalsh(0.5 * (c + c.T)).min()
+                              < -1e-9 * max(np.abs(c).max(), 1e-300)):
+            raise TrackingError(f"{path}: {key} must be finite, symmetric and positive semi-definite")
+    return TrackingCamera(
+        np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
+        np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),
+        np.asarray(d.get("tvec", [np.nan] * 3), dtype=float).ravel(),
+        int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
+        d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
+        float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1,
+        cov_i, names or (), cov_p)

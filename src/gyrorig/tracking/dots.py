@@ -1,0 +1,171 @@
+"""The frame's own dots (e.g. a crossbar): the frame's rotation angle ``psi`` about the axis.
+
+A dot fixed on the frame at ``(rho cos a, rho sin a, z)`` (frame coordinates, ``z`` along the
+axis) sits, for the tip direction ``n`` and the frame angle ``psi``, at
+``rho (cos(psi + a) e_a + sin(psi + a) e_b) + z n`` with ``e_a`` the line of nodes and
+``e_b = n x e_a`` (Goldstein x-convention).  Seen at a pixel, its ray meets the sphere of the
+dot's radius about the pivot; the intersection nearer the dot's height along the axis gives
+``psi``.  With two dots symmetric about the axis, which is which cannot be told from the
+images: ``psi`` is then known modulo pi, and is continuous within a record.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from ..geometry import ray_sphere_distances, wrap_angle
+from ..markers import Marker
+from .camera_file import TrackingCamera
+from .detect import find_blobs
+from .rays import pixel_rays
+from .spot import SpotFit, fit_spot
+
+__all__ = ["DotTracker", "dot_angle"]
+
+
+def _axis_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Line of nodes ``a`` and ``b = n x a`` for the tip direction ``n`` (Goldstein x-convention)."""
+    phi = math.atan2(n[0], -n[1])
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([c, s, 0.0]), np.array([-n[2] * s, n[2] * c, n[0] * s - n[1] * c])
+
+
+def _angle_on_frame(dot: Marker) -> float:
+    return math.atan2(dot.position_m[1], dot.position_m[0])
+
+
+def _dot_position(dot: Marker, n: np.ndarray, psi: float) -> np.ndarray:
+    a, b = _axis_basis(n)
+    ang = psi + _angle_on_frame(dot)
+    return dot.off_axis_m * (math.cos(ang) * a + math.sin(ang) * b) + dot.position_m[2] * n
+
+
+def dot_angle(x_px: float, y_px: float, dot: Marker, n: np.ndarray, cam: TrackingCamera) -> float | None:
+    """The frame angle psi implied by ``dot`` seen at a pixel, for the tip direction ``n``.
+
+    The ray meets the sphere ``|X| = |p|`` twice; the intersection whose height along the
+    axis is nearer the dot's is taken, and rejected (None) if it is off the dot's circle by
+    more than a quarter of its radius, or if the ray misses the sphere.
+    """
+    d = pixel_rays(np.array([[x_px, y_px]]), cam)[0]
+    c = cam.centre_m
+    near, far = ray_sphere_distances(c, d, float(np.dot(dot.position_m, dot.position_m)) ** 0.5)
+    if not math.isfinite(near):
+        return None
+    best = None
+    for s in (near, far):
+        X = c + s * d
+        off = abs(X @ n - dot.position_m[2])
+        if best is None or off < best[0]:
+            best = (off, X)
+    off, X = best
+    v = X - (X @ n) * n
+    rho = dot.off_axis_m
+    if off > 0.25 * rho or abs(np.linalg.norm(v) - rho) > 0.25 * rho:
+        return None
+    a, b = _axis_basis(n)
+    return math.atan2(v @ b, v @ a) - _angle_on_frame(dot)
+
+
+class DotTracker:
+    """Follows the frame's dots from frame to frame; gives the frame angle psi and its sigma."""
+
+    LOST_AFTER = 5  # frames without any dot before a fresh acquisition
+
+    def __init__(self, dots: tuple[Marker, ...], cam: TrackingCamera):
+        self.dots = dots
+        self.cam = cam
+        depth = float(np.linalg.norm(cam.centre_m))
+        self.r_px = {d.name: cam.camera_matrix[0, 0] * d.radius_m / depth for d in dots}
+        self.psi = None
+        self.rate = 0.0
+        self.t = None
+        self.misses = 0
+        self.last_r = dict(self.r_px)
+
+    def _project(self, X: np.ndarray) -> np.ndarray:
+        return cv2.projectPoints(X.reshape(-1, 1, 3), self.cam.rvec, self.cam.tvec, self.cam.camera_matrix,
+                                 self.cam.dist_coeffs)[0].reshape(-1, 2)
+
+    def _acquire(self, image, n, tip_xy, r_tip, threshold):
+        dot = self.dots[0]
+        circle = self._project(np.array([_dot_position(dot, n, q) for q in np.linspace(0, 2 * np.pi, 25)[:-1]]))
+        r = self.r_px[dot.name]
+        h, w = image.shape
+        x0, y0 = circle.min(axis=0) - 3 * r - 5
+        x1, y1 = circle.max(axis=0) + 3 * r + 5
+        cand = find_blobs(image, max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h), threshold)
+        for cx, cy, cr in sorted(cand, key=lambda c: -c[2]):
+            if not 0.5 * r <= cr <= 1.6 * r or math.hypot(cx - tip_xy[0], cy - tip_xy[1]) < 1.2 * r_tip:
+                continue
+            fit = fit_spot(image, cx, cy, cr, self.cam)
+            if fit is not None:
+                psi = dot_angle(fit.x_px, fit.y_px, dot, n, self.cam)
+                if psi is not None:
+                    return psi
+        return None
+
+    def _fit_dot(self, image, dot: Marker, n, psi_pred, tip_xy, r_tip, threshold) -> SpotFit | None:
+        r = self.r_px[dot.name]
+        h, w = image.shape
+        px, py = self._project(_dot_position(dot, n, psi_pred))[0]
+        reach = int(3 * r + 10)
+        cand = find_blobs(image, max(int(px) - reach, 0), max(int(py) - reach, 0), min(int(px) + reach, w),
+                          min(int(py) + reach, h), threshold)
+        cand = [c for c in cand if 0.5 * r <= c[2] <= 1.6 * r
+                and math.hypot(c[0] - tip_xy[0], c[1] - tip_xy[1]) >= 1.2 * r_tip]
+        if not cand:
+            return None
+        cx, cy, cr = min(cand, key=lambda c: (c[0] - px) ** 2 + (c[1] - py) ** 2)
+        if self.misses == 0 and math.hypot(cx - px, cy - py) < max(2.0, 0.3 * cr):
+            cx, cy, cr = float(px), float(py), self.last_r[dot.name]  # sub-pixel prediction: fewer iterations
+        return fit_spot(image, cx, cy, cr, self.cam)
+
+    def _psi_variance(self, fit: SpotFit, dot: Marker, n) -> float | None:
+        """The variance of psi from the spot covariance through the pixel -> angle map."""
+        jac = np.zeros(2)
+        for i, (dx, dy) in enumerate(((0.05, 0.0), (0.0, 0.05))):
+            p1 = dot_angle(fit.x_px + dx, fit.y_px + dy, dot, n, self.cam)
+            p0 = dot_angle(fit.x_px - dx, fit.y_px - dy, dot, n, self.cam)
+            if p1 is None or p0 is None:
+                return None
+            jac[i] = wrap_angle(p1 - p0) / 0.1
+        var = float(jac @ fit.cov_xy @ jac)
+        return var if var > 0 else None
+
+    def step(self, image, t_s: float, n: np.ndarray, tip_xy, r_tip: float, threshold: float):
+        """Fit the dots in one frame; returns ``(psi, psi_sigma, [(name, SpotFit), ...])``."""
+        if self.psi is None:
+            self.psi = self._acquire(image, n, tip_xy, r_tip, threshold)
+            self.rate, self.t = 0.0, t_s
+            if self.psi is None:
+                return float("nan"), float("nan"), []
+        psi_pred = self.psi + self.rate * (t_s - self.t)
+        found, est = [], []
+        for dot in self.dots:
+            fit = self._fit_dot(image, dot, n, psi_pred, tip_xy, r_tip, threshold)
+            if fit is None:
+                continue
+            self.last_r[dot.name] = fit.radius_px
+            psi_m = dot_angle(fit.x_px, fit.y_px, dot, n, self.cam)
+            if psi_m is None:
+                continue
+            psi_m = psi_pred + wrap_angle(psi_m - psi_pred)
+            var = self._psi_variance(fit, dot, n)
+            if var is not None:
+                est.append((psi_m, var))
+            found.append((dot.name, fit))
+        if not est:
+            self.misses += 1
+            if self.misses >= self.LOST_AFTER:
+                self.psi = None
+            return float("nan"), float("nan"), found
+        wts = np.array([1 / v for _, v in est])
+        psi = float(np.sum(wts * np.array([p for p, _ in est])) / wts.sum())
+        if self.t is not None and t_s > self.t:
+            self.rate = (psi - self.psi) / (t_s - self.t)
+        self.psi, self.t, self.misses = psi, t_s, 0
+        return psi, float(1 / math.sqrt(wts.sum())), found

@@ -1,0 +1,315 @@
+"""The tracking loop: frames in, the tip's angle table and the marker detections out.
+
+Per frame:
+
+1. **find** the tip spot: blobs above a threshold in a window around the position predicted
+   from the previous frames; a full-frame search only to acquire or reacquire.  Candidates
+   must have the tip's expected size (from the camera and the marker radius) and lie on the
+   tip's sphere; a spurious bright spot fails one of these.
+2. **localise** it (:func:`gyrorig.tracking.spot.fit_spot`): weighted least squares of the
+   rendered-spot model with the sensor's noise model, jointly with a neighbouring spot when
+   one reaches into the window.
+3. **3D**: the undistorted ray through the spot centre meets the sphere of the tip's radius
+   about the pivot (the nearer intersection); ``theta, phi`` follow, with their covariance.
+4. the frame's dots, if any (:mod:`gyrorig.tracking.dots`), give the frame angle ``psi``.
+
+After the loop the camera model's uncertainty is propagated as angle modes
+(:func:`gyrorig.tracking.pose.camera_modes`).  The tables' columns are in :mod:`gyrorig.tables`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import _io
+from ..markers import Marker, parse_markers
+from ..protocols import Protocol, ProtocolError
+from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count
+from .camera_file import TrackingCamera
+from .detect import detection_threshold, find_blobs
+from .dots import DotTracker
+from .errors import TrackingError
+from .pose import camera_modes, estimate_pose
+from .rays import angles_with_covariance, tip_from_pixel
+from .sources import as_source
+from .spot import SpotFit, fit_spot
+
+__all__ = ["TrackResult", "track", "track_video", "tip_marker"]
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """What :func:`track` found.
+
+    ``angles``: one row per decoded frame, :data:`gyrorig.tables.ANGLE_COLUMNS`, then ``psi_rad,
+    psi_sigma_rad`` (with frame dots), ``exposure_s`` and ``theta_cam_k_rad, phi_cam_k_rad`` per
+    camera mode.  ``markers``: one row per detected marker, :data:`gyrorig.tables.MARKER_COLUMNS`.
+    """
+
+    angles: pd.DataFrame
+    markers: pd.DataFrame
+    #: decoded frames
+    frames: int
+    #: fraction of frames with a tip angle
+    tracked_fraction: float
+    #: time spent waiting for decoded frames, and tracking them [s]
+    decode_s: float
+    track_s: float
+    #: the camera as used (with the pose found from the fiducials, if it was)
+    camera: TrackingCamera
+    #: the fiducial pose summary (None when camera.json had a pose)
+    pose: dict | None = None
+    camera_sigma_rad: list[float] = field(default_factory=lambda: [math.nan, math.nan])
+
+    @property
+    def camera_modes(self) -> int:
+        """Number of camera-model modes in the angle table."""
+        return camera_mode_count(self.angles.columns)
+
+    def summary(self) -> dict:
+        return {"frames": self.frames, "tracked_fraction": self.tracked_fraction, "decode_s": self.decode_s,
+                "track_s": self.track_s, "pose": self.pose, "camera_modes": self.camera_modes,
+                "camera_sigma_rad": self.camera_sigma_rad, "rvec": self.camera.rvec.tolist(),
+                "tvec": self.camera.tvec.tolist()}
+
+
+def tip_marker(protocol: Protocol) -> Marker:
+    """The protocol's tip marker: named ``tip``, on the frame, on the axis above the pivot."""
+    if "markers" not in protocol.extra:
+        raise ProtocolError(f"{protocol.name}: tracking needs a [markers] section with the tip marker")
+    tip = parse_markers(protocol).tip()
+    x, y, z = tip.position_m
+    if abs(x) > 1e-9 or abs(y) > 1e-9 or z <= 0:
+        raise ProtocolError(f"markers.tip.position_m = {list(tip.position_m)!r}: the tip must be on the axis, above "
+                            "the pivot ([0, 0, L] with L > 0)")
+    return tip
+
+
+class _TipFollower:
+    """Finds the tip spot in each frame: near the motion prediction, else anywhere."""
+
+    def __init__(self, camera: TrackingCamera, length_m: float, radius_m: float):
+        self.camera, self.length_m = camera, length_m
+        depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, length_m])))
+        self.r_expected = camera.camera_matrix[0, 0] * radius_m / depth  # tip upright [px]
+        self.last: list[tuple[float, float]] = []  # recent (x, y) of the tip
+        self.last_r = self.r_expected  # its latest fitted radius [px]
+
+    def _sized(self, blobs):
+        return [c for c in blobs if 0.5 * self.r_expected <= c[2] <= 1.6 * self.r_expected]
+
+    def locate(self, frame: np.ndarray, threshold: float) -> tuple[SpotFit | None, str]:
+        """The tip's spot fit (None if not found) and the frame's quality flag so far."""
+        h, w = frame.shape
+        quality = "ok"
+        cand, predicted = [], None
+        if self.last:
+            predicted = (np.array(self.last[-1]) if len(self.last) < 2
+                         else 2 * np.array(self.last[-1]) - np.array(self.last[-2]))
+            reach = int(4 * self.r_expected + 20)
+            x0, y0 = max(int(predicted[0]) - reach, 0), max(int(predicted[1]) - reach, 0)
+            cand = find_blobs(frame, x0, y0, min(int(predicted[0]) + reach, w), min(int(predicted[1]) + reach, h),
+                              threshold)
+        sized = self._sized(cand)
+        if not sized:
+            if self.last:
+                quality = "reacquired"
+            sized = self._sized(find_blobs(frame, 0, 0, w, h, threshold))
+        # candidates must lie on the tip's sphere
+        sized = [c for c in sized if tip_from_pixel(c[0], c[1], self.camera, self.length_m) is not None]
+        if predicted is not None and len(sized) > 1:
+            sized.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
+        elif len(sized) > 1:
+            sized.sort(key=lambda c: -c[2])  # no history: the largest spot of the tip's size
+        if not sized:
+            return None, quality
+        x0, y0, r0 = sized[0]
+        if predicted is not None and math.hypot(x0 - predicted[0], y0 - predicted[1]) < max(2.0, 0.3 * r0):
+            # the motion prediction is sub-pixel; the blob's inscribed centre is not: fewer iterations
+            x0, y0, r0 = float(predicted[0]), float(predicted[1]), self.last_r
+        return fit_spot(frame, x0, y0, r0, self.camera), quality
+
+    def found(self, fit: SpotFit) -> None:
+        self.last = (self.last + [(fit.x_px, fit.y_px)])[-2:]
+        self.last_r = fit.radius_px
+
+    def lost(self) -> None:
+        self.last = []
+
+
+def _empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
+    nan = float("nan")
+    return (index, t_s, nan, nan, nan, nan, nan, nan, nan, nan, quality)
+
+
+def _marker_row(index: int, t_s: float, name: str, fit: SpotFit, quality: str) -> tuple:
+    return (index, t_s, name, fit.x_px, fit.y_px, math.sqrt(fit.cov_xy[0, 0]), math.sqrt(fit.cov_xy[1, 1]),
+            fit.radius_px, fit.amplitude_adu, fit.background_adu, fit.chi2_red, quality)
+
+
+def _unwrap_nan(phi: np.ndarray) -> np.ndarray:
+    """Unwrap the azimuth across the tracked frames, leaving gaps as NaN."""
+    ok = np.isfinite(phi)
+    out = phi.copy()
+    if ok.any():
+        out[ok] = np.unwrap(phi[ok])
+    return out
+
+
+class _Tables:
+    """Rows of the angle and marker tables as the loop produces them."""
+
+    def __init__(self):
+        self.angles: list[tuple] = []
+        self.markers: list[tuple] = []
+        self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
+        self.psi: dict[int, tuple[float, float]] = {}
+
+    def frame(self, camera: TrackingCamera, tip: Marker, follower: _TipFollower, dots: DotTracker | None,
+              frame: np.ndarray, index: int, t_frame: float, threshold: float) -> None:
+        """Track one (new) frame and add its rows."""
+        fit, quality = follower.locate(frame, threshold)
+        t_mid = t_frame + camera.exposure_s / 2
+        if fit is None:
+            self.angles.append(_empty_angle_row(index, t_mid, "missing"))
+            follower.lost()
+            return
+        t_mid += camera.row_delay_s(fit.y_px)
+        for flag, on in (("saturated", fit.saturated), ("blended", fit.blended)):
+            if on:
+                quality = flag if quality == "ok" else quality + "," + flag
+        geo = angles_with_covariance(fit.x_px, fit.y_px, fit.cov_xy, camera, tip.position_m[2])
+        if geo is None:
+            self.angles.append(_empty_angle_row(index, t_mid, "off-sphere"))
+            follower.lost()
+        else:
+            th, ph, n, cov = geo
+            sth, sph = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+            self.angles.append((index, t_mid, th, ph, sth, sph, cov[0, 1] / (sth * sph), n[0], n[1], n[2], quality))
+            row = len(self.angles) - 1
+            self.tip_px[row] = (fit.x_px, fit.y_px)
+            follower.found(fit)
+            if dots is not None:
+                psi, psi_sigma, found = dots.step(frame, t_mid, n, (fit.x_px, fit.y_px), fit.radius_px, threshold)
+                self.psi[row] = (psi, psi_sigma)
+                for name, dfit in found:
+                    t_dot = t_frame + camera.exposure_s / 2 + camera.row_delay_s(dfit.y_px)
+                    self.markers.append(_marker_row(index, t_dot, name, dfit, "blended" if dfit.blended else "ok"))
+        self.markers.append(_marker_row(index, t_mid, tip.name, fit, quality))
+
+    def tables(self, camera: TrackingCamera, with_dots: bool) -> tuple[pd.DataFrame, pd.DataFrame]:
+        angles = pd.DataFrame(self.angles, columns=list(ANGLE_COLUMNS))
+        angles["phi_rad"] = _unwrap_nan(angles.phi_rad.to_numpy())
+        if with_dots:
+            psi_col = np.full((len(angles), 2), np.nan)
+            for r_, v_ in self.psi.items():
+                psi_col[r_] = v_
+            angles["psi_rad"], angles["psi_sigma_rad"] = psi_col[:, 0], psi_col[:, 1]
+        angles["exposure_s"] = float(camera.exposure_s)
+        return angles, pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS))
+
+
+def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera, length_m: float,
+                      pose: dict | None) -> list[float]:
+    """Add the camera-model modes' columns; returns their RMS effect on (theta, phi) [rad] (NaN without)."""
+    rows = np.array(sorted(tip_px))
+    min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
+    modes = camera_modes(np.array([tip_px[r] for r in rows]), camera, length_m, pose, min_effect)
+    for mode in range(len(modes)):
+        for j, col in enumerate(camera_mode_columns(mode + 1)):
+            v = np.full(len(angles), np.nan)
+            v[rows] = modes[mode, :, j]
+            angles[col] = v
+    if len(modes):
+        return np.sqrt(np.mean(np.sum(modes**2, axis=0), axis=0)).tolist()
+    return [float("nan"), float("nan")]
+
+
+def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progress | None = None,
+          frame_dots: bool = True) -> TrackResult:
+    """Track the tip marker through a video (a path, or a frame source of :mod:`gyrorig.tracking.sources`).
+
+    With ``frame_dots`` (and frame-fixed dots off the axis in the protocol, like the crossbar)
+    these are tracked too: their detections go to ``markers`` and the frame's angle about the
+    axis to ``angles`` (``psi_rad, psi_sigma_rad``; modulo pi for a symmetric pair).  Frame
+    numbers come from the container's timestamps (frames a camera dropped are gaps); a frame
+    identical to the one before is marked ``duplicate``.  Reads only the video, the camera and
+    the protocol's markers.
+
+    Raises :class:`TrackingError` for an unreadable video, a camera that does not match the
+    video, or a tip that is never found.
+    """
+    tip = tip_marker(protocol)
+    source = as_source(video)
+    pose_info = None
+    if not camera.has_pose:
+        camera, pose_info = estimate_pose(source, camera, protocol)
+    with source.open() as frames:
+        if not math.isfinite(camera.fps):
+            camera = replace(camera, fps=frames.fps)
+        if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
+            raise TrackingError(f"camera file says {camera.width_px} x {camera.height_px}, the video is "
+                                f"{frames.width_px} x {frames.height_px}")
+        follower = _TipFollower(camera, tip.position_m[2], tip.radius_m)
+        dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
+        dots = DotTracker(dot_markers, camera) if dot_markers else None
+        rows = _Tables()
+        prev_hash = None
+        k = 0
+        t_decode = t_track = 0.0  # t_decode: time spent waiting for decoded frames
+        it = iter(frames)
+        while True:
+            t0 = time.perf_counter()
+            item = next(it, None)
+            t1 = time.perf_counter()
+            t_decode += t1 - t0
+            if item is None:
+                break
+            frame, t_frame = item
+            t_frame = t_frame if math.isfinite(t_frame) else k / camera.fps
+            index = int(round(t_frame * camera.fps))
+            digest = hash(frame[::7, ::7].tobytes())
+            if digest == prev_hash:
+                rows.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
+                k += 1
+                continue
+            prev_hash = digest
+            if k % 100 == 0:  # background level and noise, refreshed every 100 frames (slow illumination drift)
+                threshold, _ = detection_threshold(frame)
+            rows.frame(camera, tip, follower, dots, frame, index, t_frame, threshold)
+            t_track += time.perf_counter() - t1
+            k += 1
+            if progress and (k % 50 == 0):
+                progress(k, frames.count)
+    if k == 0:
+        raise TrackingError(f"{source}: no frame could be decoded (unreadable or truncated video)")
+    angles, markers = rows.tables(camera, dots is not None)
+    if not angles.theta_rad.notna().any():
+        raise TrackingError(f"{source}: the tip marker was never found in {k} frames")
+    camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2], pose_info)
+    if progress:
+        progress(k, k)
+    return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
+                       pose_info, camera_sigma)
+
+
+def track_video(video, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,
+                progress: Progress | None = None, frame_dots: bool = True) -> dict:
+    """:func:`track`, then write ``angles.csv`` and ``markers.csv`` into ``out_dir`` (nothing on failure).
+
+    Returns :meth:`TrackResult.summary` with the paths written (``angles``, ``markers``).
+    """
+    result = track(video, camera, protocol, progress=progress, frame_dots=frame_dots)
+    out = Path(out_dir)
+    _io.write_csv(result.angles, out / "angles.csv")
+    _io.write_csv(result.markers, out / "markers.csv")
+    return {**result.summary(), "angles": str(out / "angles.csv"), "markers": str(out / "markers.csv")}
