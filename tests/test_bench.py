@@ -52,7 +52,7 @@ def test_bench_stability_quick_cli(tmp_path, capsys):
 
 
 def test_fit_monte_carlo_runs_the_chain_and_summarises(tmp_path, capsys):
-    from gyrorig.bench import combine_fit_runs, fit_monte_carlo, summarize_fit_monte_carlo
+    from gyrorig.montecarlo import combine_fit_runs, fit_monte_carlo, summarize_fit_monte_carlo
 
     runs = fit_monte_carlo(["air-cushion-heavy-top"], seeds=2, duration_s=1.0, workers=1)
     assert (runs.error.fillna("") == "").all()

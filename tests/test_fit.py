@@ -226,11 +226,11 @@ def test_the_drifting_shape_leaves_the_nutation_frequency_and_decay_to_the_funda
     # and of the frequency; the two-parameter shape drift must not take their information
     # (with four coefficients the frequency's standard error was 4.5x and the decay rate's 23x larger)
     from gyrorig.camera import with_image_size
-    from gyrorig.plan import _expected_angles
+    from gyrorig.expectation import expected_record
 
     p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
     pred = predict(p, simulate_damping=False)
-    angles = _expected_angles(p, 2.0).angles
+    angles = expected_record(p, 2.0).angles
     fit = fit_angles(angles, p, prediction=pred, check_residuals=False,
                      terms=FitTerms(harmonics=3, third_order=True, shape_drift=True))
     assert fit.spec.shape_drift
@@ -290,11 +290,11 @@ def test_damped_fit_ends_at_a_stationary_point_of_the_chi_square():
     # 0.16 standard errors short here (it crawls along a valley of correlated exponentials);
     # the Gauss-Newton finish must end where the gradient vanishes
     from gyrorig.camera import with_image_size
-    from gyrorig.plan import _expected_angles
+    from gyrorig.expectation import expected_record
 
     p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
     pred = predict(p, simulate_damping=False)
-    ex = _expected_angles(p, 2.0)
+    ex = expected_record(p, 2.0)
     e = np.einsum("nij,nj->ni", np.linalg.cholesky(ex.cov), np.random.default_rng(5).standard_normal((len(ex.theta), 2)))
     angles = ex.angles.assign(theta_rad=ex.theta + e[:, 0], phi_rad=ex.phi + e[:, 1])
     r = fit_angles(angles, p, prediction=pred, terms=FitTerms(harmonics=3, transient=True, persistent=True))
@@ -314,17 +314,17 @@ def test_a_record_too_short_for_the_model_is_flagged_not_trusted():
     # are not Cramer-Rao bounds (runs scatter beyond them); the same rig over 2 s is resolved
     from gyrorig.camera import with_image_size
     from gyrorig.fit import NONLINEAR_PHASE_RAD
-    from gyrorig.plan import _expected_angles
+    from gyrorig.expectation import expected_record
 
     b2 = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
     pred = predict(b2, simulate_damping=False)
     planned = FitTerms(harmonics=3, persistent=True)
-    short = fit_angles(_expected_angles(b2, 0.4).angles, b2, prediction=pred, terms=planned, check_residuals=False)
+    short = fit_angles(expected_record(b2, 0.4).angles, b2, prediction=pred, terms=planned, check_residuals=False)
     assert short.spec.persistent and not short.linear_regime
     assert short.phase_uncertainty_rad["persistent_frequency_rad_s"] > NONLINEAR_PHASE_RAD
     assert len(short.notes_of(NoteKind.RECORD_TOO_SHORT)) == 1
     assert short.summary()["model"]["linear_regime"] is False
-    ok = fit_angles(_expected_angles(b2, 2.0).angles, b2, prediction=pred, terms="noiseless", check_residuals=False)
+    ok = fit_angles(expected_record(b2, 2.0).angles, b2, prediction=pred, terms="noiseless", check_residuals=False)
     assert ok.spec.shape_drift and ok.linear_regime and not ok.notes_of(NoteKind.RECORD_TOO_SHORT)
 
 
@@ -334,12 +334,12 @@ def test_persistent_oscillation_score_matches_the_fitted_chi_square_gain():
     nonlinear fit of each term."""
     from gyrorig.camera import with_image_size
     from gyrorig.fit import PLANNED_NONCENTRALITY, fit_model, score_term, trial_term
-    from gyrorig.plan import _expected_angles
+    from gyrorig.expectation import expected_record
 
     p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)
     pred = predict(p, simulate_damping=False)
     scene = model_for_scene(p, pred)
-    ex = _expected_angles(p, 2.0)
+    ex = expected_record(p, 2.0)
     data = fit_data_from_angles(ex.angles, None, scene.precession_hint_rad_s)
     sol, _, _ = fit_model(data, scene, noncentrality=PLANNED_NONCENTRALITY)
     assert not sol.spec.persistent
@@ -406,7 +406,7 @@ def test_an_unplanned_term_that_only_cancels_against_the_planned_model_is_left_o
     shape drift 2e4 times its planned size and widens the amplitude's error 18x.  The term is not
     identifiable on this record and is left out; the amplitude keeps its ordinary error."""
     from gyrorig.camera import with_image_size
-    from gyrorig.plan import plan_fit_terms
+    from gyrorig.expectation import plan_fit_terms
 
     angles = pd.read_csv(Path(__file__).parent / "data" / "b2_seed104_640x480_angles.csv")
     p = with_image_size(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), 640, 480)

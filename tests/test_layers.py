@@ -62,7 +62,8 @@ def closure(module: str) -> set[str]:
 def test_tracking_cannot_reach_the_truth(module):
     reached = closure(module)
     forbidden = {m for m in reached if m.startswith(("gyrorig.physics", "gyrorig.render", "gyrorig.theory",
-                                                     "gyrorig.validation", "gyrorig.stability", "gyrorig.bench"))}
+                                                     "gyrorig.validation", "gyrorig.bench", "gyrorig.montecarlo",
+                                                     "gyrorig.expectation", "gyrorig.pipeline"))}
     assert not forbidden, f"{module} reaches {sorted(forbidden)}"
 
 
@@ -73,8 +74,61 @@ def test_physics_core_has_no_video_filtering_or_plotting(module):
     assert not reached & {"cv2", "matplotlib", "filterpy"}, sorted(reached & {"cv2", "matplotlib", "filterpy"})
 
 
-@pytest.mark.parametrize("module", ["gyrorig.bench", "gyrorig.theory", "gyrorig.validation", "gyrorig.stability",
+@pytest.mark.parametrize("module", ["gyrorig.bench", "gyrorig.theory", "gyrorig.validation", "gyrorig.bench.stability", "gyrorig.montecarlo",
+                                    "gyrorig.pipeline", "gyrorig.demo", "gyrorig.expectation",
                                     "gyrorig.render", "gyrorig.tracking", "gyrorig.physics.simulate", "gyrorig.smooth",
                                     "gyrorig.fit", "gyrorig.analysis", "gyrorig.plan"])
 def test_library_modules_do_not_import_the_command_line(module):
     assert "gyrorig.cli" not in closure(module)
+
+
+def _graph() -> dict[str, set[str]]:
+    """Every gyrorig module's imports of other gyrorig modules (function-level imports included), without
+    the edges to its own parent packages (a submodule cannot be imported without them)."""
+    graph = {}
+    for f in SRC.rglob("*.py"):
+        rel = f.relative_to(SRC.parent).with_suffix("")
+        name = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+        package = name if f.name == "__init__.py" else name.rsplit(".", 1)[0]
+        deps = {m for m in _imports(f, package) if m.startswith("gyrorig.") and _module_file(m) is not None}
+        graph[name] = {d for d in deps if d != name and not name.startswith(d + ".")}
+    return graph
+
+
+def test_no_import_cycles():
+    graph = _graph()
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(m: str, path: list[str]) -> None:
+        state[m] = 1
+        for d in sorted(graph.get(m, ())):
+            if state.get(d) == 1:
+                cycles.append(path[path.index(d):] + [d] if d in path else [m, d])
+            elif d not in state:
+                visit(d, path + [d])
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    assert not cycles, cycles[:5]
+
+
+#: functions allowed above the length limit: compiled kernels (one loop, no calls) and the argument parser
+LONG_FUNCTIONS_ALLOWED = {"build_parser", "_integrate", "_filter"}
+
+
+def test_modules_and_functions_stay_small():
+    """No module over about 600 lines, no function over about 100 (the layout in docs/architecture.md)."""
+    big_files, long_functions = [], []
+    for f in SRC.rglob("*.py"):
+        text = f.read_text()
+        if text.count("\n") > 620:
+            big_files.append((f.name, text.count("\n")))
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name not in LONG_FUNCTIONS_ALLOWED:
+                length = node.end_lineno - node.lineno + 1
+                if length > 100:
+                    long_functions.append((f"{f.name}:{node.name}", length))
+    assert not big_files and not long_functions, (big_files, long_functions)

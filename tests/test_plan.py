@@ -51,7 +51,8 @@ def test_noisy_draws_see_a_fit_that_is_not_linear_where_the_noiseless_check_pass
 
     from gyrorig.camera import with_image_size
     from gyrorig.fit import fit_angles
-    from gyrorig.plan import _expected_angles, _noisy_draws
+    from gyrorig.expectation import expected_record
+    from gyrorig.plan import noisy_draws
     from gyrorig.theory import predict
 
     # 1 s of the air-cushion rig with 3000x the camera's per-frame noise (~8e-3 rad against a
@@ -59,13 +60,13 @@ def test_noisy_draws_see_a_fit_that_is_not_linear_where_the_noiseless_check_pass
     # 0.3 rad limit), yet in noisy records the fit can lock onto another frequency
     p = with_image_size(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), 640, 480)
     pred = predict(p, simulate_damping=False)
-    ex = _expected_angles(p, 1.0)
+    ex = expected_record(p, 1.0)
     k = 3000.0
     angles = ex.angles.assign(theta_sigma_rad=ex.angles.theta_sigma_rad * k, phi_sigma_rad=ex.angles.phi_sigma_rad * k)
     ex = SimpleNamespace(**{**vars(ex), "cov": ex.cov * k * k, "angles": angles})
     fit = fit_angles(angles, p, prediction=pred, check_residuals=False, terms="noiseless")
     assert fit.linear_regime and fit.spec.harmonics >= 1
-    checks = _noisy_draws(p, ex, fit, pred, 8, np.random.default_rng(1))
+    checks = noisy_draws(p, ex, fit, pred, 8, np.random.default_rng(1))
     assert not checks["ok"] and "nutation_frequency_rad_s" in checks["nonlinear"]
     assert checks["rms_departure_se"]["nutation_frequency_rad_s"] > 10
     assert checks["rms_departure_se"]["precession_rate_rad_s"] < 0.3  # the precession is still linear
@@ -120,7 +121,7 @@ def test_sweep_parsing_and_a_small_sweep(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-pivot"])
 def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
-    from gyrorig.plan import monte_carlo_check
+    from gyrorig.montecarlo import monte_carlo_check
 
     p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
     duration = 1.5
@@ -151,7 +152,7 @@ def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
 def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):
     import json
 
-    from gyrorig.plan import _expected_angles
+    from gyrorig.expectation import expected_record
 
     proto = PROTOCOL_DIR / "eddy-damped-top-b2.toml"
     assert main(["plan", str(proto), "--duration", "1.5", "--out", str(tmp_path / "plan")]) == 0
@@ -161,7 +162,7 @@ def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):
     assert isinstance(terms["left_out_noncentrality"], dict)
     assert all(not terms.get(k) or k == "harmonics" for k in terms["left_out_noncentrality"])
     # a record of that length through that camera (simulated motion + the planned per-frame noise)
-    ex = _expected_angles(load_protocol(proto), 1.5)
+    ex = expected_record(load_protocol(proto), 1.5)
     e = np.einsum("nij,nj->ni", np.linalg.cholesky(ex.cov), np.random.default_rng(1).standard_normal((len(ex.theta), 2)))
     ex.angles.assign(theta_rad=ex.theta + e[:, 0], phi_rad=ex.phi + e[:, 1]).to_csv(tmp_path / "angles.csv", index=False)
     assert main(["fit", str(tmp_path / "angles.csv"), "--protocol", str(proto), "--out", str(tmp_path / "fit"),

@@ -33,7 +33,8 @@ from typing import Any
 import numpy as np
 
 from .markers import Marker, Occluder, parse_markers
-from .protocols import Protocol, ProtocolError, _check_keys, _number, _vector3
+from ._validate import ProtocolError, check_keys, number, vector3
+from .protocols import Protocol
 
 __all__ = ["Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose", "with_image_size"]
 
@@ -133,14 +134,14 @@ def look_at_pose(position: np.ndarray, target: np.ndarray, up_hint: np.ndarray) 
 
 def _parse_sensor(t: Mapping[str, Any]) -> Sensor:
     s = "camera.sensor"
-    _check_keys(s, t, {"bit_depth", "full_well_e", "read_noise_e", "gain_e_per_adu", "background_e_per_s"}, set())
+    check_keys(s, t, {"bit_depth", "full_well_e", "read_noise_e", "gain_e_per_adu", "background_e_per_s"}, set())
     bits = t["bit_depth"]
     if bits not in (8, 10, 12):
         raise ProtocolError(f"camera.sensor.bit_depth = {bits!r}: allowed 8, 10, 12")
-    return Sensor(int(bits), _number(s, "full_well_e", t["full_well_e"], lo=0.0, lo_open=True),
-                  _number(s, "read_noise_e", t["read_noise_e"], lo=0.0),
-                  _number(s, "gain_e_per_adu", t["gain_e_per_adu"], lo=0.0, lo_open=True),
-                  _number(s, "background_e_per_s", t["background_e_per_s"], lo=0.0))
+    return Sensor(int(bits), number(s, "full_well_e", t["full_well_e"], lo=0.0, lo_open=True),
+                  number(s, "read_noise_e", t["read_noise_e"], lo=0.0),
+                  number(s, "gain_e_per_adu", t["gain_e_per_adu"], lo=0.0, lo_open=True),
+                  number(s, "background_e_per_s", t["background_e_per_s"], lo=0.0))
 
 
 def _parse_camera(t: Mapping[str, Any]) -> Camera:
@@ -148,36 +149,36 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
     required = {"width_px", "height_px", "fps", "exposure_s", "position_m", "sensor"}
     optional = {"focal_length_mm", "pixel_size_um", "horizontal_fov_deg", "principal_point_px", "distortion",
                 "look_at_m", "up_hint", "shutter", "readout_time_s", "psf_sigma_px", "motion_blur_samples"}
-    _check_keys(s, t, required, optional)
-    w = int(_number(s, "width_px", t["width_px"], lo=16, hi=20000))
-    h = int(_number(s, "height_px", t["height_px"], lo=16, hi=20000))
-    fps = _number(s, "fps", t["fps"], lo=0.0, lo_open=True, hi=1e6)
-    exposure = _number(s, "exposure_s", t["exposure_s"], lo=0.0, lo_open=True)
+    check_keys(s, t, required, optional)
+    w = int(number(s, "width_px", t["width_px"], lo=16, hi=20000))
+    h = int(number(s, "height_px", t["height_px"], lo=16, hi=20000))
+    fps = number(s, "fps", t["fps"], lo=0.0, lo_open=True, hi=1e6)
+    exposure = number(s, "exposure_s", t["exposure_s"], lo=0.0, lo_open=True)
     if exposure > 1.0 / fps * (1 + 1e-12):
         raise ProtocolError(f"camera.exposure_s = {exposure!r} is longer than the frame interval 1/fps = "
                             f"{1.0 / fps:.6g} s; allowed (0, {1.0 / fps:.6g}]")
     if "horizontal_fov_deg" in t:
         if "focal_length_mm" in t:
             raise ProtocolError("[camera] gives both horizontal_fov_deg and focal_length_mm; give one")
-        fov = _number(s, "horizontal_fov_deg", t["horizontal_fov_deg"], lo=0.0, hi=179.0, lo_open=True)
+        fov = number(s, "horizontal_fov_deg", t["horizontal_fov_deg"], lo=0.0, hi=179.0, lo_open=True)
         fx = (w / 2.0) / math.tan(math.radians(fov) / 2.0)
     else:
         if "focal_length_mm" not in t or "pixel_size_um" not in t:
             raise ProtocolError("[camera] needs focal_length_mm and pixel_size_um, or horizontal_fov_deg")
-        f_mm = _number(s, "focal_length_mm", t["focal_length_mm"], lo=0.0, lo_open=True)
-        pix = _number(s, "pixel_size_um", t["pixel_size_um"], lo=0.0, lo_open=True)
+        f_mm = number(s, "focal_length_mm", t["focal_length_mm"], lo=0.0, lo_open=True)
+        pix = number(s, "pixel_size_um", t["pixel_size_um"], lo=0.0, lo_open=True)
         fx = f_mm * 1e3 / pix
     cx, cy = ((w - 1) / 2.0, (h - 1) / 2.0)
     if "principal_point_px" in t:
         pp = t["principal_point_px"]
         if not isinstance(pp, list) or len(pp) != 2:
             raise ProtocolError(f"camera.principal_point_px = {pp!r}: expected [cx, cy]")
-        cx = _number(s, "principal_point_px[0]", pp[0], lo=0.0, hi=w - 1)
-        cy = _number(s, "principal_point_px[1]", pp[1], lo=0.0, hi=h - 1)
+        cx = number(s, "principal_point_px[0]", pp[0], lo=0.0, hi=w - 1)
+        cy = number(s, "principal_point_px[1]", pp[1], lo=0.0, hi=h - 1)
     dist = t.get("distortion", [0.0] * 5)
     if not isinstance(dist, list) or len(dist) != 5:
         raise ProtocolError(f"camera.distortion = {dist!r}: expected [k1, k2, p1, p2, k3]")
-    dist = np.array([_number(s, f"distortion[{i}]", v, lo=-10, hi=10) for i, v in enumerate(dist)])
+    dist = np.array([number(s, f"distortion[{i}]", v, lo=-10, hi=10) for i, v in enumerate(dist)])
     shutter = t.get("shutter", "global")
     if shutter not in ("global", "rolling"):
         raise ProtocolError(f"camera.shutter = {shutter!r}: allowed 'global', 'rolling'")
@@ -185,18 +186,18 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
     if shutter == "rolling":
         if "readout_time_s" not in t:
             raise ProtocolError("camera.shutter = 'rolling' needs camera.readout_time_s")
-        readout = _number(s, "readout_time_s", t["readout_time_s"], lo=0.0, lo_open=True, hi=1.0 / fps)
+        readout = number(s, "readout_time_s", t["readout_time_s"], lo=0.0, lo_open=True, hi=1.0 / fps)
     elif "readout_time_s" in t:
         raise ProtocolError("camera.readout_time_s is only meaningful with shutter = 'rolling'")
-    position = np.array(_vector3(s, "position_m", t["position_m"]))
-    target = np.array(_vector3(s, "look_at_m", t.get("look_at_m", [0.0, 0.0, 0.0])))
+    position = np.array(vector3(s, "position_m", t["position_m"]))
+    target = np.array(vector3(s, "look_at_m", t.get("look_at_m", [0.0, 0.0, 0.0])))
     if np.linalg.norm(target - position) == 0:
         raise ProtocolError("camera.position_m equals camera.look_at_m")
-    up = np.array(_vector3(s, "up_hint", t.get("up_hint", [0.0, 1.0, 0.0])))
+    up = np.array(vector3(s, "up_hint", t.get("up_hint", [0.0, 1.0, 0.0])))
     rvec, tvec = look_at_pose(position, target, up)
     k = np.array([[fx, 0.0, cx], [0.0, fx, cy], [0.0, 0.0, 1.0]])
-    sigma = _number(s, "psf_sigma_px", t.get("psf_sigma_px", 0.8), lo=0.3, hi=20.0)
-    nsub = int(_number(s, "motion_blur_samples", t.get("motion_blur_samples", 8), lo=1, hi=256))
+    sigma = number(s, "psf_sigma_px", t.get("psf_sigma_px", 0.8), lo=0.3, hi=20.0)
+    nsub = int(number(s, "motion_blur_samples", t.get("motion_blur_samples", 8), lo=1, hi=256))
     return Camera(w, h, fps, exposure, k, dist, rvec, tvec, shutter, readout, sigma, nsub, _parse_sensor(t["sensor"]))
 
 

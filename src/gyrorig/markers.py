@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from .protocols import Protocol, ProtocolError, _check_keys, _number, _vector3
+from ._validate import ProtocolError, check_keys, number, vector3
+from .protocols import Protocol
 
 __all__ = ["Marker", "Occluder", "MarkerSet", "parse_markers", "TIP_MARKER"]
 
@@ -109,20 +110,20 @@ def parse_markers(source: Protocol | Mapping[str, Any]) -> MarkerSet:
         if not isinstance(m, Mapping):
             raise ProtocolError(f"[{s}] must be a table")
         if m.get("kind", "dot") == "occluder":
-            _check_keys(s, m, {"kind", "radius_m", "z_min_m", "z_max_m"}, set())
-            occluders.append(Occluder(name, _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True),
-                                      _number(s, "z_min_m", m["z_min_m"], lo=-1.0, hi=1.0),
-                                      _number(s, "z_max_m", m["z_max_m"], lo=-1.0, hi=1.0)))
+            check_keys(s, m, {"kind", "radius_m", "z_min_m", "z_max_m"}, set())
+            occluders.append(Occluder(name, number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True),
+                                      number(s, "z_min_m", m["z_min_m"], lo=-1.0, hi=1.0),
+                                      number(s, "z_max_m", m["z_max_m"], lo=-1.0, hi=1.0)))
             continue
-        _check_keys(s, m, {"body", "position_m", "radius_m"}, {"kind", "brightness_e_per_s"})
+        check_keys(s, m, {"body", "position_m", "radius_m"}, {"kind", "brightness_e_per_s"})
         if m.get("kind", "dot") != "dot":
             raise ProtocolError(f"{s}.kind = {m['kind']!r}: allowed 'dot', 'occluder'")
         if m["body"] not in ("frame", "lab"):
             raise ProtocolError(f"{s}.body = {m['body']!r}: allowed 'frame', 'lab'")
         brightness = (None if "brightness_e_per_s" not in m else
-                      _number(s, "brightness_e_per_s", m["brightness_e_per_s"], lo=0.0, lo_open=True))
-        dots.append(Marker(name, m["body"], _vector3(s, "position_m", m["position_m"]),
-                           _number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1), brightness))
+                      number(s, "brightness_e_per_s", m["brightness_e_per_s"], lo=0.0, lo_open=True))
+        dots.append(Marker(name, m["body"], vector3(s, "position_m", m["position_m"]),
+                           number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1), brightness))
     if not dots:
         raise ProtocolError("[markers] has no dot (kind = 'dot'): nothing to track")
     return MarkerSet(tuple(dots), tuple(occluders))

@@ -3,26 +3,26 @@
 :func:`plan_experiment` takes a protocol and answers, for the scene's quantities:
 
 - the predicted values (:func:`gyrorig.theory.predict`) and the validity flags;
-- whether the camera resolves each: the per-frame localisation bound of the tip marker
-  (exact Fisher matrix of the rendered spot model, :func:`gyrorig.bench.spot_crb_px`),
-  the nutation amplitude at the marker in pixels against it, frame rate against the
-  nutation frequency, motion blur during the exposure, rolling-shutter skew, saturation;
+- whether the camera resolves each: the per-frame localisation bound of the tip marker, the
+  nutation amplitude at the marker in pixels against it, frame rate against the nutation
+  frequency, motion blur during the exposure, rolling-shutter skew, saturation
+  (:mod:`gyrorig.expectation`);
 - the expected standard error of every fitted quantity: the Cramér-Rao bound of the fit
   model (:mod:`gyrorig.fit`) for the simulated motion sampled at the camera's frame times,
-  with the per-frame angle covariance propagated from the pixel bound through the camera
-  model (``(J^T J)^-1 sigma_px^2``, ``J = d(pixel)/d(theta, phi)``);
+  with the per-frame angle covariance the tracker will reach;
 - the recording length needed for a target relative precision (rates and frequencies
   scale as T^-3/2, amplitudes as T^-1/2, at a fixed frame rate);
-- whether those errors can be trusted for a record of that length: the model must be
-  linear over one standard error (the phase each rate leaves uncertain, and a few noisy
-  draws of the record fitted in full, each of which must converge and land where the
-  linearised fit puts it); otherwise the plan names a length that is long enough;
+- whether the fit model describes a record of that length at all (its chi-square on the
+  noiseless record), and whether the errors can be trusted: the model must be linear over
+  one standard error (the phase each rate leaves uncertain, and a few noisy draws of the
+  record fitted in full, each of which must converge and land where the linearised fit puts
+  it); otherwise the plan names a length that is;
 - recommendations: minimum frame rate, maximum exposure, recording length, marker size and
   placement, and which damping realisation tests which prediction.
 
 The synthetic motion comes from the simulator, never from the formulas being tested.
-``monte_carlo`` confirms the bounds with the full render -> track -> smooth -> fit chain
-(:func:`gyrorig.bench.fit_monte_carlo_run`), locally in processes or on a Dask cluster.
+:func:`gyrorig.montecarlo.monte_carlo_check` confirms the bounds with the full render -> track
+-> smooth -> fit chain.
 """
 
 from __future__ import annotations
@@ -33,16 +33,20 @@ import math
 import time
 import tomllib
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 
-from .protocols import Protocol, ProtocolError, parse_protocol
+from .expectation import ExpectedRecord, expected_record, plan_fit_terms, project, tip_setup
+from .fit import FitError, FitResult, fit_angles, linear_response
+from .geometry import wrap_angle
+from .protocols import Protocol, parse_protocol
+from .theory import predict
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["plan_experiment", "plan_fit_terms", "monte_carlo_check", "sweep", "parse_sweep", "TARGET_RELATIVE_SE"]
+__all__ = ["plan_experiment", "plan_fit_terms", "sweep", "parse_sweep", "TARGET_RELATIVE_SE", "DEFAULT_PLAN_DRAWS",
+           "MISFIT_NOTE", "MISFIT_LIMIT", "LINEAR_DEPARTURE_SE", "noisy_draws"]
 
 #: record length assessed by default (longer scenes: the advice extrapolates; --duration overrides)
 DEFAULT_PLAN_LENGTH_S = 20.0
@@ -58,118 +62,20 @@ TARGET_RELATIVE_SE = {
 DEFAULT_PLAN_DRAWS = 8
 #: the root-mean-square distance [standard errors] between the full fit of a drawn record and the
 #: linearised fit, above which the model is not linear over the noise: the spread of the estimates
-#: then exceeds the Cramer-Rao bound by more than ~5 % (sqrt(1 + 0.3^2)), and a record's own error
-#: bar is no longer what the plan says.  Where the model is linear it is 0.01-0.05 (the accelerated
-#: pivot over 5.7 s at 640x480: largest of 7 quantities per record, median 0.02, at most 0.09 in 200
-#: records)
+#: then exceeds the Cramér-Rao bound by more than ~5 % (sqrt(1 + 0.3^2)), and a record's own error
+#: bar is no longer what the plan says
 LINEAR_DEPARTURE_SE = 0.3
 #: the fit model "misses part of the motion" when its fit to the simulated (noiseless) record
 #: leaves a chi-square above this fraction of the degrees of freedom: real records then show a
 #: reduced chi-square of about 1 + this, residuals that are not white, and quantities that can be
-#: off by up to sqrt(chi-square) standard errors (the accelerated pivot over 5.7 s at 1440x1080:
-#: 0.17, with lag-1 residual correlation 0.19 and bootstrap errors)
+#: off by up to sqrt(chi-square) standard errors
 MISFIT_NOTE = 0.1
-#: above this the model does not describe the record at all (B2 over 20 s at 1440x1080: 441,
-#: against 0.02 over 4 s): every expected error is marked not reliable and a shorter record named
+#: above this the model does not describe the record at all: every expected error is marked not
+#: reliable and a shorter record named
 MISFIT_LIMIT = 1.0
+#: how the standard error of a quantity falls with the record length T (T^-exponent; default 1.5)
 _T_EXPONENT = {"nutation_amplitude_rad": 0.5, "cone_angle_rad": 0.5, "equilibrium_tilt_rad": 0.5,
                "equilibrium_azimuth_rad": 0.5}
-
-
-def _tip_marker(protocol: Protocol):
-    from .camera import camera_setup
-
-    setup = camera_setup(protocol)
-    tips = [m for m in setup.markers if m.name == "tip"] or [m for m in setup.markers if m.body == "frame"]
-    if not tips:
-        raise ProtocolError("[markers]: the plan needs a marker on the top (named 'tip' or with body = 'frame')")
-    return setup, tips[0]
-
-
-def _pixel_bound(setup, marker, depth_m: float) -> dict:
-    """Spot size, signal and the localisation bound of the marker at a given depth."""
-    from .tracking import spot_crb_px
-
-    cam, sensor = setup.camera, setup.camera.sensor
-    f_px = float(cam.camera_matrix[0, 0])
-    radius_px = marker.radius_m * f_px / depth_m
-    amp_e = marker.brightness_e_per_s * cam.exposure_s
-    bg_e = sensor.background_e_per_s * cam.exposure_s
-    amp, bg = amp_e / sensor.gain_e_per_adu, bg_e / sensor.gain_e_per_adu
-    sat = amp + bg >= sensor.max_adu
-    spot_cam = SimpleNamespace(psf_sigma_px=cam.psf_sigma_px, gain_e_per_adu=sensor.gain_e_per_adu,
-                               read_noise_e=sensor.read_noise_e)
-    sigma = spot_crb_px(0.3, 0.2, radius_px, min(amp, sensor.max_adu - bg), bg, spot_cam)
-    return {"radius_px": radius_px, "signal_adu": amp, "background_adu": bg, "saturates": bool(sat),
-            "sigma_px": sigma, "px_per_m": f_px / depth_m}
-
-
-def _project(setup, pts: np.ndarray) -> np.ndarray:
-    import cv2
-
-    cam = setup.camera
-    return cv2.projectPoints(pts.reshape(-1, 1, 3), cam.rvec, cam.tvec, cam.camera_matrix,
-                             cam.distortion)[0].reshape(-1, 2)
-
-
-def _angle_covariance(setup, lever_m: float, theta: np.ndarray, phi: np.ndarray, sigma_px: float) -> np.ndarray:
-    """Per-frame covariance of (theta, phi) from an isotropic pixel error, through the camera."""
-    def tip(th, ph):
-        return lever_m * np.stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)], axis=-1)
-
-    h = 1e-6
-    p0 = _project(setup, tip(theta, phi))
-    jt = (_project(setup, tip(theta + h, phi)) - p0) / h
-    jp = (_project(setup, tip(theta, phi + h)) - p0) / h
-    J = np.stack([jt, jp], axis=-1)  # (n, 2 px, 2 angles)
-    JTJ = np.einsum("nki,nkj->nij", J, J)
-    return np.linalg.inv(JTJ) * sigma_px**2
-
-
-def _simulated_angles(protocol: Protocol, duration_s: float, fps: float) -> pd.DataFrame:
-    from .physics import simulate
-
-    n = int(math.floor(duration_s * fps)) + 1
-    return simulate(protocol, t_eval_s=np.arange(n) / fps)
-
-
-def _expected_angles(protocol: Protocol, duration_s: float) -> SimpleNamespace:
-    """The simulated tip angles at the camera's frame times, with the per-frame covariance the
-    tracker will reach (the pixel bound propagated through the camera model)."""
-    setup, marker = _tip_marker(protocol)
-    cam = setup.camera
-    lever = float(np.linalg.norm(marker.position_m))
-    sim = _simulated_angles(protocol, duration_s, cam.fps)
-    theta, phi = sim.theta_rad.to_numpy(), sim.phi_rad.to_numpy()
-    pos = lever * np.stack([np.sin(theta) * np.sin(phi), -np.sin(theta) * np.cos(phi), np.cos(theta)], axis=-1)
-    depth = float(np.median(np.linalg.norm(pos - cam.position_m, axis=1)))
-    spot = _pixel_bound(setup, marker, depth)
-    cov = _angle_covariance(setup, lever, theta, phi, spot["sigma_px"])
-    angles = pd.DataFrame({"frame": np.arange(len(sim)), "t_s": sim.t_s, "theta_rad": theta, "phi_rad": phi,
-                           "theta_sigma_rad": np.sqrt(cov[:, 0, 0]), "phi_sigma_rad": np.sqrt(cov[:, 1, 1]),
-                           "theta_phi_corr": cov[:, 0, 1] / np.sqrt(cov[:, 0, 0] * cov[:, 1, 1])})
-    return SimpleNamespace(theta=theta, phi=phi, pos=pos, depth=depth, spot=spot, cov=cov, angles=angles)
-
-
-def plan_fit_terms(protocol: Protocol, duration_s: float, *, prediction: dict | None = None):
-    """The fit model's optional terms for records of ``duration_s`` through the protocol's camera.
-
-    Chosen once, before any data, on the simulated motion with the per-frame errors the camera
-    will give (:func:`gyrorig.fit.plan_terms`): every record of the scene is then fitted with
-    the same model (``fit_angles(..., terms=...)``, ``gyrorig fit --terms plan.json``), rather
-    than one chosen afresh by each record's chi-square tests, which switches terms on and off
-    from record to record.  Returns a :class:`gyrorig.fit.FitTerms`.
-    """
-    from .fit import fit_data_from_angles, model_for_scene, plan_terms
-    from .theory import predict
-
-    if "camera" not in protocol.extra:
-        raise ProtocolError("planning the fit terms needs a [camera] section in the protocol")
-    pred = prediction if prediction is not None else predict(protocol, simulate_damping=False)
-    scene = model_for_scene(protocol, pred)
-    ex = _expected_angles(protocol, duration_s)
-    data = fit_data_from_angles(ex.angles, None, scene.precession_hint_rad_s)
-    return plan_terms(data, scene, source=f"gyrorig plan of {protocol.name} for {duration_s:g} s records")
 
 
 def _draw_rng(seed: int, duration_s: float) -> np.random.Generator:
@@ -178,8 +84,8 @@ def _draw_rng(seed: int, duration_s: float) -> np.random.Generator:
     return np.random.default_rng([seed, int(round(duration_s * 1e6))])
 
 
-def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws: int,
-                 rng: np.random.Generator, progress=None) -> dict:
+def noisy_draws(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, pred: dict, draws: int,
+                rng: np.random.Generator, progress=None) -> dict:
     """Fit ``draws`` noisy versions of the expected record with the planned model.
 
     Each draw adds Gaussian noise with the per-frame covariance to the simulated angles and is
@@ -196,8 +102,6 @@ def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws
     Returns ``draws, failed, failures, model_changed, rms_departure_se`` (per quantity),
     ``max_departure_se, worst_quantity, nonlinear`` (the quantities above the limit), ``ok``.
     """
-    from .fit import FitError, fit_angles, linear_response
-
     out = {"draws": draws, "failed": 0, "failures": [], "model_changed": 0, "rms_departure_se": {},
            "max_departure_se": 0.0, "worst_quantity": None, "nonlinear": [], "ok": True}
     if draws <= 0:
@@ -220,11 +124,11 @@ def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws
             out["model_changed"] += 1
         for k, v in respond(noisy).items():
             q, q0 = f.quantities.get(k), fit.quantities[k]
-            if q is None or q.status != "determined" or not q0.standard_error:
+            if q is None or not q.determined or not q0.standard_error:
                 continue
             diff = q.value - v
             if k == "equilibrium_azimuth_rad":
-                diff = float(np.angle(np.exp(1j * diff)))
+                diff = wrap_angle(diff)
             d = abs(diff) / q0.standard_error
             departures.setdefault(k, []).append(d)
             if d > out["max_departure_se"]:
@@ -237,64 +141,25 @@ def _noisy_draws(protocol: Protocol, ex: SimpleNamespace, fit, pred: dict, draws
     return out
 
 
-def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, prediction: dict | None = None,
-                    simulate_damping: bool = True, draws: int = DEFAULT_PLAN_DRAWS,
-                    rng: np.random.Generator | None = None, progress=None) -> dict:
-    """What the rig and camera of ``protocol`` will measure (see the module docstring).
-
-    Parameters
-    ----------
-    draws : int
-        Noisy records (simulated motion + Gaussian noise with the camera's per-frame
-        covariance) fitted in full to check that the fit converges and is linear over the
-        noise at this length (:func:`_noisy_draws`); 0 skips the check.
-    rng : numpy Generator, optional
-        Seeds those draws (default: a fixed seed, so a plan is reproducible).
-    progress : callable, optional
-        ``progress(done, total)`` after each draw.
-
-    Returns a JSON-ready dict: ``prediction``, ``camera`` (resolution checks),
-    ``quantities`` (predicted value, expected standard error, resolvable, reason),
-    ``recording`` (length needed per quantity; ``linear_regime``, ``noisy_draws``),
-    ``recommendations`` (list of strings).
-    """
-    if draws < 0:
-        raise ValueError(f"--draws {draws}: the number of noisy records must be >= 0")
-    draw_seed = int((rng if rng is not None else np.random.default_rng(0)).integers(2**62))
-    from .fit import fit_angles
-    from .theory import predict
-
-    start = time.perf_counter()
-    pred = prediction if prediction is not None else predict(protocol, simulate_damping=simulate_damping)
-    out: dict = {"protocol": protocol.name, "prediction": pred, "recommendations": []}
-    rec = out["recommendations"]
-    if "camera" not in protocol.extra:
-        out["camera"] = None
-        rec.append("no [camera] in the protocol: resolution and precision not assessed; add a camera section")
-        out["wall_time_s"] = time.perf_counter() - start
-        return out
-    setup, marker = _tip_marker(protocol)
+def _camera_checks(protocol: Protocol, ex: ExpectedRecord, pred: dict, rec: list[str]) -> dict:
+    """The camera against the motion: spot, per-frame errors, nutation, blur, skew, field of view; advice to ``rec``."""
+    setup, marker = tip_setup(protocol)
     cam = setup.camera
-    T = float(duration_s if duration_s is not None else min(protocol.scene.duration_s, DEFAULT_PLAN_LENGTH_S))
     lever = float(np.linalg.norm(marker.position_m))
     if marker.body == "frame" and np.hypot(*marker.position_m[:2]) > 1e-9:
         rec.append(f"marker {marker.name} is off the symmetry axis: its spin smears it during the exposure; put the "
                    "tip marker on the axis")
-    ex = _expected_angles(protocol, T)
-    theta, phi, pos, spot, cov, depth = ex.theta, ex.phi, ex.pos, ex.spot, ex.cov, ex.depth
-    px = _project(setup, pos)
+    spot, cov = ex.spot, ex.cov
+    px = project(setup, ex.pos)
     speed_px_s = np.linalg.norm(np.gradient(px, 1 / cam.fps, axis=0), axis=1)
     blur_px = float(np.max(speed_px_s) * cam.exposure_s)
     skew_px = float(np.max(speed_px_s) * cam.readout_time_s) if cam.shutter == "rolling" else 0.0
     inside = (px[:, 0] >= 0) & (px[:, 0] < cam.width_px) & (px[:, 1] >= 0) & (px[:, 1] < cam.height_px)
-    camera = {"fps": cam.fps, "exposure_s": cam.exposure_s, "lever_arm_m": lever, "marker_depth_m": depth, **spot,
+    camera = {"fps": cam.fps, "exposure_s": cam.exposure_s, "lever_arm_m": lever, "marker_depth_m": ex.depth, **spot,
               "theta_sigma_rad_median": float(np.median(np.sqrt(cov[:, 0, 0]))),
               "phi_sigma_rad_median": float(np.median(np.sqrt(cov[:, 1, 1]))),
               "max_marker_speed_px_s": float(np.max(speed_px_s)), "motion_blur_px": blur_px,
               "rolling_shutter_skew_px": skew_px, "marker_in_view_fraction": float(inside.mean())}
-    out["camera"] = camera
-
-    # nutation against the camera
     nut = pred.get("nutation_frequency_rad_s", {}).get("exact")
     amp = pred.get("nutation_amplitude_rad", {}).get("exact")
     if nut is not None:
@@ -326,25 +191,24 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
                    f"(>= {2 / spot['px_per_m'] * 1e3:.1f} mm radius) for a robust centroid")
     rec.append(f"marker placement: on the symmetry axis, as far from the pivot as the rig allows (the angle error "
                f"scales as 1/lever arm, now {lever * 1e3:.0f} mm); lab fiducials around the pivot fix the camera pose")
+    return camera
 
-    # the expected errors: Cramer-Rao bound of the fit model for this motion and camera
-    fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
-    misfit = {"noiseless_chi2": float(fit.chi2), "dof": int(fit.dof), "chi2_per_dof": float(fit.chi2 / max(fit.dof, 1))}
-    quantities = {}
-    recording = {}
+
+def _expected_errors(fit: FitResult, T: float, nut: float | None) -> tuple[dict, dict]:
+    """Each quantity's expected error, and the recording length each needs for its target precision."""
+    quantities, recording = {}, {}
     for name, q in fit.quantities.items():
-        entry = {"units": q.units, "resolvable": q.status == "determined", "reason": q.reason, "reliable": True,
+        entry = {"units": q.units, "resolvable": q.determined, "reason": q.reason, "reliable": True,
                  "predicted_paper": q.paper, "predicted_exact": q.exact, "simulated": q.value,
                  "expected_standard_error": q.standard_error}
-        if q.status == "determined" and q.value:
+        if q.determined and q.value:
             rel = q.standard_error / abs(q.value)
             entry["expected_relative_error"] = rel
             if q.paper is not None and q.exact is not None and q.standard_error:
                 entry["paper_vs_exact_in_se"] = (q.paper - q.exact) / q.standard_error
             target = TARGET_RELATIVE_SE.get(name)
             if target is not None:
-                k = _T_EXPONENT.get(name, 1.5)
-                need = T * (rel / target) ** (1 / k)
+                need = T * (rel / target) ** (1 / _T_EXPONENT.get(name, 1.5))
                 # the scaling holds only over whole cycles: at least one precession period,
                 # and two nutation periods for the nutation
                 prec_rate = abs(fit.quantities["precession_rate_rad_s"].value or 0.0)
@@ -360,8 +224,110 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     prec = quantities.get("precession_rate_rad_s", {}).get("simulated")
     if prec:
         recording["precession_periods_in_record"] = T * abs(prec) / (2 * math.pi)
+    return quantities, recording
+
+
+def _misfit_advice(protocol: Protocol, fit: FitResult, T: float, pred: dict, misfit: dict) -> str | None:
+    """Advice when the fit model misses part of the simulated motion (None when it describes it)."""
+    if misfit["chi2_per_dof"] <= MISFIT_NOTE:
+        return None
+    shorter = _adequate_length(protocol, T, pred) if misfit["chi2_per_dof"] > MISFIT_LIMIT else None
+    misfit["adequate_length_s"] = shorter
+    return (f"over {T:g} s the fit model misses part of the simulated motion: noiseless chi-square "
+            f"{fit.chi2:.3g} for {fit.dof} degrees of freedom, so real records show a reduced chi-square of "
+            f"about {1 + misfit['chi2_per_dof']:.3g}, residuals that are not white (errors from the bootstrap) "
+            f"and quantities off by up to {math.sqrt(fit.chi2):.3g} standard errors"
+            + ("" if misfit["chi2_per_dof"] <= MISFIT_LIMIT else
+               "; the expected errors above are not reliable; "
+               + (f"a {shorter:.3g} s record is described by the model" if shorter else
+                  "no shorter record tried is described by it")))
+
+
+def _reliability(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, T: float, pred: dict, draws: int,
+                 draw_seed: int, out: dict, rec: list[str], progress) -> None:
+    """Whether the expected errors hold for a record of ``T``: the phase check and the noisy draws; marks
+    unreliable quantities in ``out`` and names a long-enough record."""
+    quantities = out["quantities"]
+    checks = (noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T), progress)
+              if fit.linear_regime else None)
+    if checks is not None:
+        out["recording"]["noisy_draws"] = checks
+        if checks["model_changed"]:
+            rec.append(f"{checks['model_changed']} of {draws} noisy records of {T:g} s needed a term the plan left out "
+                       "(the fit adds it and says so; those records' error bars are wider than planned)")
+    if fit.linear_regime and checks["ok"]:
+        out["recording"]["linear_regime"] = True
+        return
+    unreliable = list(quantities)
+    if not fit.linear_regime:
+        worst = max(fit.phase_uncertainty_rad.items(), key=lambda kv: kv[1])
+        why = (f"{worst[0]} leaves {worst[1]:.2g} rad of phase uncertain over the record, so the model is not "
+               "linear over one standard error")
+    elif checks["failed"]:
+        why = f"{checks['failed']} of {draws} noisy records of this length did not converge ({checks['failures'][0]})"
+    else:
+        unreliable = checks["nonlinear"] + (["tilt_time_constant_s"] if "tilt_growth_rate_per_s" in
+                                            checks["nonlinear"] else [])
+        why = (f"in {draws} noisy records the full fit of " + ", ".join(
+            f"{k} landed {checks['rms_departure_se'][k]:.2g}" for k in checks["nonlinear"])
+            + f" standard errors (root mean square) from where the linearised fit puts it (limit "
+            f"{LINEAR_DEPARTURE_SE:g}): the model is not linear over the noise there")
+    longer = _linear_length(protocol, T, pred, draws, draw_seed)
+    out["recording"]["linear_regime"] = False
+    out["recording"]["length_for_linear_regime_s"] = longer
+    for name in unreliable:
+        if name in quantities:
+            quantities[name]["reliable"] = False
+    rec.append(f"a {T:g} s record is too short for the scene's fit model: {why}; the expected errors of "
+               + ("every quantity" if len(unreliable) == len(quantities) else ", ".join(unreliable))
+               + " above are not reliable (runs will scatter beyond them); "
+               + (f"a {longer:.3g} s record is long enough" if longer else
+                  f"no record up to the scene's {protocol.scene.duration_s:g} s is long enough"))
+
+
+def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, prediction: dict | None = None,
+                    simulate_damping: bool = True, draws: int = DEFAULT_PLAN_DRAWS,
+                    rng: np.random.Generator | None = None, progress=None) -> dict:
+    """What the rig and camera of ``protocol`` will measure (see the module docstring).
+
+    Parameters
+    ----------
+    draws : int
+        Noisy records (simulated motion + Gaussian noise with the camera's per-frame
+        covariance) fitted in full to check that the fit converges and is linear over the
+        noise at this length (:func:`noisy_draws`); 0 skips the check.
+    rng : numpy Generator, optional
+        Seeds those draws (default: a fixed seed, so a plan is reproducible).
+    progress : callable, optional
+        ``progress(done, total)`` after each draw.
+
+    Returns a JSON-ready dict: ``prediction``, ``camera`` (resolution checks),
+    ``quantities`` (predicted value, expected standard error, resolvable, reliable, reason),
+    ``recording`` (length needed per quantity; ``model_misfit``, ``linear_regime``,
+    ``noisy_draws``), ``fit_model``, ``fit_terms`` and ``recommendations`` (list of strings).
+    """
+    if draws < 0:
+        raise ValueError(f"--draws {draws}: the number of noisy records must be >= 0")
+    draw_seed = int((rng if rng is not None else np.random.default_rng(0)).integers(2**62))
+    start = time.perf_counter()
+    pred = prediction if prediction is not None else predict(protocol, simulate_damping=simulate_damping)
+    out: dict = {"protocol": protocol.name, "prediction": pred, "recommendations": []}
+    rec = out["recommendations"]
+    if "camera" not in protocol.extra:
+        out["camera"] = None
+        rec.append("no [camera] in the protocol: resolution and precision not assessed; add a camera section")
+        out["wall_time_s"] = time.perf_counter() - start
+        return out
+    T = float(duration_s if duration_s is not None else min(protocol.scene.duration_s, DEFAULT_PLAN_LENGTH_S))
+    ex = expected_record(protocol, T)
+    out["camera"] = _camera_checks(protocol, ex, pred, rec)
+    # the expected errors: Cramér-Rao bound of the fit model for this motion and camera
+    fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
+    misfit = {"noiseless_chi2": float(fit.chi2), "dof": int(fit.dof), "chi2_per_dof": float(fit.chi2 / max(fit.dof, 1))}
+    nut = pred.get("nutation_frequency_rad_s", {}).get("exact")
+    quantities, recording = _expected_errors(fit, T, nut)
     out["quantities"] = quantities
-    out["note"] = ("expected errors are statistical (Cramer-Rao) bounds for the camera's per-frame localisation "
+    out["note"] = ("expected errors are statistical (Cramér-Rao) bounds for the camera's per-frame localisation "
                    "limit; camera-model systematics (calibration, pose: ~3e-4 rad with a 12-view calibration, see "
                    "'gyrorig bench track') and marker blends add to them")
     out["recording"] = {"length_s": T, **recording, "model_misfit": misfit}
@@ -373,60 +339,15 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         rec.append(f"recording length: {longest[0]:.3g} s for every quantity to reach its target precision "
                    f"(set by {longest[1]}); precession periods in {T:g} s: "
                    f"{recording.get('precession_periods_in_record', float('nan')):.2g}")
-    if misfit["chi2_per_dof"] > MISFIT_NOTE:
-        shorter = _adequate_length(protocol, T, pred) if misfit["chi2_per_dof"] > MISFIT_LIMIT else None
-        misfit["adequate_length_s"] = shorter
-        rec.append(f"over {T:g} s the fit model misses part of the simulated motion: noiseless chi-square "
-                   f"{fit.chi2:.3g} for {fit.dof} degrees of freedom, so real records show a reduced chi-square of "
-                   f"about {1 + misfit['chi2_per_dof']:.3g}, residuals that are not white (errors from the bootstrap) "
-                   f"and quantities off by up to {math.sqrt(fit.chi2):.3g} standard errors"
-                   + ("" if misfit["chi2_per_dof"] <= MISFIT_LIMIT else
-                      "; the expected errors above are not reliable; "
-                      + (f"a {shorter:.3g} s record is described by the model" if shorter else
-                         "no shorter record tried is described by it")))
+    advice = _misfit_advice(protocol, fit, T, pred, misfit)
+    if advice:
+        rec.append(advice)
     if misfit["chi2_per_dof"] > MISFIT_LIMIT:
         for entry in quantities.values():
             entry["reliable"] = False
         out["recording"]["linear_regime"] = None  # not assessed: the model does not describe the record
-        rec.extend(_damping_advice(protocol, pred))
-        out["wall_time_s"] = time.perf_counter() - start
-        return out
-    checks = (_noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T), progress)
-              if fit.linear_regime else None)
-    if checks is not None:
-        out["recording"]["noisy_draws"] = checks
-        if checks["model_changed"]:
-            rec.append(f"{checks['model_changed']} of {draws} noisy records of {T:g} s needed a term the plan left out "
-                       "(the fit adds it and says so; those records' error bars are wider than planned)")
-    if not fit.linear_regime or not checks["ok"]:
-        unreliable = list(quantities)
-        if not fit.linear_regime:
-            worst = max(fit.phase_uncertainty_rad.items(), key=lambda kv: kv[1])
-            why = (f"{worst[0]} leaves {worst[1]:.2g} rad of phase uncertain over the record, so the model is not "
-                   "linear over one standard error")
-        elif checks["failed"]:
-            why = (f"{checks['failed']} of {draws} noisy records of this length did not converge "
-                   f"({checks['failures'][0]})")
-        else:
-            unreliable = checks["nonlinear"] + (["tilt_time_constant_s"] if "tilt_growth_rate_per_s" in
-                                                checks["nonlinear"] else [])
-            why = (f"in {draws} noisy records the full fit of " + ", ".join(
-                f"{k} landed {checks['rms_departure_se'][k]:.2g}" for k in checks["nonlinear"])
-                + f" standard errors (root mean square) from where the linearised fit puts it (limit "
-                f"{LINEAR_DEPARTURE_SE:g}): the model is not linear over the noise there")
-        longer = _linear_length(protocol, T, pred, draws, draw_seed)
-        out["recording"]["linear_regime"] = False
-        out["recording"]["length_for_linear_regime_s"] = longer
-        for name in unreliable:
-            if name in quantities:
-                quantities[name]["reliable"] = False
-        rec.append(f"a {T:g} s record is too short for the scene's fit model: {why}; the expected errors of "
-                   + ("every quantity" if len(unreliable) == len(quantities) else ", ".join(unreliable))
-                   + " above are not reliable (runs will scatter beyond them); "
-                   + (f"a {longer:.3g} s record is long enough" if longer else
-                      f"no record up to the scene's {protocol.scene.duration_s:g} s is long enough"))
     else:
-        out["recording"]["linear_regime"] = True
+        _reliability(protocol, ex, fit, T, pred, draws, draw_seed, out, rec, progress)
     rec.extend(_damping_advice(protocol, pred))
     out["wall_time_s"] = time.perf_counter() - start
     return out
@@ -436,22 +357,20 @@ def _linear_length(protocol: Protocol, duration_s: float, pred: dict, draws: int
     """The shortest of a few longer records (x1.5 .. x4, up to the scene's length) over which the
     fit model is in its linear regime (and its noisy draws converge where the linearised fit puts
     them); None if none is."""
-    from .fit import FitError, fit_angles
-
     tried = set()
     for factor in (1.5, 2.0, 3.0, 4.0):
         T = min(duration_s * factor, protocol.scene.duration_s)
         if T <= duration_s or T in tried:
             continue
         tried.add(T)
-        ex = _expected_angles(protocol, T)
+        ex = expected_record(protocol, T)
         try:
             fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
         except FitError:
             continue
         if fit.chi2 > MISFIT_LIMIT * max(fit.dof, 1):
             return None  # longer records are described no better
-        if fit.linear_regime and _noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T))["ok"]:
+        if fit.linear_regime and noisy_draws(protocol, ex, fit, pred, draws, _draw_rng(draw_seed, T))["ok"]:
             return T
     return None
 
@@ -459,12 +378,10 @@ def _linear_length(protocol: Protocol, duration_s: float, pred: dict, draws: int
 def _adequate_length(protocol: Protocol, duration_s: float, pred: dict) -> float | None:
     """The longest of ``duration_s`` / 2, / 4, / 8 whose simulated record the fit model describes
     (noiseless chi-square per degree of freedom at most :data:`MISFIT_LIMIT`), or None."""
-    from .fit import FitError, fit_angles
-
     for k in (2, 4, 8):
         T = duration_s / k
         try:
-            fit = fit_angles(_expected_angles(protocol, T).angles, protocol, prediction=pred, check_residuals=False,
+            fit = fit_angles(expected_record(protocol, T).angles, protocol, prediction=pred, check_residuals=False,
                              terms="noiseless")
         except FitError:
             continue
@@ -474,7 +391,6 @@ def _adequate_length(protocol: Protocol, duration_s: float, pred: dict) -> float
 
 
 def _damping_advice(protocol: Protocol, pred: dict) -> list[str]:
-    adv = []
     models = [d.model for d in protocol.pivot.damping]
     growth = pred.get("tilt_growth_rate_per_s", {})
     if not models:
@@ -482,42 +398,13 @@ def _damping_advice(protocol: Protocol, pred: dict) -> list[str]:
                 "(magnet in the ball, realisation B2)"]
     if "eddy-field" in models and growth.get("exact") is not None and abs(growth["exact"]) < 0.1 * abs(
             growth.get("paper") or 1.0):
-        adv.append(f"eddy-field damping (lab field) damps only theta': the simulated tilt drift is {growth['exact']:+.2g} "
-                   f"1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s, so this rig cannot test "
-                   "eqs. 25a/26; use the magnet-in-ball realisation (B2)")
-    elif growth.get("exact") is not None:
-        adv.append(f"damping realisation {', '.join(models)} tests eqs. 25a/26: simulated tilt growth "
-                   f"{growth['exact']:+.3g} 1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s")
-    return adv
-
-
-# --------------------------------------------------------------------------------------- Monte Carlo
-def monte_carlo_check(protocol: Protocol, n: int, *, duration_s: float = 2.0, scheduler: str | None = None,
-                      workers: int | None = None, progress=None) -> pd.DataFrame:
-    """Confirm the plan's expected errors with N runs of render -> track -> smooth -> fit.
-
-    Returns, per quantity: the planned standard error for the same record, the Monte Carlo
-    spread of the estimates, their ratio, and the mean and SD of the pulls.
-    """
-    from .bench import fit_monte_carlo
-
-    runs = fit_monte_carlo([protocol], seeds=n, duration_s=duration_s, workers=workers, progress=progress,
-                           scheduler=scheduler, camera_size=None)
-    plan = plan_experiment(protocol, duration_s=duration_s, simulate_damping=False)
-    rows = []
-    ok = runs[runs["error"].fillna("") == ""] if "error" in runs else runs
-    for name, g in ok[ok.status == "determined"].groupby("quantity", sort=False):
-        planned = plan["quantities"].get(name, {}).get("expected_standard_error")
-        err = g.value.astype(float) - g.truth.astype(float)
-        sd = float(np.std(err, ddof=1)) if len(g) > 1 else math.nan
-        rows.append({"quantity": name, "runs": len(g), "planned_se": planned, "monte_carlo_sd": sd,
-                     "sd_over_planned": sd / planned if planned else math.nan,
-                     "median_fit_se": float(np.median(g.standard_error)), "mean_pull": float(g.pull.mean()),
-                     "sd_pull": float(g.pull.std(ddof=1)) if len(g) > 1 else math.nan})
-    table = pd.DataFrame(rows)
-    table.attrs["failed_runs"] = int((runs["error"].fillna("") != "").sum()) if "error" in runs else 0
-    table.attrs["linear_regime"] = bool(plan["recording"].get("linear_regime", True))
-    return table
+        return [f"eddy-field damping (lab field) damps only theta': the simulated tilt drift is {growth['exact']:+.2g} "
+                f"1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s, so this rig cannot test "
+                "eqs. 25a/26; use the magnet-in-ball realisation (B2)"]
+    if growth.get("exact") is not None:
+        return [f"damping realisation {', '.join(models)} tests eqs. 25a/26: simulated tilt growth "
+                f"{growth['exact']:+.3g} 1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s"]
+    return []
 
 
 # ------------------------------------------------------------------------------------------- sweeps
@@ -548,7 +435,11 @@ def _set_key(data: dict, key: str, value: float) -> None:
 
 def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s: float | None = None,
           progress=None) -> pd.DataFrame:
-    """Expected relative error of every quantity as one protocol key is scanned."""
+    """Expected relative error of every quantity as one protocol key is scanned.
+
+    Columns: the key, ``<quantity>_relative_error`` (NaN where not resolvable), ``motion_blur_px``,
+    ``sigma_px``.
+    """
     with open(protocol_path, "rb") as fh:
         base = tomllib.load(fh)
     rows = []
@@ -567,18 +458,3 @@ def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s
         if progress:
             progress(i + 1, len(values))
     return pd.DataFrame(rows)
-
-
-def plot_sweep(table: pd.DataFrame, key: str):
-    """Expected relative errors against the scanned key (log scale)."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(8, 5), layout="constrained")
-    ax = fig.subplots()
-    for c in table.columns:
-        if c.endswith("_relative_error") and np.isfinite(table[c]).any():
-            ax.semilogy(table[key], table[c], "o-", label=c.removesuffix("_relative_error"))
-    ax.set(xlabel=key, ylabel="expected relative standard error", title=f"precision against {key}")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    return fig

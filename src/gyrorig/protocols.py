@@ -15,9 +15,11 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Union
+
+from ._validate import ProtocolError, angle, boolean, check_keys, finite, number, vector3
 
 __all__ = [
     "ProtocolError",
@@ -35,104 +37,13 @@ __all__ = [
     "load_protocol",
     "parse_protocol",
     "top_protocol",
+    "protocol_summary",
     "BUNDLED_PROTOCOL_DIR",
 ]
 
 
 #: the repository's bundled protocol files (present when gyrorig is installed from a clone with ``pip install -e .``)
 BUNDLED_PROTOCOL_DIR = Path(__file__).resolve().parents[2] / "protocols"
-
-
-class ProtocolError(ValueError):
-    """A protocol file or table is invalid; the message names the key and the allowed range."""
-
-
-# --------------------------------------------------------------------------------------
-# validation helpers
-
-
-def _where(section: str, key: str) -> str:
-    return f"{section}.{key}" if section else key
-
-
-def _finite(section: str, key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ProtocolError(f"{_where(section, key)} = {value!r}: expected a number")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ProtocolError(f"{_where(section, key)} = {value!r}: must be finite (not NaN or inf)")
-    return value
-
-
-def _number(
-    section: str,
-    key: str,
-    value: Any,
-    *,
-    lo: float | None = None,
-    hi: float | None = None,
-    lo_open: bool = False,
-    hi_open: bool = False,
-) -> float:
-    v = _finite(section, key, value)
-    bad_lo = lo is not None and (v <= lo if lo_open else v < lo)
-    bad_hi = hi is not None and (v >= hi if hi_open else v > hi)
-    if bad_lo or bad_hi:
-        left = "(" if lo_open else "["
-        right = ")" if hi_open else "]"
-        lo_s = "-inf" if lo is None else f"{lo:g}"
-        hi_s = "inf" if hi is None else f"{hi:g}"
-        raise ProtocolError(
-            f"{_where(section, key)} = {v!r} is out of range; allowed {left}{lo_s}, {hi_s}{right}"
-        )
-    return v
-
-
-def _vector3(section: str, key: str, value: Any) -> tuple[float, float, float]:
-    if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise ProtocolError(f"{_where(section, key)} = {value!r}: expected a list of 3 numbers")
-    x, y, z = (_finite(section, f"{key}[{i}]", v) for i, v in enumerate(value))
-    return (x, y, z)
-
-
-def _bool(section: str, key: str, value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ProtocolError(f"{_where(section, key)} = {value!r}: expected true or false")
-    return value
-
-
-def _check_keys(section: str, table: Mapping[str, Any], required: set[str], optional: set[str]) -> None:
-    if not isinstance(table, Mapping):
-        raise ProtocolError(f"[{section}] must be a table, found {table!r}")
-    unknown = sorted(set(table) - required - optional)
-    if unknown:
-        allowed = ", ".join(sorted(required | optional))
-        raise ProtocolError(f"[{section}] has unknown key(s) {', '.join(unknown)}; allowed keys: {allowed}")
-    missing = sorted(required - set(table))
-    if missing:
-        raise ProtocolError(f"[{section}] is missing required key(s) {', '.join(missing)}")
-
-
-def _angle(
-    section: str, table: Mapping[str, Any], stem: str, *, lo: float, hi: float, required: bool, default: float = 0.0
-) -> float:
-    """Read ``stem_rad`` or ``stem_deg`` (exactly one); range given in radians."""
-    rad_key, deg_key = f"{stem}_rad", f"{stem}_deg"
-    if rad_key in table and deg_key in table:
-        raise ProtocolError(f"[{section}] gives both {rad_key} and {deg_key}; give one")
-    if rad_key in table:
-        return _number(section, rad_key, table[rad_key], lo=lo, hi=hi)
-    if deg_key in table:
-        v = _number(section, deg_key, table[deg_key], lo=math.degrees(lo), hi=math.degrees(hi))
-        # exact endpoints survive the conversion (180 deg -> pi)
-        return min(max(math.radians(v), lo), hi)
-    if required:
-        raise ProtocolError(f"[{section}] is missing required key {rad_key} (or {deg_key})")
-    return default
-
-
-# --------------------------------------------------------------------------------------
-# records
 
 
 @dataclass(frozen=True, slots=True)
@@ -384,24 +295,30 @@ class Protocol:
 # parsing
 
 # sections read by later pipeline stages; accepted as tables, validated there
+def protocol_summary(p: Protocol) -> dict:
+    """The protocol as parsed (its physics sections as plain dicts), for manifests."""
+    return {"name": p.name, "source": p.source, "description": p.description, "rig": asdict(p.rig),
+            "launch": asdict(p.launch), "pivot": asdict(p.pivot), "scene": asdict(p.scene)}
+
+
 _LATER_SECTIONS = {"camera", "markers", "measure"}
 
 
 def _parse_rig(t: Mapping[str, Any]) -> Rig:
     s = "rig"
-    _check_keys(
+    check_keys(
         s,
         t,
         {"mass_kg", "com_distance_m", "inertia_axial_kg_m2", "inertia_transverse_kg_m2"},
         {"gravity_m_s2", "frame_axial_inertia_kg_m2"},
     )
-    mass = _number(s, "mass_kg", t["mass_kg"], lo=0.0, lo_open=True)
-    h = _number(s, "com_distance_m", t["com_distance_m"], lo=0.0)
-    io = _number(s, "inertia_axial_kg_m2", t["inertia_axial_kg_m2"], lo=0.0, lo_open=True)
-    it = _number(s, "inertia_transverse_kg_m2", t["inertia_transverse_kg_m2"], lo=0.0, lo_open=True)
-    g = _number(s, "gravity_m_s2", t["gravity_m_s2"], lo=0.0) if "gravity_m_s2" in t else None
+    mass = number(s, "mass_kg", t["mass_kg"], lo=0.0, lo_open=True)
+    h = number(s, "com_distance_m", t["com_distance_m"], lo=0.0)
+    io = number(s, "inertia_axial_kg_m2", t["inertia_axial_kg_m2"], lo=0.0, lo_open=True)
+    it = number(s, "inertia_transverse_kg_m2", t["inertia_transverse_kg_m2"], lo=0.0, lo_open=True)
+    g = number(s, "gravity_m_s2", t["gravity_m_s2"], lo=0.0) if "gravity_m_s2" in t else None
     frame = (
-        _number(s, "frame_axial_inertia_kg_m2", t["frame_axial_inertia_kg_m2"], lo=0.0, lo_open=True)
+        number(s, "frame_axial_inertia_kg_m2", t["frame_axial_inertia_kg_m2"], lo=0.0, lo_open=True)
         if "frame_axial_inertia_kg_m2" in t
         else None
     )
@@ -428,10 +345,10 @@ def _parse_launch(t: Mapping[str, Any], rig: Rig) -> Launch:
         "tilt_rad", "tilt_deg", "azimuth_rad", "azimuth_deg", "spin_angle_rad", "spin_angle_deg",
         "frame_spin_rate_rad_s",
     }
-    _check_keys(s, t, {"tilt_rate_rad_s", "precession_rate_rad_s", "spin_rate_rad_s"}, optional)
-    tilt = _angle(s, t, "tilt", lo=0.0, hi=math.pi, required=True)
-    azimuth = _angle(s, t, "azimuth", lo=-1e6, hi=1e6, required=True)
-    spin_angle = _angle(s, t, "spin_angle", lo=-1e6, hi=1e6, required=False)
+    check_keys(s, t, {"tilt_rate_rad_s", "precession_rate_rad_s", "spin_rate_rad_s"}, optional)
+    tilt = angle(s, t, "tilt", lo=0.0, hi=math.pi, required=True)
+    azimuth = angle(s, t, "azimuth", lo=-1e6, hi=1e6, required=True)
+    spin_angle = angle(s, t, "spin_angle", lo=-1e6, hi=1e6, required=False)
     if "frame_spin_rate_rad_s" in t and not rig.is_gyrostat:
         raise ProtocolError(
             "launch.frame_spin_rate_rad_s is only meaningful for a gyrostat: give rig.frame_axial_inertia_kg_m2"
@@ -439,11 +356,11 @@ def _parse_launch(t: Mapping[str, Any], rig: Rig) -> Launch:
     return Launch(
         tilt_rad=tilt,
         azimuth_rad=azimuth,
-        tilt_rate_rad_s=_number(s, "tilt_rate_rad_s", t["tilt_rate_rad_s"]),
-        precession_rate_rad_s=_number(s, "precession_rate_rad_s", t["precession_rate_rad_s"]),
-        spin_rate_rad_s=_number(s, "spin_rate_rad_s", t["spin_rate_rad_s"]),
+        tilt_rate_rad_s=number(s, "tilt_rate_rad_s", t["tilt_rate_rad_s"]),
+        precession_rate_rad_s=number(s, "precession_rate_rad_s", t["precession_rate_rad_s"]),
+        spin_rate_rad_s=number(s, "spin_rate_rad_s", t["spin_rate_rad_s"]),
         spin_angle_rad=spin_angle,
-        frame_spin_rate_rad_s=_number(s, "frame_spin_rate_rad_s", t.get("frame_spin_rate_rad_s", 0.0)),
+        frame_spin_rate_rad_s=number(s, "frame_spin_rate_rad_s", t.get("frame_spin_rate_rad_s", 0.0)),
     )
 
 
@@ -455,47 +372,47 @@ def _parse_one_damping(s: str, t: Mapping[str, Any]) -> Damping:
     if model not in models:
         raise ProtocolError(f"{s}.model = {model!r}: allowed {', '.join(repr(m) for m in models)}")
     if model == "paper":
-        _check_keys(s, t, {"model", "gamma_per_s"}, set())
-        return PaperDamping(_number(s, "gamma_per_s", t["gamma_per_s"], lo=0.0))
+        check_keys(s, t, {"model", "gamma_per_s"}, set())
+        return PaperDamping(number(s, "gamma_per_s", t["gamma_per_s"], lo=0.0))
     if model == "magnet-in-ball":
-        _check_keys(s, t, {"model", "coefficient_N_m_s"}, set())
-        return MagnetInBallDamping(_number(s, "coefficient_N_m_s", t["coefficient_N_m_s"], lo=0.0))
+        check_keys(s, t, {"model", "coefficient_N_m_s"}, set())
+        return MagnetInBallDamping(number(s, "coefficient_N_m_s", t["coefficient_N_m_s"], lo=0.0))
     if model == "eddy-field":
-        _check_keys(s, t, {"model", "coefficient_N_m_s", "field_direction", "spin_compensated"}, set())
-        d = _vector3(s, "field_direction", t["field_direction"])
+        check_keys(s, t, {"model", "coefficient_N_m_s", "field_direction", "spin_compensated"}, set())
+        d = vector3(s, "field_direction", t["field_direction"])
         norm = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
         if norm == 0.0:
             raise ProtocolError(f"{s}.field_direction = {list(d)!r}: must be a non-zero vector")
         return EddyFieldDamping(
-            _number(s, "coefficient_N_m_s", t["coefficient_N_m_s"], lo=0.0),
+            number(s, "coefficient_N_m_s", t["coefficient_N_m_s"], lo=0.0),
             (d[0] / norm, d[1] / norm, d[2] / norm),
-            _bool(s, "spin_compensated", t["spin_compensated"]),
+            boolean(s, "spin_compensated", t["spin_compensated"]),
         )
-    _check_keys(s, t, {"model", "coefficient_N_m_s"}, {"axial_coefficient_N_m_s", "spin_compensated"})
+    check_keys(s, t, {"model", "coefficient_N_m_s"}, {"axial_coefficient_N_m_s", "spin_compensated"})
     return AirDamping(
-        _number(s, "coefficient_N_m_s", t["coefficient_N_m_s"], lo=0.0),
-        _number(s, "axial_coefficient_N_m_s", t.get("axial_coefficient_N_m_s", 0.0), lo=0.0),
-        _bool(s, "spin_compensated", t.get("spin_compensated", True)),
+        number(s, "coefficient_N_m_s", t["coefficient_N_m_s"], lo=0.0),
+        number(s, "axial_coefficient_N_m_s", t.get("axial_coefficient_N_m_s", 0.0), lo=0.0),
+        boolean(s, "spin_compensated", t.get("spin_compensated", True)),
     )
 
 
 def _parse_acceleration_table(s: str, t: Mapping[str, Any]) -> PivotAcceleration:
-    _check_keys(s, t, {"t_s", "acceleration_m_s2"}, set())
+    check_keys(s, t, {"t_s", "acceleration_m_s2"}, set())
     ts, acc = t["t_s"], t["acceleration_m_s2"]
     if not isinstance(ts, list) or len(ts) < 2:
         raise ProtocolError(f"{s}.t_s = {ts!r}: expected a list of at least 2 times")
     if not isinstance(acc, list) or len(acc) != len(ts):
         raise ProtocolError(f"{s}.acceleration_m_s2: expected {len(ts)} rows of [ax, ay, az], one per t_s")
-    times = tuple(_finite(s, f"t_s[{i}]", v) for i, v in enumerate(ts))
+    times = tuple(finite(s, f"t_s[{i}]", v) for i, v in enumerate(ts))
     if any(b <= a for a, b in zip(times, times[1:])):
         raise ProtocolError(f"{s}.t_s = {list(times)!r}: times must be strictly increasing")
-    rows = tuple(_vector3(s, f"acceleration_m_s2[{i}]", row) for i, row in enumerate(acc))
+    rows = tuple(vector3(s, f"acceleration_m_s2[{i}]", row) for i, row in enumerate(acc))
     return PivotAcceleration(times, rows)
 
 
 def _parse_pivot(t: Mapping[str, Any]) -> Pivot:
     s = "pivot"
-    _check_keys(s, t, set(), {"damping", "acceleration_m_s2", "acceleration_table"})
+    check_keys(s, t, set(), {"damping", "acceleration_m_s2", "acceleration_table"})
     damping: tuple[Damping, ...] = ()
     if "damping" in t:
         d = t["damping"]
@@ -507,7 +424,7 @@ def _parse_pivot(t: Mapping[str, Any]) -> Pivot:
         raise ProtocolError("[pivot] gives both acceleration_m_s2 and acceleration_table; give one")
     acceleration = None
     if "acceleration_m_s2" in t:
-        acceleration = PivotAcceleration((0.0,), (_vector3(s, "acceleration_m_s2", t["acceleration_m_s2"]),))
+        acceleration = PivotAcceleration((0.0,), (vector3(s, "acceleration_m_s2", t["acceleration_m_s2"]),))
     elif "acceleration_table" in t:
         acceleration = _parse_acceleration_table("pivot.acceleration_table", t["acceleration_table"])
     return Pivot(damping, acceleration)
@@ -515,10 +432,10 @@ def _parse_pivot(t: Mapping[str, Any]) -> Pivot:
 
 def _parse_scene(t: Mapping[str, Any]) -> Scene:
     s = "scene"
-    _check_keys(s, t, {"duration_s"}, {"output_rate_hz"})
+    check_keys(s, t, {"duration_s"}, {"output_rate_hz"})
     return Scene(
-        _number(s, "duration_s", t["duration_s"], lo=0.0, lo_open=True, hi=1e7),
-        _number(s, "output_rate_hz", t.get("output_rate_hz", 1000.0), lo=0.0, lo_open=True, hi=1e7),
+        number(s, "duration_s", t["duration_s"], lo=0.0, lo_open=True, hi=1e7),
+        number(s, "output_rate_hz", t.get("output_rate_hz", 1000.0), lo=0.0, lo_open=True, hi=1e7),
     )
 
 
@@ -551,7 +468,7 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
         if sec not in data:
             raise ProtocolError(f"missing required section [{sec}]")
     meta = data.get("protocol", {})
-    _check_keys("protocol", meta, set(), {"name", "description"})
+    check_keys("protocol", meta, set(), {"name", "description"})
     rig = _parse_rig(data["rig"])
     launch = _parse_launch(data["launch"], rig)
     pivot = _parse_pivot(data.get("pivot", {}))

@@ -49,7 +49,7 @@ from .protocols import Protocol, ProtocolError
 logger = logging.getLogger(__name__)
 
 __all__ = ["MarkerPaths", "marker_paths", "render_frames", "render_video", "render_calibration_images",
-           "TRUTH_COLUMNS", "background_distribution"]
+           "TRUTH_COLUMNS", "background_distribution", "open_writer"]
 
 TRUTH_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "visible", "theta_rad", "phi_rad", "t_marker_s",
                  "in_view")
@@ -293,7 +293,7 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
 VIDEO_CODECS = ("lossless", "raw", "mp4")
 
 
-def _open_writer(path: Path, cam: Camera, codec: str) -> cv2.VideoWriter:
+def open_writer(path: Path, cam: Camera, codec: str) -> cv2.VideoWriter:
     sixteen = codec == "lossless" and cam.sensor.bit_depth > 8
     # raw: uncompressed frames, as machine-vision cameras record them (decoding costs nothing)
     fourcc = 0 if codec == "raw" else cv2.VideoWriter_fourcc(*("FFV1" if codec == "lossless" else "mp4v"))
@@ -329,7 +329,7 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
     t_sim = time.perf_counter() - start
     name = {"lossless": "video.mkv", "mp4": "video.mp4", "raw": "video.avi"}[codec]
     tmp = out / f".{name}.partial{Path(name).suffix}"
-    writer = _open_writer(tmp, cam, codec)
+    writer = open_writer(tmp, cam, codec)
     truths = []
     t_render = t_encode = 0.0
     try:

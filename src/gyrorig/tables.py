@@ -10,6 +10,11 @@ phi_cam_k_rad`` for each camera-model mode ``k = 1, 2, ...`` (each frame's angle
 one-sigma move of that mode).
 
 **Marker table** (``markers.csv``): one row per detected marker and frame, :data:`MARKER_COLUMNS`.
+
+**Truth table** (``truth.csv``, written by the renderer beside its video, never read by the tracker):
+``frame, t_s`` (mid-exposure), ``marker, x_px, y_px, visible, theta_rad, phi_rad, t_marker_s``
+(the marker's own mid-exposure time) ``, in_view``; :func:`tip_truth` turns it into the noiseless
+tip angles a fit compares with.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from collections.abc import Iterable
 import pandas as pd
 
 __all__ = ["ANGLE_COLUMNS", "ANGLE_REQUIRED", "MARKER_COLUMNS", "QUALITY_FLAGS", "camera_mode_columns",
-           "camera_mode_count", "missing_columns", "quality_counts"]
+           "camera_mode_count", "missing_columns", "quality_counts", "tip_truth"]
 
 ANGLE_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
                  "tip_x", "tip_y", "tip_z", "quality")
@@ -55,3 +60,22 @@ def missing_columns(table: pd.DataFrame, required: Iterable[str]) -> list[str]:
 def quality_counts(angles: pd.DataFrame) -> dict[str, int]:
     """How many frames carry each tracking ``quality`` flag (a frame may carry several)."""
     return angles["quality"].fillna("").str.split(",").explode().value_counts().to_dict()
+
+
+def tip_truth(truth: pd.DataFrame, marker: str = "tip") -> pd.DataFrame:
+    """The noiseless angles of one marker from a truth table: ``t_s, theta_rad, phi_rad``, at the marker's
+    own mid-exposure times (``t_marker_s``, which a rolling shutter moves) when the table has them.
+
+    Raises ValueError naming the missing columns, or when the marker has no rows.
+    """
+    missing = missing_columns(truth, ("t_s", "theta_rad", "phi_rad"))
+    if missing:
+        raise ValueError(f"truth table lacks column(s) {missing}")
+    if "marker" in truth.columns:
+        truth = truth[truth["marker"] == marker]
+        if truth.empty:
+            raise ValueError(f"truth table has no rows for marker {marker!r}")
+    truth = truth.copy()
+    if "t_marker_s" in truth.columns:
+        truth["t_s"] = truth["t_marker_s"]
+    return truth[["t_s", "theta_rad", "phi_rad"]].reset_index(drop=True)

@@ -370,6 +370,38 @@ def _damping_gamma(protocol: Protocol) -> tuple[float, str]:
     return gamma, "+".join(laws)
 
 
+def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dict, simulate_damping: bool) -> dict:
+    """The damped tilt's growth rate and time constant: the paper's, corrected, and simulated."""
+    spin, acc = protocol.launch.spin_rate_rad_s, protocol.pivot.acceleration
+    gamma, law = _damping_gamma(protocol)
+    paper_rate = paper_damped_tilt_rate(spin, gamma, **kw)
+    corr_rate = corrected_damped_tilt_rate(spin, gamma, **kw)
+    sim_rate = math.nan
+    source = "simulator, from steady slow precession at the launch tilt"
+    if simulate_damping and (acc is None or acc.is_constant):
+        up = exact_accelerated_equilibrium_tip(a_vec, g)
+        if acc is None:
+            start = steady_launch(protocol)
+        else:
+            start, source = protocol, "simulator, from the protocol's launch (about the effective vertical)"
+        duration = min(protocol.scene.duration_s, 20.0)
+        df = simulate(start, duration_s=duration, rate_hz=20.0)
+        sim_rate = measure_tilt_growth_rate(df, axis=up)
+    note = f"damping law {law}; paper eq. 25a with gamma = {gamma:.4g} 1/s (slow mode)"
+    if law != "paper" and law != "magnet-in-ball":
+        note += "; the paper's law differs from this scene's, compare with the simulated value"
+    out = {}
+    out["tilt_growth_rate_per_s"] = _entry(paper_rate, sim_rate, source=source, corrected=corr_rate, note=note)
+    tau = paper_damped_time_constant(spin, gamma, **kw)
+    out["tilt_time_constant_s"] = {
+        "paper": tau, "exact": 1.0 / abs(sim_rate) if sim_rate else math.inf,
+        "exact_source": "1 / |simulated growth rate|",
+        "direction": {"paper": "decay", "exact": _direction(sim_rate)},
+        "note": "eq. 26; with the corrected sign it is the e-folding time of the tilt's growth",
+    }
+    return out
+
+
 def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
     """What theory predicts for the scene: only the quantities the scene has.
 
@@ -439,31 +471,7 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
         out["mean_precession_rate_rad_s"] = _entry(ft["mean_precession_rate_rad_s"], sol.mean_precession_rate_rad_s,
                                                    source=src, note="fast-top: Mgh / (Io Omega)")
     if protocol.is_damped:
-        gamma, law = _damping_gamma(protocol)
-        paper_rate = paper_damped_tilt_rate(spin, gamma, **kw)
-        corr_rate = corrected_damped_tilt_rate(spin, gamma, **kw)
-        sim_rate = math.nan
-        source = "simulator, from steady slow precession at the launch tilt"
-        if simulate_damping and (acc is None or acc.is_constant):
-            up = exact_accelerated_equilibrium_tip(a_vec, g)
-            if acc is None:
-                start = steady_launch(protocol)
-            else:
-                start, source = protocol, "simulator, from the protocol's launch (about the effective vertical)"
-            duration = min(protocol.scene.duration_s, 20.0)
-            df = simulate(start, duration_s=duration, rate_hz=20.0)
-            sim_rate = measure_tilt_growth_rate(df, axis=up)
-        note = f"damping law {law}; paper eq. 25a with gamma = {gamma:.4g} 1/s (slow mode)"
-        if law != "paper" and law != "magnet-in-ball":
-            note += "; the paper's law differs from this scene's, compare with the simulated value"
-        out["tilt_growth_rate_per_s"] = _entry(paper_rate, sim_rate, source=source, corrected=corr_rate, note=note)
-        tau = paper_damped_time_constant(spin, gamma, **kw)
-        out["tilt_time_constant_s"] = {
-            "paper": tau, "exact": 1.0 / abs(sim_rate) if sim_rate else math.inf,
-            "exact_source": "1 / |simulated growth rate|",
-            "direction": {"paper": "decay", "exact": _direction(sim_rate)},
-            "note": "eq. 26; with the corrected sign it is the e-folding time of the tilt's growth",
-        }
+        out.update(_damped_predictions(protocol, a_vec, g, kw, simulate_damping))
     if acc is not None and acc.is_constant and np.linalg.norm(a_vec[:2]) > 0:
         a_h = float(np.linalg.norm(a_vec[:2]))
         paper_tip = paper_accelerated_equilibrium_tip(a_h, g)

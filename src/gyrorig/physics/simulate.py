@@ -268,6 +268,28 @@ def _segments(protocol: Protocol, t_end: float) -> list[float]:
     return sorted(set(bounds))
 
 
+def _output_times(protocol: Protocol, duration_s: float | None, rate_hz: float | None,
+                  t_eval_s: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """The output times of :func:`simulate`: ``t_eval_s``, or a grid at ``rate_hz`` up to ``duration_s``
+    (protocol defaults), ending exactly at the duration."""
+    if t_eval_s is not None:
+        t_eval = np.asarray(t_eval_s, dtype=float)
+        if t_eval.ndim != 1 or len(t_eval) == 0 or t_eval[0] < 0 or np.any(np.diff(t_eval) <= 0):
+            raise ValueError("t_eval_s must be a non-empty, strictly increasing array of times >= 0")
+        return t_eval
+    t_end = protocol.scene.duration_s if duration_s is None else float(duration_s)
+    rate = protocol.scene.output_rate_hz if rate_hz is None else float(rate_hz)
+    if not (t_end > 0.0 and math.isfinite(t_end)):
+        raise ValueError(f"duration_s = {t_end!r}: must be a finite number > 0")
+    if not (rate > 0.0 and math.isfinite(rate)):
+        raise ValueError(f"rate_hz = {rate!r}: must be a finite number > 0")
+    n = int(math.floor(t_end * rate + 1e-9)) + 1
+    t_eval = np.arange(n) / rate
+    if t_eval[-1] < t_end * (1 - 1e-12):
+        t_eval = np.append(t_eval, t_end)
+    return t_eval
+
+
 def simulate(
     protocol: Protocol,
     *,
@@ -330,23 +352,8 @@ def simulate(
     atol = rtol * 1e-2 if atol is None else float(atol)
     if not (0.0 < rtol < 1.0) or not (atol > 0.0):
         raise ValueError(f"rtol = {rtol!r} must be in (0, 1) and atol = {atol!r} > 0")
-    if t_eval_s is None:
-        t_end = protocol.scene.duration_s if duration_s is None else float(duration_s)
-        rate = protocol.scene.output_rate_hz if rate_hz is None else float(rate_hz)
-        if not (t_end > 0.0 and math.isfinite(t_end)):
-            raise ValueError(f"duration_s = {t_end!r}: must be a finite number > 0")
-        if not (rate > 0.0 and math.isfinite(rate)):
-            raise ValueError(f"rate_hz = {rate!r}: must be a finite number > 0")
-        n = int(math.floor(t_end * rate + 1e-9)) + 1
-        t_eval = np.arange(n) / rate
-        if t_eval[-1] < t_end * (1 - 1e-12):
-            t_eval = np.append(t_eval, t_end)
-    else:
-        t_eval = np.asarray(t_eval_s, dtype=float)
-        if t_eval.ndim != 1 or len(t_eval) == 0 or t_eval[0] < 0 or np.any(np.diff(t_eval) <= 0):
-            raise ValueError("t_eval_s must be a non-empty, strictly increasing array of times >= 0")
-        t_end = float(t_eval[-1])
-
+    t_eval = _output_times(protocol, duration_s, rate_hz, t_eval_s)
+    t_end = float(t_eval[-1])
     if formulation == "phasor":
         y = phasor_initial_state(protocol)
         run = _scipy_segments(make_phasor_rhs(protocol), solver, rtol, atol, method)

@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-__all__ = ["plot_trajectory"]
+__all__ = ["plot_trajectory", "plot_tracking", "plot_fit", "plot_work_precision", "plot_stability", "plot_validation",
+           "plot_sweep"]
 
 
 def plot_trajectory(df: pd.DataFrame, *, reference: pd.DataFrame | None = None, title: str = "") -> Figure:
@@ -227,4 +228,17 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
         ax.set(xlabel="t [s]", ylabel=f"{name} residual [mrad]", title=f"{name} residuals (data - fit)")
     if title:
         fig.suptitle(title)
+    return fig
+
+
+def plot_sweep(table: pd.DataFrame, key: str) -> Figure:
+    """Expected relative errors (columns ``<quantity>_relative_error``) against a scanned protocol key (log scale)."""
+    fig = Figure(figsize=(8, 5), layout="constrained")
+    ax = fig.subplots()
+    for c in table.columns:
+        if c.endswith("_relative_error") and np.isfinite(table[c]).any():
+            ax.semilogy(table[key], table[c], "o-", label=c.removesuffix("_relative_error"))
+    ax.set(xlabel=key, ylabel="expected relative standard error", title=f"precision against {key}")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
     return fig

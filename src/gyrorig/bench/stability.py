@@ -24,10 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .bench import benchmark_top
-from .physics import SimulationError, choose_method, exact_solution, exact_solution_applies, simulate
-from .physics.invariants import invariants
-from .protocols import Protocol, top_protocol
+from ..physics import SimulationError, choose_method, exact_solution, exact_solution_applies, simulate
+from ..physics.invariants import invariants
+from ..protocols import Protocol, top_protocol
+from .methods import benchmark_top
 
 __all__ = ["StabilityCase", "stability_cases", "run_stability", "INVARIANT_RTOL", "AGREEMENT_TOL_RAD"]
 

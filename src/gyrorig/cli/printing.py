@@ -1,0 +1,136 @@
+"""What the command line prints: progress bars, the plan, the fit, the theory."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["progress_printer", "print_plan", "print_fit", "print_prediction"]
+
+
+def progress_printer(label: str):
+    """A progress bar on a terminal (stderr); elsewhere (a log file) a line at every tenth of the work."""
+    tty = sys.stderr.isatty()
+    start = time.perf_counter()
+    logged = [-1]
+
+    def show(done: int, total: int) -> None:
+        if not tty:
+            tenth = 10 * done // max(total, 1)
+            if tenth > logged[0]:
+                logged[0] = tenth
+                sys.stderr.write(f"{label}: {done}/{total} after {time.perf_counter() - start:.0f} s\n")
+                sys.stderr.flush()
+            return
+        frac = done / max(total, 1)
+        rate = done / max(time.perf_counter() - start, 1e-9)
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r{label} [{bar:<30}] {done}/{total} ({rate:.0f}/s)")
+        if done >= total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def print_plan(plan: dict) -> None:
+    from ..plan import MISFIT_NOTE
+
+    print(f"plan for {plan['protocol']}")
+    cam = plan.get("camera")
+    if cam:
+        print(f"  camera: {cam['fps']:g} fps, {cam['exposure_s'] * 1e6:.0f} us; tip marker {cam['radius_px']:.1f} px "
+              f"radius, {cam['signal_adu']:.0f} ADU on {cam['background_adu']:.0f}; localisation bound "
+              f"{cam['sigma_px']:.4f} px -> theta {cam['theta_sigma_rad_median']:.2e} rad, phi "
+              f"{cam['phi_sigma_rad_median']:.2e} rad per frame")
+        if "nutation_hz" in cam:
+            print(f"  nutation {cam['nutation_hz']:.3g} Hz: {cam['frames_per_nutation_period']:.1f} frames per period, "
+                  f"amplitude {cam.get('nutation_amplitude_px', float('nan')):.2f} px "
+                  f"({cam.get('nutation_amplitude_over_sigma_px', float('nan')):.3g} x the bound)")
+        print(f"  motion blur {cam['motion_blur_px']:.2f} px; rolling-shutter skew {cam['rolling_shutter_skew_px']:.2f} px"
+              f"; saturates: {cam['saturates']}")
+        rec = plan["recording"]
+        print(f"  expected errors for a {rec['length_s']:g} s record (Cramer-Rao bound of the fit):")
+        for name, q in plan["quantities"].items():
+            if not q["resolvable"]:
+                print(f"    {name}: not resolvable: {q['reason']}")
+                continue
+            pe = q.get("paper_vs_exact_in_se")
+            print(f"    {name}: {q['simulated']:.6g} +- {q['expected_standard_error']:.2g} {q['units']}"
+                  + (f" (paper {q['predicted_paper']:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else "")
+                  + ("" if q.get("reliable", True) else "  [not reliable at this length]"))
+        mf = rec.get("model_misfit")
+        if mf:
+            print(f"  fit model on the simulated record: chi-square {mf['noiseless_chi2']:.3g} for {mf['dof']} degrees "
+                  f"of freedom ({mf['chi2_per_dof']:.2g} per degree of freedom"
+                  + ("; describes the motion)" if mf["chi2_per_dof"] <= MISFIT_NOTE else "; MISSES part of the motion)"))
+        draws = rec.get("noisy_draws")
+        if draws and draws["draws"]:
+            rms = draws["rms_departure_se"]
+            print(f"  {draws['draws']} noisy records fitted in full: {draws['draws'] - draws['failed']} converged; "
+                  f"distance from the linearised fit (root mean square) at most "
+                  f"{max(rms.values(), default=0.0):.2g} s.e."
+                  + (f" ({max(rms, key=rms.get)})" if rms else "")
+                  + (": linear over the noise" if draws["ok"] else
+                     f": NOT linear over the noise ({', '.join(draws['nonlinear']) or 'failed draws'})"))
+        print(f"  note: {plan['note']}")
+    for r in plan["recommendations"]:
+        print(f"  - {r}")
+    mc = plan.get("monte_carlo")
+    if mc:
+        import pandas as pd
+
+        print(f"  Monte Carlo of render -> track -> smooth -> fit ({mc['runs']} runs of {mc['duration_s']:g} s, "
+              f"{mc['failed_runs']} failed):")
+        print(pd.DataFrame(mc["table"]).to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+
+
+def print_fit(fit, out: Path) -> None:
+    print(f"fit: {fit.spec.harmonics} nutation harmonic(s), axis {'fitted' if fit.spec.fit_axis else 'vertical'}, "
+          f"{'damped' if fit.spec.damped else 'undamped'}; chi2_red {fit.chi2_red:.3f}; errors {fit.errors}")
+    for name, q in fit.quantities.items():
+        if q.status != "determined":
+            print(f"  {name}: undetermined ({q.reason})")
+            continue
+        line = f"  {name}: {q.value:.7g} +- {q.standard_error:.2g} {q.units}"
+        if q.camera_standard_error:
+            line += f" (camera model {q.camera_standard_error:.2g} of it)"
+        if q.paper is not None and q.diff_paper_se is not None:
+            line += f"; paper {q.paper:.6g} ({q.diff_paper_se:+.1f} s.e.)"
+        if q.exact is not None and q.diff_exact_se is not None:
+            line += f"; exact {q.exact:.6g} ({q.diff_exact_se:+.1f} s.e.)"
+        if q.truth is not None:
+            line += f"; truth {q.truth:.7g} (pull {q.pull:+.2f})"
+        print(line)
+    for n in fit.notes:
+        print(f"  note: {n}")
+    print(f"-> {out / 'fit.json'}, {out / 'fit.png'}, {out / 'fit_residuals.csv'}")
+
+
+def print_prediction(pred: dict) -> None:
+    print(f"{pred['protocol']}: theory for this scene (paper as printed / corrected / exact or simulated)")
+    for k, v in pred["flags"].items():
+        print(f"  flag {k} = {v:.4g}" if isinstance(v, float) else f"  flag {k} = {v}")
+    fmt = lambda x: "-" if x is None else (f"{x:.6g}" if isinstance(x, float) else str(x))  # noqa: E731
+    for key, v in pred.items():
+        if key in ("protocol", "flags"):
+            continue
+        if key == "equilibrium_tip":
+            print(f"  {key}: paper {np.round(v['paper'], 5).tolist()}, exact {np.round(v['exact'], 5).tolist()}, "
+                  f"{v['angle_between_rad']:.4g} rad apart; leans towards the acceleration: "
+                  f"paper {v['leans_towards_acceleration']['paper']}, exact {v['leans_towards_acceleration']['exact']}")
+            continue
+        line = f"  {key}: paper {fmt(v.get('paper'))}"
+        if "corrected" in v:
+            line += f", corrected {fmt(v['corrected'])}"
+        line += f", exact {fmt(v.get('exact'))} ({v['exact_source']})"
+        if "relative_difference" in v:
+            line += f"; paper off by {v['relative_difference']:+.2%}"
+        if v.get("sign_agrees") is False:
+            line += "  ** WRONG SIGN **"
+        if "direction" in v:
+            line += f"; direction: paper {v['direction']['paper']}, simulated {v['direction']['exact']}"
+        print(line)

@@ -1,0 +1,124 @@
+"""The analysis chain, written once and in memory: track -> smooth -> fit against theory.
+
+:func:`analyze` runs a video (or frames in memory) through the pure steps and returns an
+:class:`Analysis`; :func:`smooth_and_fit` does the part after tracking, for an angle table.
+File wrappers (``gyrorig analyze``, ``gyrorig fit``) are in :mod:`gyrorig.analysis`; the Monte
+Carlo of the full chain (:mod:`gyrorig.montecarlo`) and the demo (:mod:`gyrorig.demo`) call
+these too.  Like pvlib's ``ModelChain``, but a function over frozen results, not a mutable object.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .fit import FitResult, FitTerms, fit_angles
+from .protocols import Protocol
+from .smooth import SmoothResult, smooth_angles
+from .theory import predict
+from .tracking import TrackingCamera, TrackResult, load_camera, track
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Analysis", "Fitted", "analyze", "smooth_and_fit"]
+
+Progress = Callable[[int, int], None]
+Stage = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """An angle table smoothed (for its outlier marks and rates) and fitted against theory."""
+
+    #: the smoother's result (``smooth.table``: :data:`gyrorig.smooth.SMOOTH_COLUMNS`)
+    smooth: SmoothResult
+    #: :func:`gyrorig.theory.predict` for the protocol
+    prediction: dict
+    fit: FitResult
+    #: wall time of each step [s]: ``smooth``, ``fit``
+    time_s: dict
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """One video through the whole chain."""
+
+    #: the tracker's tables and summary (``tracking.angles``: :data:`gyrorig.tables.ANGLE_COLUMNS` ...)
+    tracking: TrackResult
+    smooth: SmoothResult
+    prediction: dict
+    fit: FitResult
+    #: wall time of each step [s]: ``track``, ``smooth``, ``fit``, ``total``
+    time_s: dict
+
+    @property
+    def angles(self) -> pd.DataFrame:
+        return self.tracking.angles
+
+
+def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
+                   truth: pd.DataFrame | None = None, rng: np.random.Generator | None = None,
+                   terms: FitTerms | str = "data", smooth: SmoothResult | None = None,
+                   stage: Stage | None = None) -> Fitted:
+    """Smooth an angle table (its outlier marks leave frames out of the fit), predict, fit.
+
+    ``prediction`` defaults to :func:`gyrorig.theory.predict` of the protocol; ``truth`` (noiseless
+    ``t_s, theta_rad, phi_rad``, e.g. :func:`gyrorig.tables.tip_truth`) adds true values and pulls;
+    ``terms`` as in :func:`gyrorig.fit.fit_angles`; ``smooth``: an earlier result for these angles.
+    """
+    say = stage or logger.info
+    t0 = time.perf_counter()
+    if smooth is None:
+        say(f"smoothing {len(angles)} frames (noise levels by maximum likelihood) ...")
+        smooth = smooth_angles(angles)
+    t1 = time.perf_counter()
+    say("theory predictions and the fit ...")
+    if prediction is None:
+        prediction = predict(protocol)
+    exclude = (smooth.table["status"] == "outlier").to_numpy()
+    fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms)
+    return Fitted(smooth, prediction, fit, {"smooth": t1 - t0, "fit": time.perf_counter() - t1})
+
+
+def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,
+            prediction: dict | None = None, terms: FitTerms | str = "data", rng: np.random.Generator | None = None,
+            progress: Progress | None = None, stage: Stage | None = None, frame_dots: bool = True,
+            on_tracked: Callable[[TrackResult], None] | None = None) -> Analysis:
+    """Track, smooth and fit one video.
+
+    Parameters
+    ----------
+    video : path or frame source
+        A container OpenCV decodes, or frames in memory (:class:`gyrorig.tracking.FrameArrays`).
+    camera : TrackingCamera or path of ``camera.json``
+        Without a pose, the tracker finds it from the protocol's lab fiducials.
+    protocol : Protocol
+        The scene: its markers, and the model the fit uses.
+    truth, prediction, terms, rng
+        As in :func:`smooth_and_fit`.
+    progress : callable, optional
+        ``progress(done, total)`` frame by frame during tracking.
+    stage : callable, optional
+        Told when each later step starts (fits of long damped records take minutes).
+    frame_dots : bool
+        Track the frame's dots too (its angle ``psi``).
+    on_tracked : callable, optional
+        Given the tracking result as soon as it exists (a file wrapper saves it there, so that a
+        fit that fails loses nothing).
+    """
+    cam = camera if isinstance(camera, TrackingCamera) else load_camera(camera, require_pose=False)
+    t0 = time.perf_counter()
+    tracked = track(video, cam, protocol, progress=progress, frame_dots=frame_dots)
+    t1 = time.perf_counter()
+    if on_tracked is not None:
+        on_tracked(tracked)
+    fitted = smooth_and_fit(tracked.angles, protocol, prediction=prediction, truth=truth, rng=rng, terms=terms,
+                            stage=stage)
+    return Analysis(tracked, fitted.smooth, fitted.prediction, fitted.fit,
+                    {"track": t1 - t0, **fitted.time_s, "total": time.perf_counter() - t0})

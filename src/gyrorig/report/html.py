@@ -1,0 +1,130 @@
+"""The self-contained HTML report of one analysis (plots embedded as PNG data URIs, opens offline)."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import _io
+from ..fit import FitResult
+from ..protocols import Protocol
+from ..smooth import SmoothResult
+from .plots import plot_fit
+
+__all__ = ["write_report"]
+
+
+def _fig_data_uri(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _fmt(v, digits: int = 6) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    if isinstance(v, float | int | np.floating):
+        return f"{v:.{digits}g}"
+    return html.escape(str(v))
+
+
+def _value_cell(q) -> str:
+    if q.status != "determined":
+        return f"<em>undetermined</em><br><small>{html.escape(q.reason)}</small>"
+    cell = f"{_fmt(q.value)} ± {_fmt(q.standard_error, 2)}"
+    if q.camera_standard_error:
+        cell += f"<br><small>camera model: {_fmt(q.camera_standard_error, 2)} of it</small>"
+    return cell
+
+
+def _diff_cell(d) -> str:
+    if d is None:
+        return "–"
+    cls = "bad" if abs(d) > 3 else "ok"
+    return f'<span class="{cls}">{d:+.2f}</span>'
+
+
+def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles: pd.DataFrame,
+                 smooth: SmoothResult | None, prediction: dict | None, tracking: dict | None = None,
+                 title: str | None = None) -> Path:
+    """A self-contained HTML report (plots embedded as PNG data URIs)."""
+    pred = prediction or {}
+    rows = []
+    has_truth = any(q.truth is not None for q in fit.quantities.values())
+    for name, q in fit.quantities.items():
+        cells = [f"<code>{name}</code>", html.escape(q.units), _value_cell(q), _fmt(q.paper), _diff_cell(q.diff_paper_se),
+                 _fmt(q.corrected), _fmt(q.exact), _diff_cell(q.diff_exact_se)]
+        if has_truth:
+            cells += [_fmt(q.truth), _diff_cell(q.pull)]
+        note = q.note or (q.exact_source and f"exact: {q.exact_source}") or ""
+        cells.append(f"<small>{html.escape(note)}</small>")
+        rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    head = ["quantity", "units", "fitted ± s.e.", "paper", "(fit−paper)/s.e.", "corrected", "exact",
+            "(fit−exact)/s.e."] + (["truth (simulator)", "pull"] if has_truth else []) + ["note"]
+    table = ("<table><thead><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr></thead><tbody>"
+             + "".join(rows) + "</tbody></table>")
+    flags = pred.get("flags", {})
+    validity = []
+    ratio = flags.get("fast_top_ratio")
+    if ratio is not None:
+        validity.append(f"fast-top ratio {ratio:.3g}: the paper's closed forms assume a fast top (ratio ≥ 10)"
+                        + (" — <b>not satisfied</b>, expect percent-level differences" if ratio < 10 else ""))
+    if flags.get("small_tilt") is False:
+        validity.append("launch tilt is not small: small-tilt formulas are approximate here")
+    for key, v in pred.items():
+        if isinstance(v, dict) and v.get("sign_agrees") is False:
+            validity.append(f"<code>{key}</code>: the paper's formula has the <b>wrong sign</b> "
+                            f"(paper {_fmt(v.get('paper'))}, exact {_fmt(v.get('exact'))}); see docs/theory.md")
+    notes = "".join(f"<li>{html.escape(n.text)}</li>" for n in fit.notes)
+    fig = plot_fit(angles, smooth.table if smooth else None, fit)
+    img = _fig_data_uri(fig)
+    sm = ""
+    if smooth is not None:
+        sm = (f"<p>Kalman/RTS smoother (constant-velocity process, noise levels by maximum likelihood): "
+              f"q<sub>θ</sub> = {smooth.q_theta_rad2_s3:.3g}, q<sub>φ</sub> = {smooth.q_phi_rad2_s3:.3g} rad²/s³; "
+              f"{smooth.n_measured} frames used, {smooth.n_outliers} outliers gated, {smooth.n_resets} restarts; "
+              f"mean normalised innovation {smooth.nis_mean:.3f} (2 expected).</p>")
+    tr = ""
+    if tracking:
+        q = tracking.get("quality_counts", {})
+        tr = ("<p>Tracking: " + html.escape(", ".join(f"{k}: {v}" for k, v in q.items())) + f"; "
+              f"{tracking.get('frames', '?')} frames.</p>")
+    spec = fit.spec
+    model = (f"axis {'fitted' if spec.fit_axis else 'vertical'}; {'damped' if spec.damped else 'undamped'}; "
+             f"{spec.harmonics} nutation harmonic(s){'; persistent oscillation' if spec.persistent else ''}; "
+             f"{spec.segments} azimuth segment(s); reference time t_ref = {fit.t_ref_s:.4g} s")
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title or protocol.name)} — gyrorig report</title>
+<style>
+body {{ font-family: sans-serif; max-width: 1200px; margin: 1em auto; color: #222; }}
+table {{ border-collapse: collapse; font-size: 0.9em; }}
+th, td {{ border: 1px solid #ccc; padding: 3px 6px; text-align: right; vertical-align: top; }}
+th {{ background: #eee; }} td:first-child, td:last-child {{ text-align: left; }}
+.bad {{ color: #b00; font-weight: bold; }} .ok {{ color: #060; }}
+img {{ max-width: 100%; }}
+</style></head><body>
+<h1>{html.escape(title or protocol.name)}</h1>
+<p>{html.escape(protocol.description)}</p>
+<h2>Fitted quantities against theory</h2>
+{table}
+<p>Fit: {html.escape(model)}. χ² = {fit.chi2:.1f} for {fit.dof} degrees of freedom (reduced {fit.chi2_red:.3f});
+standard errors: {html.escape(fit.errors)}. Differences are in standard errors of the fit; |difference| &gt; 3 is in red.</p>
+<h2>Validity of the paper's approximations</h2>
+<ul>{''.join(f'<li>{v}</li>' for v in validity) or '<li>no flags</li>'}</ul>
+{f'<h2>Notes</h2><ul>{notes}</ul>' if notes else ''}
+<h2>Data, smoothing, fit and residuals</h2>
+{tr}{sm}
+<img alt="tilt, azimuth, tip path, residuals" src="{img}">
+<p><small>gyrorig {html.escape(_io.versions()['gyrorig'])}; generated {time.strftime('%Y-%m-%d %H:%M:%S')}</small></p>
+</body></html>
+"""
+    with _io.atomic_path(path) as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return Path(path)
