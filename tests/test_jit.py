@@ -6,7 +6,7 @@ import pytest
 from conftest import make_protocol, max_tip_error
 from gyrorig import simulate
 from gyrorig.physics._jit import pack_torques, rhs_reference_check
-from gyrorig.physics.simulate import _make_rhs, initial_state
+from gyrorig.physics.simulate import make_rhs, initial_state
 from gyrorig.physics.torques import torques_for
 
 SCENES = {
@@ -33,7 +33,7 @@ def test_compiled_rhs_equals_python_rhs(name, formulation):
     packed = pack_torques(torques_for(p), inertia_transverse=rig.inertia_transverse_kg_m2,
                           inertia_axial=rig.inertia_axial_kg_m2, frame_axial=rig.frame_axial_inertia_kg_m2,
                           body_frame=formulation == "body")
-    rhs = _make_rhs(p, formulation)
+    rhs = make_rhs(p, formulation)
     rng = np.random.default_rng(3)
     y0 = initial_state(p, formulation)
     for _ in range(20):

@@ -49,6 +49,18 @@ class CalibrationResult:
                     "intrinsics_covariance": self.intrinsics_covariance.tolist()})}
 
 
+def _gray(path: Path) -> np.ndarray | None:
+    """An image as 8-bit grey (None when it cannot be read)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype != np.uint8:
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return img
+
+
 def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: float) -> CalibrationResult:
     """Calibrate from checkerboard images (``cols x rows`` inner corners, squares of ``square_m``)."""
     images = sorted(p for p in Path(images_dir).iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES) \
@@ -60,19 +72,24 @@ def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: 
     objpoints, imgpoints, names, not_found = [], [], [], []
     size = None
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+    loaded = []
     for path in images:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = _gray(path)
         if img is None:
             not_found.append(path.name)
             continue
-        if img.ndim == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-        if img.dtype != np.uint8:
-            img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
         if size is None:
             size = (img.shape[1], img.shape[0])
         elif size != (img.shape[1], img.shape[0]):
             raise CalibrationError(f"{path.name} is {img.shape[1]} x {img.shape[0]}, the others {size[0]} x {size[1]}")
+        loaded.append((path, img))
+    # the corner detector takes seconds per large image to give up on a board of the wrong size; the
+    # sector-based detector says so in a fraction of a second: when it finds the board in no image,
+    # the classic detector is not run
+    if not any(cv2.findChessboardCornersSB(img, (cols, rows))[0] for _, img in loaded):
+        not_found += [path.name for path, _ in loaded]
+        loaded = []
+    for path, img in loaded:
         ok, corners = cv2.findChessboardCorners(img, (cols, rows))
         if not ok:
             not_found.append(path.name)

@@ -8,7 +8,7 @@ the right-hand side together makes a step cost well under a microsecond.
 The algorithm is scipy's DOP853 (Hairer, Norsett & Wanner, *Solving ODEs I*,
 sec. II.10) ported line by line: same coefficients (read from scipy), same error
 norm, same step-size control and initial step, and the same 7th-order dense output
-for the requested output times.  The right-hand side mirrors ``simulate._make_rhs``
+for the requested output times.  The right-hand side mirrors ``simulate.make_rhs``
 (the reference implementation, tested to agree on random states); the torques are
 packed into arrays by :func:`pack_torques`.
 """

@@ -53,6 +53,7 @@ from .torques import sum_torques, torques_for
 logger = logging.getLogger(__name__)
 
 __all__ = [
+    "make_rhs",
     "SimulationError",
     "SimulationInfo",
     "METHODS",
@@ -174,7 +175,9 @@ def initial_state(protocol: Protocol, formulation: str) -> NDArray[np.float64]:
     return np.asarray(state, dtype=float)
 
 
-def _make_rhs(protocol: Protocol, formulation: str) -> Any:
+def make_rhs(protocol: Protocol, formulation: str) -> Any:
+    """The right-hand side ``f(t, y)`` of the ``"axis"`` or ``"body"`` formulation in Python: the reference
+    for the compiled one (:mod:`gyrorig.physics._jit`) and the scipy methods' right-hand side."""
     rig = protocol.rig
     torques = torques_for(protocol)
     comps = [t.components for t in torques]
@@ -360,7 +363,7 @@ def simulate(
     else:
         y = initial_state(protocol, formulation)
         run = _jit_segments(protocol, formulation, rtol, atol, method) if solver == "DOP853-jit" else \
-            _scipy_segments(_make_rhs(protocol, formulation), solver, rtol, atol, method)
+            _scipy_segments(make_rhs(protocol, formulation), solver, rtol, atol, method)
     states = np.empty((len(t_eval), len(y)))
     start = time.perf_counter()
     states[t_eval == 0.0] = y
