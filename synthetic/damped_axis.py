@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from gyrorig.fit import fit_angles
-from gyrorig.plan import _expected_angles, plan_fit_terms
+from gyrorig.expectation import expected_record, plan_fit_terms
 from gyrorig.protocols import load_protocol
 from gyrorig.theory import predict
 
@@ -57,7 +57,7 @@ def main(duration_s: float = 5.7) -> None:
             f.write_text(src.replace(key, f"coefficient_N_m_s = {c}"))
             p = load_protocol(f)
             pred = predict(p, simulate_damping=False)
-            ex = _expected_angles(p, duration_s)
+            ex = expected_record(p, duration_s)
             fit = fit_angles(ex.angles, p, prediction=pred, terms=plan_fit_terms(p, duration_s, prediction=pred))
             q = fit.quantities
             print(f"{c:>17}  {q['equilibrium_tilt_rad'].value:20.7f}  {q['equilibrium_azimuth_rad'].value:23.7f}  "

@@ -22,7 +22,7 @@ Measured 2026-11-23 on the accelerated pivot (5.7 s):
   linearised for the same draws; in record 2 the fit's minimum lay 4 standard errors (decay
   rate) from the linearised one, with a chi-square 19 lower; record 38 gained an unplanned
   persistent oscillation (amplitude error bar 14x).
-- 64 records, two-parameter shape drift (``SHAPE_DRIFT_NAMES`` in gyrorig.fit) and unplanned
+- 64 records, two-parameter shape drift (``SHAPE_DRIFT_NAMES`` in gyrorig.fit.terms) and unplanned
   terms judged at the plan's non-centrality: the fitted and linearised pulls agree draw by
   draw (SDs 0.92-1.22 for both, set by these 64 draws; over 1,000 linearised draws every
   SD is 0.97-1.01); ~3 min on 2 processes.
@@ -42,7 +42,9 @@ import numpy as np
 
 import gyrorig.fit as F
 from gyrorig.camera import with_image_size
-from gyrorig.plan import _expected_angles, plan_fit_terms
+from gyrorig.expectation import expected_record, plan_fit_terms
+from gyrorig.fit.quantities import quantity_functions
+from gyrorig.fit.model import whitener
 from gyrorig.protocols import load_protocol
 from gyrorig.theory import predict
 
@@ -53,15 +55,15 @@ workers = int(sys.argv[4]) if len(sys.argv) > 4 else 2
 p = with_image_size(load_protocol(Path(__file__).parents[1] / "protocols" / f"{name}.toml"), 640, 480)
 pred = predict(p, simulate_damping=False)
 terms = plan_fit_terms(p, duration_s, prediction=pred)
-ex = _expected_angles(p, duration_s)
+ex = expected_record(p, duration_s)
 truth_fit = F.fit_angles(ex.angles, p, prediction=pred, terms=terms, check_residuals=False)
-model = F._Model(truth_fit.spec)
+model = F.FitModel(truth_fit.spec)
 scene = F.model_for_scene(p, pred)
 data0 = F.fit_data_from_angles(ex.angles, None, scene.precession_hint_rad_s)
-_, white0 = F._residual_fn(model, data0)
+white0 = F.Residuals(model, data0)
 J0 = white0.jac(truth_fit.x)
 cov0 = np.linalg.pinv(J0.T @ J0, rcond=1e-14, hermitian=True)
-fns = F._quantity_functions(truth_fit.spec, model.names)
+fns = quantity_functions(truth_fit.spec)
 L = np.linalg.cholesky(ex.cov)
 respond = F.linear_response(ex.angles, truth_fit, p, prediction=pred)
 
@@ -94,7 +96,7 @@ if __name__ == "__main__":
                   + model_note, flush=True)
     # the linearised pulls over many more draws (cheap: a projection of the whitened noise), to tell
     # a property of the estimator from a fluctuation of this sample
-    W = F._whitener(data0.cov)
+    W = whitener(data0.cov)
     many = 4000
     proj = {}
     for k in fitted:

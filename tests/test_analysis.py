@@ -78,7 +78,10 @@ def test_batch_skips_an_unreadable_video_and_summarises(rendered, tmp_path, caps
     assert list(s.status) == ["ok", "failed"]
     assert np.isfinite(s.precession_rate_rad_s[0]) and "b_broken" in s.video[1]
     assert isinstance(s.error[1], str) and s.error[1]
-    assert (tmp_path / "batch" / "a_good" / "report.html").exists()
+    # the batch analyses a video as the single command does
+    single = json.loads((root / "an" / "fit.json").read_text())["quantities"]
+    assert s.precession_rate_rad_s[0] == pytest.approx(single["precession_rate_rad_s"]["value"], rel=1e-12)
+    assert "precession_rate_rad_s" in (tmp_path / "batch" / "a_good" / "report.html").read_text()
 
 
 def _analyze_rendered(tmp_path, name: str, duration: float, seed: int = 5):

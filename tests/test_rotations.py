@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from gyrorig.physics.rotations import (
-    angles_from_tip,
+    unwrapped_angles_from_tip,
     euler_from_matrix,
     euler_to_matrix,
     matrix_to_quaternion,
@@ -61,10 +61,10 @@ def test_euler_at_the_poles_uses_the_hint_and_reproduces_the_matrix(theta):
 def test_angles_from_tip_unwraps_and_holds_azimuth_on_pole():
     phi_true = np.linspace(0.0, 20.0, 400)
     tip = tip_from_angles(np.full_like(phi_true, 0.3), phi_true)
-    th, ph = angles_from_tip(tip, phi_at_pole_rad=0.0)
+    th, ph = unwrapped_angles_from_tip(tip, phi_at_pole_rad=0.0)
     assert np.allclose(ph, phi_true, atol=1e-12)
     assert np.allclose(th, 0.3, atol=1e-15)
     pole = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [np.sin(0.1), 0.0, np.cos(0.1)]])
-    th, ph = angles_from_tip(pole, phi_at_pole_rad=1.5)
+    th, ph = unwrapped_angles_from_tip(pole, phi_at_pole_rad=1.5)
     assert th[0] == 0.0
     assert ph[0] == ph[1] == 1.5

@@ -43,7 +43,7 @@ from scipy.stats import norm, poisson
 from . import _io
 from .camera import Camera, CameraSetup, Marker, camera_setup
 from .physics import simulate
-from .physics.rotations import angles_from_tip, euler_to_matrix
+from .physics.rotations import euler_to_matrix, unwrapped_angles_from_tip
 from .protocols import Protocol, ProtocolError
 
 logger = logging.getLogger(__name__)
@@ -267,7 +267,7 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
         frames = np.arange(start, min(start + chunk, n_frames))
         per_marker = {m.name: _marker_samples(cam, setup, paths, m, frames) for m in setup.markers}
         t_mid = frames / cam.fps + cam.exposure_s / 2
-        th, ph = angles_from_tip(paths.tip(t_mid), phi_at_pole_rad=paths.phi_reference_rad)
+        th, ph = unwrapped_angles_from_tip(paths.tip(t_mid), phi_at_pole_rad=paths.phi_reference_rad)
         for i, f in enumerate(frames):
             windows = []
             rows = []

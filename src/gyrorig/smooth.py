@@ -45,12 +45,14 @@ from numba import njit
 from scipy.optimize import minimize
 from scipy.stats import chi2
 
+from .tables import ANGLE_REQUIRED, missing_columns
+
 logger = logging.getLogger(__name__)
 
 __all__ = ["SmoothResult", "SmoothingError", "prepare_measurements", "measurement_covariance", "smooth_angles", "estimate_noise",
            "kalman_smooth", "SMOOTH_COLUMNS", "REQUIRED_COLUMNS", "DEFAULT_GATE_D2"]
 
-REQUIRED_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad")
+REQUIRED_COLUMNS = ANGLE_REQUIRED
 #: gate on the innovation's squared Mahalanobis distance (2 dof): the 5-sigma tail probability
 DEFAULT_GATE_D2 = float(chi2.isf(5.733e-7, 2))
 SMOOTH_COLUMNS = ("frame", "t_s", "theta_rad", "theta_rate_rad_s", "phi_rad", "phi_rate_rad_s",
@@ -114,7 +116,7 @@ def prepare_measurements(angles: pd.DataFrame) -> Measurements:
     Raises :class:`SmoothingError` naming the problem: missing columns, unsorted or
     non-finite times, non-positive sigmas, too few measurements.
     """
-    missing = [c for c in REQUIRED_COLUMNS if c not in angles.columns]
+    missing = missing_columns(angles, REQUIRED_COLUMNS)
     if missing:
         raise SmoothingError(f"angle table lacks column(s) {missing}; required: {list(REQUIRED_COLUMNS)}")
     t = angles["t_s"].to_numpy(float)

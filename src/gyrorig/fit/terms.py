@@ -347,8 +347,8 @@ class ShapeDrift(Term):
     conj(z_t))``, ``s`` complex (:data:`SHAPE_DRIFT_NAMES`): the complex direction orthogonal to
     ``(z_t, z_p)``.  A drift along ``(z_t, z_p)`` itself is, to first order, a change of the decay
     rate (real ``s``) or of the nutation frequency (imaginary ``s``): with four free coefficients those
-    two were fixed only by the weak higher-order terms and the fit was not linear over one standard
-    error."""
+    two would be fixed only by the weak higher-order terms, and the fit would not be linear over one
+    standard error."""
 
     flag = "shape_drift"
     label = "drifting nutation shape"

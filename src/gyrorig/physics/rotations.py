@@ -18,13 +18,15 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..geometry import angles_from_tip, tip_from_angles
+
 __all__ = [
     "euler_to_matrix",
     "euler_matrix_cs",
     "matrix_to_quaternion",
     "quaternion_to_matrix",
     "tip_from_angles",
-    "angles_from_tip",
+    "unwrapped_angles_from_tip",
     "euler_from_matrix",
 ]
 
@@ -119,15 +121,7 @@ def matrix_to_quaternion(m: ArrayLike) -> NDArray[np.float64]:
     return q / np.linalg.norm(q)
 
 
-def tip_from_angles(theta_rad: ArrayLike, phi_rad: ArrayLike) -> NDArray[np.float64]:
-    """Unit tip direction ``(sin th sin ph, -sin th cos ph, cos th)``; shape (..., 3)."""
-    th = np.asarray(theta_rad, dtype=float)
-    ph = np.asarray(phi_rad, dtype=float)
-    s = np.sin(th)
-    return np.stack([s * np.sin(ph), -s * np.cos(ph), np.cos(th)], axis=-1)
-
-
-def angles_from_tip(
+def unwrapped_angles_from_tip(
     tip: ArrayLike, *, phi_at_pole_rad: float = 0.0
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Tilt and unwrapped azimuth of a sequence of tip directions.
@@ -149,8 +143,7 @@ def angles_from_tip(
     """
     tip = np.atleast_2d(np.asarray(tip, dtype=float))
     rho = np.hypot(tip[:, 0], tip[:, 1])
-    theta = np.arctan2(rho, tip[:, 2])
-    phi = np.arctan2(tip[:, 0], -tip[:, 1])
+    theta, phi = angles_from_tip(tip)
     if len(phi) == 0:
         return theta, phi
     defined = rho > 0.0
@@ -177,7 +170,7 @@ def euler_from_matrix(
     ----------
     m : array_like, shape (n, 3, 3)
     phi_hint_rad : array_like, shape (n,), optional
-        Azimuth to use where it is undefined (e.g. from :func:`angles_from_tip`).
+        Azimuth to use where it is undefined (e.g. from :func:`unwrapped_angles_from_tip`).
     pole_tolerance : float
         Treat ``sin(theta) <= pole_tolerance`` as on the pole (default: exactly 0).
 

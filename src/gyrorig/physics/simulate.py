@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from ..protocols import EddyFieldDamping, Protocol
-from .rotations import angles_from_tip, euler_from_matrix, euler_to_matrix, matrix_to_quaternion, quaternion_to_matrix
+from .rotations import unwrapped_angles_from_tip, euler_from_matrix, euler_to_matrix, matrix_to_quaternion, quaternion_to_matrix
 from ._jit import STATUS_MESSAGES, integrate_dop853, pack_torques
 from .phasor import PhasorSingularity, make_phasor_rhs, phasor_initial_state, phasor_states_to_arrays
 from .torques import sum_torques, torques_for
@@ -430,7 +430,7 @@ def trajectory_frame(
         Gyrostat frame orientations and axial rates.
     """
     tip = rotor_to_lab[:, :, 2]
-    theta, phi = angles_from_tip(tip, phi_at_pole_rad=protocol.launch.azimuth_rad)
+    theta, phi = unwrapped_angles_from_tip(tip, phi_at_pole_rad=protocol.launch.azimuth_rad)
     _, _, psi = euler_from_matrix(rotor_to_lab, phi_hint_rad=phi)
     data: dict[str, Any] = {
         "t_s": t_s,

@@ -6,6 +6,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from ..geometry import tip_from_angles
+
 __all__ = ["plot_trajectory", "plot_tracking", "plot_fit", "plot_work_precision", "plot_stability", "plot_validation",
            "plot_sweep"]
 
@@ -201,9 +203,11 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
     ax.legend(fontsize=7)
     ax = axes[1, 1]
     th, ph = angles.theta_rad.to_numpy()[ok], angles.phi_rad.to_numpy()[ok]
-    ax.plot(np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), ".", ms=1.5, color="0.5", label="tracked")
+    tip = tip_from_angles(th, ph)
+    ax.plot(tip[:, 0], tip[:, 1], ".", ms=1.5, color="0.5", label="tracked")
     ct, cp = curve.theta_rad.to_numpy(), curve.phi_rad.to_numpy()
-    ax.plot(np.sin(ct) * np.sin(cp), -np.sin(ct) * np.cos(cp), lw=0.5, color="C1", label="fit")
+    tip = tip_from_angles(ct, cp)
+    ax.plot(tip[:, 0], tip[:, 1], lw=0.5, color="C1", label="fit")
     ax.plot([0], [0], "k+")
     ax.set(xlabel="tip x", ylabel="tip y", title="tip path seen from above (unit sphere)")
     ax.set_aspect("equal", adjustable="datalim")
