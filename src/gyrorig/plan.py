@@ -166,10 +166,12 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, pred: dict, rec: list
         nyq = math.pi * cam.fps
         camera["nutation_hz"] = nut / (2 * math.pi)
         camera["frames_per_nutation_period"] = 2 * math.pi * cam.fps / nut
+        camera["minimum_fps"] = 4 * nut / (2 * math.pi)  # 4 frames per nutation period
+        camera["resolves_nutation"] = bool(nut <= 0.9 * nyq)
         if amp is not None:
             camera["nutation_amplitude_px"] = amp * lever * spot["px_per_m"]
             camera["nutation_amplitude_over_sigma_px"] = camera["nutation_amplitude_px"] / spot["sigma_px"]
-        if nut > 0.9 * nyq:
+        if not camera["resolves_nutation"]:
             rec.append(f"frame rate {cam.fps:g} fps cannot resolve the nutation at {nut / (2 * math.pi):.3g} Hz: use at "
                        f"least {4 * nut / (2 * math.pi):.0f} fps (4 frames per period)")
         else:
@@ -198,7 +200,8 @@ def _expected_errors(fit: FitResult, T: float, nut: float | None) -> tuple[dict,
     """Each quantity's expected error, and the recording length each needs for its target precision."""
     quantities, recording = {}, {}
     for name, q in fit.quantities.items():
-        entry = {"units": q.units, "resolvable": q.determined, "reason": q.reason, "reliable": True,
+        entry = {"units": q.units, "resolvable": q.determined, "reason": q.reason,
+                 "reason_kind": None if q.reason_kind is None else str(q.reason_kind), "reliable": True,
                  "predicted_paper": q.paper, "predicted_exact": q.exact, "simulated": q.value,
                  "expected_standard_error": q.standard_error}
         if q.determined and q.value:
@@ -348,9 +351,19 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         out["recording"]["linear_regime"] = None  # not assessed: the model does not describe the record
     else:
         _reliability(protocol, ex, fit, T, pred, draws, draw_seed, out, rec, progress)
+    out["damping"] = _damping_assessment(protocol, pred)
     rec.extend(_damping_advice(protocol, pred))
     out["wall_time_s"] = time.perf_counter() - start
     return out
+
+
+def _damping_assessment(protocol: Protocol, pred: dict) -> dict:
+    """The damping models, and whether the scene shows the tilt drift eqs. 25a/26 are about (a simulated
+    drift of at least a tenth of the paper's)."""
+    growth = pred.get("tilt_growth_rate_per_s", {})
+    exact, paper = growth.get("exact"), growth.get("paper")
+    shows = bool(exact is not None and math.isfinite(exact) and abs(exact) >= 0.1 * abs(paper or 1.0))
+    return {"models": [d.model for d in protocol.pivot.damping], "tests_tilt_drift": shows}
 
 
 def _linear_length(protocol: Protocol, duration_s: float, pred: dict, draws: int, draw_seed: int) -> float | None:
@@ -391,20 +404,20 @@ def _adequate_length(protocol: Protocol, duration_s: float, pred: dict) -> float
 
 
 def _damping_advice(protocol: Protocol, pred: dict) -> list[str]:
-    models = [d.model for d in protocol.pivot.damping]
-    growth = pred.get("tilt_growth_rate_per_s", {})
+    assessment = _damping_assessment(protocol, pred)
+    models, growth = assessment["models"], pred.get("tilt_growth_rate_per_s", {})
     if not models:
         return ["no damping: this scene tests eqs. 12/20 (precession, nutation); eqs. 25a/26 need a damped pivot "
                 "(magnet in the ball, realisation B2)"]
-    if "eddy-field" in models and growth.get("exact") is not None and abs(growth["exact"]) < 0.1 * abs(
-            growth.get("paper") or 1.0):
-        return [f"eddy-field damping (lab field) damps only theta': the simulated tilt drift is {growth['exact']:+.2g} "
+    if growth.get("exact") is None:
+        return []
+    if not assessment["tests_tilt_drift"]:
+        return [f"damping ({', '.join(models)}) shows no tilt drift: the simulated drift is {growth['exact']:+.2g} "
                 f"1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s, so this rig cannot test "
-                "eqs. 25a/26; use the magnet-in-ball realisation (B2)"]
-    if growth.get("exact") is not None:
-        return [f"damping realisation {', '.join(models)} tests eqs. 25a/26: simulated tilt growth "
-                f"{growth['exact']:+.3g} 1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s"]
-    return []
+                "eqs. 25a/26" + ("; the lab field damps only theta': use the magnet-in-ball realisation (B2)"
+                                 if "eddy-field" in models else "")]
+    return [f"damping realisation {', '.join(models)} tests eqs. 25a/26: simulated tilt growth "
+            f"{growth['exact']:+.3g} 1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s"]
 
 
 # ------------------------------------------------------------------------------------------- sweeps

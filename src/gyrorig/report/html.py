@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from .. import _io
-from ..fit import FitResult
+from ..fit import FitResult, FitTerms
 from ..protocols import Protocol
 from ..smooth import SmoothResult
 from .plots import plot_fit
@@ -98,7 +98,7 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
               f"{tracking.get('frames', '?')} frames.</p>")
     spec = fit.spec
     model = (f"axis {'fitted' if spec.fit_axis else 'vertical'}; {'damped' if spec.damped else 'undamped'}; "
-             f"{spec.harmonics} nutation harmonic(s){'; persistent oscillation' if spec.persistent else ''}; "
+             f"{FitTerms.of(spec).describe()}; "
              f"{spec.segments} azimuth segment(s); reference time t_ref = {fit.t_ref_s:.4g} s")
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title or protocol.name)} — gyrorig report</title>
