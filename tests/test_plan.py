@@ -160,7 +160,7 @@ def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
     # and its error, se(rate)/rate^2, is smaller in just those runs)
     for row in table.itertuples():
         if row.quantity != "tilt_time_constant_s":
-            assert 0.8 < row.median_fit_se / row.planned_se < 1.25, row
+            assert 0.8 < row.fit_se_over_planned < 1.25, row
 
 
 def test_plan_writes_the_fit_terms_and_fit_uses_them(tmp_path, capsys):

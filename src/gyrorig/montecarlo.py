@@ -203,7 +203,8 @@ def monte_carlo_check(protocol: Protocol, n: int, *, duration_s: float = 2.0, sc
     """Confirm the plan's expected errors with N runs of render -> track -> smooth -> fit.
 
     Returns, per quantity: the planned standard error for the same record, the Monte Carlo
-    spread of the estimates, their ratio, and the mean and SD of the pulls.
+    spread of the estimates and its ratio to the plan, the median standard error the fits reported
+    and its ratio to the plan, and the mean and SD of the pulls.
     """
     runs = fit_monte_carlo([protocol], seeds=n, duration_s=duration_s, workers=workers, progress=progress,
                            scheduler=scheduler, camera_size=None)
@@ -216,7 +217,9 @@ def monte_carlo_check(protocol: Protocol, n: int, *, duration_s: float = 2.0, sc
         sd = float(np.std(err, ddof=1)) if len(g) > 1 else math.nan
         rows.append({"quantity": name, "runs": len(g), "planned_se": planned, "monte_carlo_sd": sd,
                      "sd_over_planned": sd / planned if planned else math.nan,
-                     "median_fit_se": float(np.median(g.standard_error)), "mean_pull": float(g.pull.mean()),
+                     "median_fit_se": float(np.median(g.standard_error)),
+                     "fit_se_over_planned": float(np.median(g.standard_error)) / planned if planned else math.nan,
+                     "mean_pull": float(g.pull.mean()),
                      "sd_pull": float(g.pull.std(ddof=1)) if len(g) > 1 else math.nan})
     table = pd.DataFrame(rows)
     table.attrs["failed_runs"] = int((runs["error"].fillna("") != "").sum()) if "error" in runs else 0
