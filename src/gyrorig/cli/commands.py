@@ -15,6 +15,7 @@ from .. import _io
 from ..demo import run_demo
 from ..physics import METHODS, exact_solution, exact_solution_applies, simulate
 from ..physics.exact import ExactSolutionError
+from ..physics.simulate import output_times
 from ..protocols import load_protocol, protocol_summary
 from .printing import print_fit, print_plan, print_prediction, progress_printer
 
@@ -47,9 +48,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         ok, why = exact_solution_applies(protocol)
         if not ok:
             raise ExactSolutionError(f"--method exact: no exact solution for {protocol.name}: {why}")
-        duration = protocol.scene.duration_s if args.duration is None else args.duration
-        rate = protocol.scene.output_rate_hz if args.rate is None else args.rate
-        t = np.arange(int(np.floor(duration * rate + 1e-9)) + 1) / rate
+        t = output_times(protocol, args.duration, args.rate)
         start = time.perf_counter()
         df = exact_solution(protocol, t)
         info = {"method": "exact", "wall_time_s": time.perf_counter() - start}

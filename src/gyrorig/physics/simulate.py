@@ -54,6 +54,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "make_rhs",
+    "output_times",
     "SimulationError",
     "SimulationInfo",
     "METHODS",
@@ -271,8 +272,8 @@ def _segments(protocol: Protocol, t_end: float) -> list[float]:
     return sorted(set(bounds))
 
 
-def _output_times(protocol: Protocol, duration_s: float | None, rate_hz: float | None,
-                  t_eval_s: NDArray[np.float64] | None) -> NDArray[np.float64]:
+def output_times(protocol: Protocol, duration_s: float | None, rate_hz: float | None,
+                 t_eval_s: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """The output times of :func:`simulate`: ``t_eval_s``, or a grid at ``rate_hz`` up to ``duration_s``
     (protocol defaults), ending exactly at the duration."""
     if t_eval_s is not None:
@@ -355,7 +356,7 @@ def simulate(
     atol = rtol * 1e-2 if atol is None else float(atol)
     if not (0.0 < rtol < 1.0) or not (atol > 0.0):
         raise ValueError(f"rtol = {rtol!r} must be in (0, 1) and atol = {atol!r} > 0")
-    t_eval = _output_times(protocol, duration_s, rate_hz, t_eval_s)
+    t_eval = output_times(protocol, duration_s, rate_hz, t_eval_s)
     t_end = float(t_eval[-1])
     if formulation == "phasor":
         y = phasor_initial_state(protocol)
