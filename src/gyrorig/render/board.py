@@ -1,0 +1,89 @@
+"""Checkerboard images through the camera, for ``gyrorig calibrate`` (each pixel integrates its area)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .. import _io
+from ..camera import Camera
+
+__all__ = ["render_calibration_images"]
+
+
+def render_calibration_images(cam: Camera, out_dir: str | Path, *, seed: int = 0, n_views: int = 12,
+                              cols: int = 9, rows: int = 6, square_m: float = 0.02) -> dict:
+    """Checkerboard images through the same camera at varied poses, for ``gyrorig calibrate``.
+
+    ``cols x rows`` inner corners (OpenCV's pattern size), squares of ``square_m``; boards
+    near the pivot, tilted up to 35 deg.  Writes ``view_NN.png`` and ``board.json`` (the
+    board and the true pose of each view, for tests).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng([seed, 7919])
+    h, w = cam.height_px, cam.width_px
+    grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), axis=-1)
+    norm = cv2.undistortPoints(grid.reshape(-1, 1, 2), cam.camera_matrix, cam.distortion).reshape(-1, 2)
+    rays = np.column_stack([norm, np.ones(len(norm))])
+    # local Jacobian of the normalised coordinates with respect to the pixel position
+    grid_n = norm.reshape(h, w, 2)
+    jac_x = np.zeros((h, w, 3))
+    jac_y = np.zeros((h, w, 3))
+    jac_x[:, :, :2] = np.gradient(grid_n, axis=1)
+    jac_y[:, :, :2] = np.gradient(grid_n, axis=0)
+    jac_x, jac_y = jac_x.reshape(-1, 3), jac_y.reshape(-1, 3)
+    dist_to_pivot = float(np.linalg.norm(cam.tvec))
+    s = cam.sensor
+    white_e = 0.6 * s.full_well_e
+    dark_e = 0.08 * s.full_well_e
+    poses = []
+    while len(poses) < n_views:
+        angles = np.radians(rng.uniform(-35, 35, 2))
+        rot_board = cv2.Rodrigues(np.array([angles[0], angles[1], rng.uniform(-np.pi, np.pi)]))[0]
+        # board centre: ahead of the camera near the pivot's depth, within the central field
+        centre = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), 1.0]) * \
+            dist_to_pivot * rng.uniform(0.8, 1.05)
+        rmat = rot_board  # board -> camera
+        size = np.array([(cols + 1) * square_m, (rows + 1) * square_m])
+        origin = centre - rmat @ np.array([size[0] / 2, size[1] / 2, 0.0])
+        corners = np.array([[(i + 1) * square_m, (j + 1) * square_m, 0.0] for j in range(rows) for i in range(cols)])
+        pts = (rmat @ corners.T).T + origin
+        px = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.camera_matrix, cam.distortion)[0].reshape(-1, 2)
+        margin = 20
+        if not ((px[:, 0] > margin).all() and (px[:, 0] < w - margin).all() and (px[:, 1] > margin).all()
+                and (px[:, 1] < h - margin).all()):
+            continue
+        nrm = rmat[:, 2]
+        # each pixel integrates its area: 3 x 3 sub-samples, rays from the undistortion map and its Jacobian
+        e = np.zeros(h * w)
+        for dy in (-1 / 3, 0.0, 1 / 3):
+            for dx in (-1 / 3, 0.0, 1 / 3):
+                r = rays + dx * jac_x + dy * jac_y
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    sdist = (nrm @ origin) / (r @ nrm)
+                hit = r * sdist[:, None] - origin
+                bx, by = hit @ rmat[:, 0], hit @ rmat[:, 1]
+                # a white margin of one square around the (cols + 1) x (rows + 1) checker, as printed boards have
+                on_board = (sdist > 0) & (bx >= -square_m) & (bx <= size[0] + square_m) & (by >= -square_m) & \
+                    (by <= size[1] + square_m)
+                in_checker = (bx >= 0) & (bx < size[0]) & (by >= 0) & (by < size[1])
+                dark = in_checker & ((np.floor(bx / square_m) + np.floor(by / square_m)) % 2 == 0)
+                e += np.where(on_board, np.where(dark, dark_e, white_e), s.background_e_per_s * cam.exposure_s)
+        e /= 9.0
+        img = cv2.GaussianBlur(e.reshape(h, w).astype(np.float32), (0, 0), cam.psf_sigma_px)
+        noisy = rng.poisson(np.maximum(img, 0)).astype(np.float64) + rng.normal(0, s.read_noise_e, img.shape)
+        adu = np.clip(np.floor(np.clip(noisy, 0, s.full_well_e) / s.gain_e_per_adu + 0.5), 0, s.max_adu)
+        adu = adu.astype(np.uint8 if s.bit_depth == 8 else np.uint16)
+        ok, png = cv2.imencode(".png", adu)
+        with _io.atomic_path(out / f"view_{len(poses):02d}.png") as tmp:
+            tmp.write_bytes(png.tobytes())
+        # pose of the board in the camera frame with OpenCV's object points (corner grid from (0,0))
+        obj_origin = origin + rmat @ np.array([square_m, square_m, 0.0])
+        poses.append({"rvec": cv2.Rodrigues(rmat)[0].ravel().tolist(), "tvec": obj_origin.tolist()})
+    board = {"cols": cols, "rows": rows, "square_m": square_m, "views": poses,
+             "object_points": "corner (i, j) at (i * square_m, j * square_m, 0), i < cols fastest"}
+    _io.write_json(board, out / "board.json")
+    return {"dir": str(out), "views": n_views}
