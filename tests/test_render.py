@@ -216,3 +216,92 @@ def test_calibration_images_show_the_board_where_the_camera_says(tmp_path):
         err = min(np.abs(corners - proj).max(), np.abs(corners[::-1] - proj).max())
         assert err < 0.5
     assert info["views"] == 3
+
+
+def _disc_scene(**camera) -> dict:
+    d = small(motion_blur_samples=1, **camera)
+    d["markers"]["tip"].update(shape="disc")  # a flat dot facing along the stem
+    return d
+
+
+def test_disc_marker_spot_has_the_projected_ellipse_flux_and_centre():
+    """The ray-cast disc (independent of the tracker's spot model): its electrons are the brightness times
+    the projected area pi a b (a = f R / depth, b = a |cos| of the viewing angle), and its light centroid
+    is the image of the disc's centre to within the perspective shift of a 4 mm disc (< 0.05 px here)."""
+    p = parse_protocol(_disc_scene())
+    setup = camera_setup(p)
+    cam = setup.camera
+    tip = next(m for m in setup.markers if m.name == "tip")
+    bg = cam.sensor.background_e_per_s * cam.exposure_s
+    df = simulate(p, t_eval_s=np.array([0.0025]))
+    for image, truth in render_frames(p, noise=False, duration_s=0.01):
+        r = truth[truth.marker == "tip"].iloc[0]
+        x0, y0 = int(round(r.x_px)), int(round(r.y_px))
+        win = image[y0 - 15:y0 + 16, x0 - 15:x0 + 16].astype(float) - bg
+        # the tip's axis and the direction to the camera give the viewing angle of the disc
+        axis = df[["tip_x", "tip_y", "tip_z"]].to_numpy()[0]
+        centre = 0.14 * axis
+        view = cam.position_m - centre
+        depth = float((cam.rotation @ centre + cam.tvec)[2])
+        a_px = cam.camera_matrix[0, 0] * tip.radius_m / depth
+        cos_view = abs(axis @ view) / np.linalg.norm(view)
+        flux = tip.brightness_e_per_s * cam.exposure_s * np.pi * a_px * a_px * cos_view
+        assert win.sum() == pytest.approx(flux, rel=0.03)
+        yy, xx = np.mgrid[y0 - 15:y0 + 16, x0 - 15:x0 + 16]
+        cx, cy = (win * xx).sum() / win.sum(), (win * yy).sum() / win.sum()
+        assert math.hypot(cx - r.x_px, cy - r.y_px) < 0.05
+        # an ellipse, not a circle: its second moments' ratio is the viewing angle's cosine squared
+        cov = np.cov(np.vstack([xx.ravel(), yy.ravel()]), aweights=np.clip(win.ravel(), 0, None))
+        ev = np.linalg.eigvalsh(cov)
+        psf2 = cam.psf_sigma_px**2 + 1 / 12  # the PSF and the pixel's area add to each axis
+        assert math.sqrt((ev[0] - psf2) / (ev[1] - psf2)) == pytest.approx(cos_view, rel=0.05)
+        break
+
+
+def test_rotor_markers_whirl_with_the_spin_and_frame_markers_do_not():
+    d = small(motion_blur_samples=1)
+    d["markers"]["rotor_dot"] = {"body": "rotor", "position_m": [0.03, 0.0, 0.1], "radius_m": 0.0025,
+                                 "brightness_e_per_s": 2.5e7}
+    p = parse_protocol(d)
+    truth = pd.concat([t for _, t in render_frames(p, noise=False, duration_s=0.05)], ignore_index=True)
+    df = simulate(p, t_eval_s=np.unique(truth.t_marker_s.to_numpy()))
+    cam = camera_setup(p).camera
+    for name, psi in (("rotor_dot", df.psi_rad), ("crossbar_a", df.psi_frame_rad)):
+        rot = euler_to_matrix(df.phi_rad.to_numpy(), df.theta_rad.to_numpy(), psi.to_numpy())
+        pos = rot @ (np.array([0.03, 0.0, 0.1]) if name == "rotor_dot" else np.array([0.03, 0.0, 0.11]))
+        px = cv2.projectPoints(np.ascontiguousarray(pos), cam.rvec, cam.tvec, cam.camera_matrix,
+                               cam.distortion)[0].reshape(-1, 2)
+        sel = truth[truth.marker == name]
+        # the renderer's spline paths: 64 samples per turn for markers that whirl (interpolation error
+        # ~(2 pi / 64)^4 / 384 of the radius, 1e-5 px here), far denser for the others
+        tol = 1e-4 if name == "rotor_dot" else 1e-6
+        assert np.abs(px - sel[["x_px", "y_px"]].to_numpy()).max() < tol, name
+
+
+def test_gamma_and_illumination_drift_change_the_recorded_values_as_stated():
+    linear = parse_protocol(small(motion_blur_samples=1))
+    d = small(motion_blur_samples=1, illumination_drift_fraction=0.05, illumination_drift_period_s=0.08)
+    d["camera"]["sensor"]["gamma"] = 2.2
+    bent = parse_protocol(d)
+    a = [im for im, _ in render_frames(linear, seed=1, duration_s=0.05)]
+    b = [im for im, _ in render_frames(bent, seed=1, duration_s=0.05)]
+    cam = camera_setup(bent).camera
+    top = cam.sensor.max_adu
+    for k, (x, y) in enumerate(zip(a, b)):
+        # the background's median follows the lighting and the response curve
+        light = cam.illumination((k + 0.5) / cam.fps - 0.5 / cam.fps + cam.exposure_s / 2)
+        expected = top * (np.median(x) * light / top) ** (1 / 2.2)
+        assert abs(np.median(y) - expected) <= 0.02 * expected + 1.0
+    with pytest.raises(ProtocolError, match="gamma"):
+        d["camera"]["sensor"]["gamma"] = 0.0
+        parse_protocol(d) and camera_setup(parse_protocol(d))
+
+
+@pytest.mark.parametrize("change,key", [({"shape": "cube"}, "shape"), ({"normal": [0, 0, 1]}, "normal"),
+                                        ({"shape": "disc", "normal": [0, 0, 0]}, "normal"),
+                                        ({"body": "stem"}, "body")])
+def test_bad_marker_shapes_are_refused_by_name(change, key):
+    d = small()
+    d["markers"]["tip"].update(change)
+    with pytest.raises(ProtocolError, match=f"markers.tip.{key}"):
+        camera_setup(parse_protocol(d))

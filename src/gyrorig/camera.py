@@ -15,10 +15,14 @@ origin), ``look_at_m`` (default the pivot), ``up_hint = [x, y, z]`` (lab directi
 appears upwards in the image; default ``+y``), ``shutter = "global" | "rolling"``,
 ``readout_time_s`` (rolling only: first to last row), ``psf_sigma_px`` (Gaussian
 point-spread function, default 0.8), ``motion_blur_samples`` (sub-exposure samples,
-default 8; 1 = no motion blur).
+default 8; 1 = no motion blur), ``illumination_drift_fraction`` (default 0) and
+``illumination_drift_period_s`` (default 1): the lighting (markers and background) varies as
+``1 + f sin(2 pi t / P)``.
 
 ``[camera.sensor]``: ``bit_depth`` (8, 10 or 12), ``full_well_e``, ``read_noise_e``,
-``gain_e_per_adu``, ``background_e_per_s`` (lighting: electrons per pixel per second).
+``gain_e_per_adu``, ``background_e_per_s`` (lighting: electrons per pixel per second),
+``gamma`` (default 1: a linear response; 2.2: the recorded value is ``max (linear / max)^(1/2.2)``,
+as many cameras write).
 
 ``[markers]``: see :mod:`gyrorig.markers` (the renderer needs every dot's ``brightness_e_per_s``).
 """
@@ -48,6 +52,8 @@ class Sensor:
     read_noise_e: float
     gain_e_per_adu: float
     background_e_per_s: float
+    #: response exponent: recorded = max (linear / max)^(1 / gamma); 1 is linear
+    gamma: float = 1.0
 
     @property
     def max_adu(self) -> int:
@@ -72,6 +78,14 @@ class Camera:
     psf_sigma_px: float
     motion_blur_samples: int
     sensor: Sensor
+    #: lighting varies as 1 + fraction sin(2 pi t / period)
+    illumination_drift_fraction: float = 0.0
+    illumination_drift_period_s: float = 1.0
+
+    def illumination(self, t_s: np.ndarray | float) -> np.ndarray | float:
+        """The lighting's factor at times ``t_s`` (1 without drift)."""
+        return 1.0 + self.illumination_drift_fraction * np.sin(2 * np.pi * np.asarray(t_s) /
+                                                              self.illumination_drift_period_s)
 
     @property
     def rotation(self) -> np.ndarray:
@@ -101,7 +115,8 @@ class Camera:
             "psf_sigma_px": self.psf_sigma_px,
             "motion_blur_samples": self.motion_blur_samples,
             "sensor": {"bit_depth": s.bit_depth, "full_well_e": s.full_well_e, "read_noise_e": s.read_noise_e,
-                       "gain_e_per_adu": s.gain_e_per_adu, "background_e_per_s": s.background_e_per_s},
+                       "gain_e_per_adu": s.gain_e_per_adu, "background_e_per_s": s.background_e_per_s,
+                       "gamma": s.gamma},
             "conventions": "x_cam = R(rvec) X_lab + tvec (OpenCV); pixel centres at integer coordinates; "
                            "rolling shutter: row y starts its exposure at t_frame + (y / height_px) * readout_time_s",
         }
@@ -134,21 +149,23 @@ def look_at_pose(position: np.ndarray, target: np.ndarray, up_hint: np.ndarray) 
 
 def _parse_sensor(t: Mapping[str, Any]) -> Sensor:
     s = "camera.sensor"
-    check_keys(s, t, {"bit_depth", "full_well_e", "read_noise_e", "gain_e_per_adu", "background_e_per_s"}, set())
+    check_keys(s, t, {"bit_depth", "full_well_e", "read_noise_e", "gain_e_per_adu", "background_e_per_s"}, {"gamma"})
     bits = t["bit_depth"]
     if bits not in (8, 10, 12):
         raise ProtocolError(f"camera.sensor.bit_depth = {bits!r}: allowed 8, 10, 12")
     return Sensor(int(bits), number(s, "full_well_e", t["full_well_e"], lo=0.0, lo_open=True),
                   number(s, "read_noise_e", t["read_noise_e"], lo=0.0),
                   number(s, "gain_e_per_adu", t["gain_e_per_adu"], lo=0.0, lo_open=True),
-                  number(s, "background_e_per_s", t["background_e_per_s"], lo=0.0))
+                  number(s, "background_e_per_s", t["background_e_per_s"], lo=0.0),
+                  number(s, "gamma", t.get("gamma", 1.0), lo=0.2, hi=5.0))
 
 
 def _parse_camera(t: Mapping[str, Any]) -> Camera:
     s = "camera"
     required = {"width_px", "height_px", "fps", "exposure_s", "position_m", "sensor"}
     optional = {"focal_length_mm", "pixel_size_um", "horizontal_fov_deg", "principal_point_px", "distortion",
-                "look_at_m", "up_hint", "shutter", "readout_time_s", "psf_sigma_px", "motion_blur_samples"}
+                "look_at_m", "up_hint", "shutter", "readout_time_s", "psf_sigma_px", "motion_blur_samples",
+                "illumination_drift_fraction", "illumination_drift_period_s"}
     check_keys(s, t, required, optional)
     w = int(number(s, "width_px", t["width_px"], lo=16, hi=20000))
     h = int(number(s, "height_px", t["height_px"], lo=16, hi=20000))
@@ -198,7 +215,10 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
     k = np.array([[fx, 0.0, cx], [0.0, fx, cy], [0.0, 0.0, 1.0]])
     sigma = number(s, "psf_sigma_px", t.get("psf_sigma_px", 0.8), lo=0.3, hi=20.0)
     nsub = int(number(s, "motion_blur_samples", t.get("motion_blur_samples", 8), lo=1, hi=256))
-    return Camera(w, h, fps, exposure, k, dist, rvec, tvec, shutter, readout, sigma, nsub, _parse_sensor(t["sensor"]))
+    drift = number(s, "illumination_drift_fraction", t.get("illumination_drift_fraction", 0.0), lo=0.0, hi=0.5)
+    period = number(s, "illumination_drift_period_s", t.get("illumination_drift_period_s", 1.0), lo=0.0, lo_open=True)
+    return Camera(w, h, fps, exposure, k, dist, rvec, tvec, shutter, readout, sigma, nsub, _parse_sensor(t["sensor"]),
+                  drift, period)
 
 
 def with_image_size(protocol: Protocol, width_px: int, height_px: int) -> Protocol:

@@ -1,12 +1,16 @@
 """The protocol's ``[markers]`` section, parsed once into typed markers.
 
-``[markers.NAME]``: ``body = "frame" | "lab"`` ("frame": fixed to the non-spinning frame,
-coordinates with ``z`` along the symmetry axis; for a top without a frame, fixed to the top;
-"lab": a fiducial fixed in the lab, pivot at the origin), ``position_m = [x, y, z]``,
-``radius_m`` (a sphere of this radius), ``brightness_e_per_s`` (electrons per pixel per second
-inside the dot; needed to render or plan, not to track).  ``kind = "occluder"`` instead
-describes an opaque cylinder about the axis (``radius_m, z_min_m, z_max_m``, on the frame),
-e.g. the rotor can.
+``[markers.NAME]``: ``body = "frame" | "rotor" | "lab"`` ("frame": fixed to the non-spinning
+frame of a gyrostat, coordinates with ``z`` along the symmetry axis; "rotor": fixed to the
+spinning rotor, same coordinates; a plain top (no ``rig.frame_axial_inertia_kg_m2``) has no
+separate frame, and its "frame" markers turn with the rotor; "lab": a fiducial fixed in the
+lab, pivot at the origin), ``position_m = [x, y, z]``, ``radius_m``, ``shape`` (``"sphere"``,
+the default: a ball of that radius; ``"disc"``: a flat dot of that radius, e.g. retroreflective
+tape, facing along ``normal = [x, y, z]`` in the same coordinates, default the stem axis
+``[0, 0, 1]``; ``"blob"``: an appearance the tracker must not assume, drawn as a sphere),
+``brightness_e_per_s`` (electrons per pixel per second inside the dot; needed to render or
+plan, not to track).  ``kind = "occluder"`` instead describes an opaque cylinder about the axis
+(``radius_m, z_min_m, z_max_m``, on the frame), e.g. the rotor can.
 
 The renderer draws every dot; the tracker follows the ``tip`` (on the axis), the frame's dots
 off the axis (their azimuth about the axis gives the frame angle ``psi``) and finds the
@@ -25,7 +29,10 @@ import numpy as np
 from ._validate import ProtocolError, check_keys, number, vector3
 from .protocols import Protocol
 
-__all__ = ["Marker", "Occluder", "MarkerSet", "parse_markers", "TIP_MARKER"]
+__all__ = ["Marker", "Occluder", "MarkerSet", "parse_markers", "TIP_MARKER", "MARKER_SHAPES", "MARKER_BODIES"]
+
+MARKER_SHAPES = ("sphere", "disc", "blob")
+MARKER_BODIES = ("frame", "rotor", "lab")
 
 #: the marker the tracker follows (on the symmetry axis, on the frame)
 TIP_MARKER = "tip"
@@ -33,7 +40,7 @@ TIP_MARKER = "tip"
 
 @dataclass(frozen=True)
 class Marker:
-    """A bright spherical dot on the frame (``body="frame"``) or fixed in the lab (``body="lab"``)."""
+    """A bright dot (sphere, disc or blob) on the frame, on the rotor, or fixed in the lab (see the module docstring)."""
 
     name: str
     body: str
@@ -41,6 +48,10 @@ class Marker:
     radius_m: float
     #: electrons per pixel per second inside the dot (None: not given; tracking does not need it)
     brightness_e_per_s: float | None = None
+    #: "sphere", "disc" or "blob" (see the module docstring)
+    shape: str = "sphere"
+    #: a disc's unit normal, in the coordinates of its body
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
     @property
     def off_axis_m(self) -> float:
@@ -88,6 +99,10 @@ class MarkerSet:
         """Frame-fixed dots off the axis, other than the tip (they give the frame's angle about the axis)."""
         return tuple(m for m in self.dots if m.name != TIP_MARKER and m.body == "frame" and m.off_axis_m > 1e-6)
 
+    def moving_dots(self) -> tuple[Marker, ...]:
+        """Every dot on the top but the tip (frame and rotor): what can stand near the tip in an image."""
+        return tuple(m for m in self.dots if m.name != TIP_MARKER and m.body != "lab")
+
     def require_brightness(self, purpose: str) -> None:
         """Raise :class:`ProtocolError` naming the first dot without ``brightness_e_per_s``."""
         for m in self.dots:
@@ -115,15 +130,25 @@ def parse_markers(source: Protocol | Mapping[str, Any]) -> MarkerSet:
                                       number(s, "z_min_m", m["z_min_m"], lo=-1.0, hi=1.0),
                                       number(s, "z_max_m", m["z_max_m"], lo=-1.0, hi=1.0)))
             continue
-        check_keys(s, m, {"body", "position_m", "radius_m"}, {"kind", "brightness_e_per_s"})
+        check_keys(s, m, {"body", "position_m", "radius_m"}, {"kind", "brightness_e_per_s", "shape", "normal"})
         if m.get("kind", "dot") != "dot":
             raise ProtocolError(f"{s}.kind = {m['kind']!r}: allowed 'dot', 'occluder'")
-        if m["body"] not in ("frame", "lab"):
-            raise ProtocolError(f"{s}.body = {m['body']!r}: allowed 'frame', 'lab'")
+        if m["body"] not in MARKER_BODIES:
+            raise ProtocolError(f"{s}.body = {m['body']!r}: allowed {', '.join(map(repr, MARKER_BODIES))}")
+        shape = m.get("shape", "sphere")
+        if shape not in MARKER_SHAPES:
+            raise ProtocolError(f"{s}.shape = {shape!r}: allowed {', '.join(map(repr, MARKER_SHAPES))}")
+        if "normal" in m and shape != "disc":
+            raise ProtocolError(f"{s}.normal is only meaningful with shape = 'disc'")
+        normal = vector3(s, "normal", m.get("normal", [0.0, 0.0, 1.0]))
+        length = math.sqrt(sum(v * v for v in normal))
+        if length == 0:
+            raise ProtocolError(f"{s}.normal = {list(normal)!r}: must not be zero")
         brightness = (None if "brightness_e_per_s" not in m else
                       number(s, "brightness_e_per_s", m["brightness_e_per_s"], lo=0.0, lo_open=True))
         dots.append(Marker(name, m["body"], vector3(s, "position_m", m["position_m"]),
-                           number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1), brightness))
+                           number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1), brightness, shape,
+                           tuple(v / length for v in normal)))
     if not dots:
         raise ProtocolError("[markers] has no dot (kind = 'dot'): nothing to track")
     return MarkerSet(tuple(dots), tuple(occluders))

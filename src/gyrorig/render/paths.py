@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -15,21 +15,30 @@ from ..physics import simulate
 from ..physics.rotations import euler_to_matrix
 from ..protocols import Protocol
 
-__all__ = ["MarkerPaths", "marker_paths", "marker_samples", "project"]
+__all__ = ["MarkerPaths", "Samples", "marker_paths", "marker_samples", "project"]
 
 
 @dataclass(frozen=True)
 class MarkerPaths:
-    """Lab positions of the markers (splines over time) and the top's axis."""
+    """Lab positions of the markers (splines over time), the normals of the disc markers, and the top's axis."""
 
     t_s: np.ndarray
     splines: dict[str, CubicSpline | np.ndarray]
     axis: CubicSpline
     phi_reference_rad: float
+    normals: dict[str, CubicSpline | np.ndarray] = field(default_factory=dict)
 
     def position(self, name: str, t: np.ndarray) -> np.ndarray:
         """Lab position of a marker at times ``t``; shape ``t.shape + (3,)``. [m]"""
-        s = self.splines[name]
+        return self._evaluate(self.splines[name], t)
+
+    def normal(self, name: str, t: np.ndarray) -> np.ndarray:
+        """Unit lab normal of a disc marker at times ``t``; shape ``t.shape + (3,)``."""
+        v = self._evaluate(self.normals[name], t)
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    @staticmethod
+    def _evaluate(s, t):
         if isinstance(s, np.ndarray):
             return np.broadcast_to(s, np.shape(t) + (3,))
         return s(t)
@@ -40,25 +49,37 @@ class MarkerPaths:
         return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def _turns_with_rotor(m: Marker, protocol: Protocol) -> bool:
+    """A marker on the rotor, or on the frame of a plain top (which has no separate frame)."""
+    return m.body == "rotor" or (m.body == "frame" and protocol.rig.frame_axial_inertia_kg_m2 is None)
+
+
 def marker_paths(protocol: Protocol, setup: CameraSetup, duration_s: float) -> MarkerPaths:
     """Simulate the scene densely and build spline paths of every marker."""
     rig = protocol.rig
     nut_hz = abs(rig.inertia_axial_kg_m2 * protocol.launch.spin_rate_rad_s) / rig.inertia_transverse_kg_m2 / (2 * np.pi)
     rate = max(2000.0, 40.0 * nut_hz, 4.0 * setup.camera.fps)
+    if any(_turns_with_rotor(m, protocol) for m in setup.markers):
+        rate = max(rate, 64.0 * abs(protocol.launch.spin_rate_rad_s) / (2 * np.pi))  # 64 samples per turn
     pad = 2.0 / setup.camera.fps  # rolling-shutter rows and the last exposure reach past the last frame start
     n = int(math.ceil((duration_s + pad) * rate)) + 1
     t = np.arange(n) / rate
     df = simulate(protocol, t_eval_s=t)
-    psi = df["psi_frame_rad"] if "psi_frame_rad" in df else df["psi_rad"]
-    rot = euler_to_matrix(df.phi_rad.to_numpy(), df.theta_rad.to_numpy(), psi.to_numpy())
+    # a plain top has no separate frame: its "frame" markers turn with the rotor
+    psi_frame = df["psi_frame_rad"] if "psi_frame_rad" in df else df["psi_rad"]
+    rot = {"frame": euler_to_matrix(df.phi_rad.to_numpy(), df.theta_rad.to_numpy(), psi_frame.to_numpy()),
+           "rotor": euler_to_matrix(df.phi_rad.to_numpy(), df.theta_rad.to_numpy(), df.psi_rad.to_numpy())}
     splines: dict[str, CubicSpline | np.ndarray] = {}
+    normals: dict[str, CubicSpline | np.ndarray] = {}
     for m in setup.markers:
         if m.body == "lab":
             splines[m.name] = np.asarray(m.position_m, dtype=float)
+            normals[m.name] = np.asarray(m.normal, dtype=float)
         else:
-            splines[m.name] = CubicSpline(t, rot @ np.asarray(m.position_m, dtype=float))
+            splines[m.name] = CubicSpline(t, rot[m.body] @ np.asarray(m.position_m, dtype=float))
+            normals[m.name] = CubicSpline(t, rot[m.body] @ np.asarray(m.normal, dtype=float))
     axis = CubicSpline(t, df[["tip_x", "tip_y", "tip_z"]].to_numpy())
-    return MarkerPaths(t, splines, axis, protocol.launch.azimuth_rad)
+    return MarkerPaths(t, splines, axis, protocol.launch.azimuth_rad, normals)
 
 
 def _occluded(cam_pos: np.ndarray, points: np.ndarray, axis: np.ndarray, occluders) -> np.ndarray:
@@ -103,8 +124,26 @@ def project(cam: Camera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return px.reshape(pts.shape[:-1] + (2,)), depth.reshape(pts.shape[:-1])
 
 
-def marker_samples(cam: Camera, setup: CameraSetup, paths: MarkerPaths, m: Marker, frames: np.ndarray):
-    """Per frame: sub-sample pixel positions, radii, visibility; and the truth at mid-exposure."""
+@dataclass(frozen=True)
+class Samples:
+    """One marker over a chunk of frames: per frame and sub-exposure sample (``[frame, sample]``) its lab
+    position, pixel position, the radius a sphere of its size would have [px], its normal (discs) and
+    whether it is visible; per frame its truth at mid-exposure."""
+
+    pts: np.ndarray
+    px: np.ndarray
+    radius: np.ndarray
+    normals: np.ndarray | None
+    visible: np.ndarray
+    truth_px: np.ndarray
+    t_mid: np.ndarray
+    in_view: np.ndarray
+
+
+def marker_samples(cam: Camera, setup: CameraSetup, paths: MarkerPaths, m: Marker, frames: np.ndarray) -> Samples:
+    """The marker's sub-exposure samples in a chunk of frames (rolling shutter: at its own row's time).
+
+    Visible: in the image, not behind an occluder, and for a disc facing the camera."""
     times = _sample_times(cam, frames)
     if cam.shutter == "rolling":
         # the marker's rows start exposing (y / H) * readout later; two fixed-point passes
@@ -124,6 +163,10 @@ def marker_samples(cam: Camera, setup: CameraSetup, paths: MarkerPaths, m: Marke
     visible = in_view.copy()
     if setup.occluders:
         visible &= ~_occluded(cam.position_m, pts, paths.tip(times), setup.occluders)
+    normals = None
+    if m.shape == "disc":
+        normals = paths.normal(m.name, times)
+        visible &= np.einsum("...j,...j->...", normals, cam.position_m - pts) > 0
     t_mid = frames / cam.fps + shift + cam.exposure_s / 2
     truth_px, _ = project(cam, paths.position(m.name, t_mid))
-    return px, radius, visible, truth_px, t_mid, in_view.mean(axis=1) >= 0.5
+    return Samples(pts, px, radius, normals, visible, truth_px, t_mid, in_view.mean(axis=1) >= 0.5)

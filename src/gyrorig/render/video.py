@@ -17,9 +17,9 @@ from ..camera import Camera, CameraSetup, camera_setup
 from ..physics.rotations import unwrapped_angles_from_tip
 from ..protocols import Protocol, ProtocolError
 from .board import render_calibration_images
-from .draw import draw_sphere
+from .draw import draw_disc, draw_sphere
 from .paths import MarkerPaths, marker_paths, marker_samples
-from .sensor import background_table, expose
+from .sensor import BackgroundTables, expose, response_table
 
 __all__ = ["render_frames", "render_video", "open_writer", "TRUTH_COLUMNS", "VIDEO_CODECS"]
 
@@ -51,8 +51,8 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
         raise ProtocolError(f"scene.duration_s = {duration:g} gives no frame at {cam.fps:g} fps")
     paths = paths or marker_paths(protocol, setup, duration)
     rng = np.random.default_rng(seed)
-    bg = cam.sensor.background_e_per_s * cam.exposure_s
-    table = background_table(bg, cam.sensor) if noise else None
+    tables = BackgroundTables(cam.sensor, cam.sensor.background_e_per_s * cam.exposure_s)
+    response = response_table(cam.sensor)
     # expected spot electrons; only the windows around markers are ever touched (and reset)
     acc = np.zeros((cam.height_px, cam.width_px), dtype=np.float64)
     for start in range(0, n_frames, chunk):
@@ -61,18 +61,25 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
         t_mid = frames / cam.fps + cam.exposure_s / 2
         th, ph = unwrapped_angles_from_tip(paths.tip(t_mid), phi_at_pole_rad=paths.phi_reference_rad)
         for i, f in enumerate(frames):
+            light = float(cam.illumination(t_mid[i]))
+            table, bg = tables(light)
             windows = []
             rows = []
             for m in setup.markers:
-                px, rad, vis, truth_px, tm, inview = per_marker[m.name]
-                win = draw_sphere(acc, px[i], rad[i], vis[i], m.brightness_e_per_s * cam.exposure_s, cam.psf_sigma_px)
+                sm = per_marker[m.name]
+                peak = m.brightness_e_per_s * cam.exposure_s * light
+                if m.shape == "disc":
+                    win = draw_disc(acc, cam, sm.pts[i], sm.normals[i], m.radius_m, sm.visible[i], peak)
+                else:
+                    win = draw_sphere(acc, sm.px[i], sm.radius[i], sm.visible[i], peak, cam.psf_sigma_px)
                 if win is not None:
                     windows.append(win)
-                rows.append((int(f), float(t_mid[i]), m.name, float(truth_px[i, 0]), float(truth_px[i, 1]),
-                             bool(vis[i].mean() >= 0.5), float(th[i]), float(ph[i]), float(tm[i]), bool(inview[i])))
+                rows.append((int(f), float(t_mid[i]), m.name, float(sm.truth_px[i, 0]), float(sm.truth_px[i, 1]),
+                             bool(sm.visible[i].mean() >= 0.5), float(th[i]), float(ph[i]), float(sm.t_mid[i]),
+                             bool(sm.in_view[i])))
             truth = pd.DataFrame(rows, columns=list(TRUTH_COLUMNS))
             if noise:
-                image = expose(acc, windows, cam, rng, bg, table)
+                image = expose(acc, windows, cam, rng, bg, table, response)
             else:
                 image = (acc + bg).astype(np.float32)
             for (y0, y1, x0, x1) in windows:
