@@ -13,7 +13,8 @@ one-sigma move of that mode).
 
 **Truth table** (``truth.csv``, written by the renderer beside its video, never read by the tracker):
 ``frame, t_s`` (mid-exposure), ``marker, x_px, y_px, visible, theta_rad, phi_rad, t_marker_s``
-(the marker's own mid-exposure time) ``, in_view``; :func:`tip_truth` turns it into the noiseless
+(the marker's own mid-exposure time, which a rolling shutter moves; the marker's position and the
+tip's angles on its row are at that time) ``, in_view``; :func:`tip_truth` turns it into the noiseless
 tip angles a fit compares with.
 """
 

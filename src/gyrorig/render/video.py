@@ -59,7 +59,10 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
         frames = np.arange(start, min(start + chunk, n_frames))
         per_marker = {m.name: marker_samples(cam, setup, paths, m, frames) for m in setup.markers}
         t_mid = frames / cam.fps + cam.exposure_s / 2
-        th, ph = unwrapped_angles_from_tip(paths.tip(t_mid), phi_at_pole_rad=paths.phi_reference_rad)
+        # each marker's rows carry the tip's angles at that marker's own mid-exposure time (a rolling
+        # shutter exposes its row later than the frame's start)
+        angles = {m.name: unwrapped_angles_from_tip(paths.tip(per_marker[m.name].t_mid),
+                                                    phi_at_pole_rad=paths.phi_reference_rad) for m in setup.markers}
         for i, f in enumerate(frames):
             light = float(cam.illumination(t_mid[i]))
             table, bg = tables(light)
@@ -74,6 +77,7 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
                     win = draw_sphere(acc, sm.px[i], sm.radius[i], sm.visible[i], peak, cam.psf_sigma_px)
                 if win is not None:
                     windows.append(win)
+                th, ph = angles[m.name]
                 rows.append((int(f), float(t_mid[i]), m.name, float(sm.truth_px[i, 0]), float(sm.truth_px[i, 1]),
                              bool(sm.visible[i].mean() >= 0.5), float(th[i]), float(ph[i]), float(sm.t_mid[i]),
                              bool(sm.in_view[i])))

@@ -48,6 +48,8 @@ class TrackingCamera:
     intrinsics_parameters: tuple[str, ...] = ()
     #: covariance of ``(rvec, tvec)`` (None: exact, or found from the fiducials)
     pose_covariance: np.ndarray | None = None
+    #: the sensor's response exponent (recorded = max (linear / max)^(1 / gamma)); 1: linear
+    gamma: float = 1.0
 
     @property
     def has_pose(self) -> bool:
@@ -56,8 +58,8 @@ class TrackingCamera:
 
     @property
     def sensor_known(self) -> bool:
-        """True when the sensor's gain is known (pixel variances from the noise model)."""
-        return math.isfinite(self.gain_e_per_adu)
+        """True when pixel variances follow from the sensor model: a known gain and a linear response."""
+        return math.isfinite(self.gain_e_per_adu) and self.gamma == 1.0
 
     @cached_property
     def rotation(self) -> np.ndarray:
@@ -129,4 +131,4 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
         d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
         float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1,
-        cov_i, names or (), cov_p)
+        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)))

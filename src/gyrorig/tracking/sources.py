@@ -24,15 +24,24 @@ from .errors import TrackingError
 __all__ = ["Frames", "VideoFile", "FrameArrays", "as_source"]
 
 
+#: container codes (FourCC) of codecs that keep every pixel value: FFV1, raw, Y800/GREY/Y16, HuffYUV, PNG
+LOSSLESS_FOURCC = {"ffv1", "FFV1", "\x00\x00\x00\x00", "Y800", "GREY", "Y16 ", "HFYU", "huff", "FFVH", "png ",
+                   "MPNG", "rawv", "DIB "}
+
+
 @dataclass
 class Frames:
-    """An opened source; iterate it for ``(image, t_s)``, close it when done (or use ``with``)."""
+    """An opened source; iterate it for ``(image, t_s)``, close it when done (or use ``with``).
+
+    ``lossy``: the codec changes pixel values (mp4v, H.264, MJPEG ...): the sensor's noise model then
+    does not describe them."""
 
     width_px: int
     height_px: int
     fps: float
     count: int
     items: Iterator[tuple[np.ndarray, float]]
+    lossy: bool = False
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -62,10 +71,16 @@ class VideoFile:
         cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         if not cap.isOpened():
             raise TrackingError(f"cannot open video {self.path}")
+        # unconverted frames: 16-bit FFV1 stays 16-bit, a YUV codec gives its luma plane (OpenCV warns
+        # about that on every frame; its warnings are silenced while the file is read)
+        level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
         w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode("latin-1")
         return Frames(w, h, float(cap.get(cv2.CAP_PROP_FPS)), int(cap.get(cv2.CAP_PROP_FRAME_COUNT)),
-                      _decoded_frames(cap))
+                      _decoded_frames(cap, on_close=lambda: cv2.utils.logging.setLogLevel(level)),
+                      lossy=fourcc not in LOSSLESS_FOURCC)
 
 
 class FrameArrays:
@@ -100,7 +115,7 @@ def as_source(video) -> VideoFile | FrameArrays:
     raise TypeError(f"expected a video path or a frame source, got {type(video).__name__}")
 
 
-def _decoded_frames(cap: cv2.VideoCapture, depth: int = 8) -> Iterator[tuple[np.ndarray, float]]:
+def _decoded_frames(cap: cv2.VideoCapture, depth: int = 8, on_close=None) -> Iterator[tuple[np.ndarray, float]]:
     """Yield ``(frame, start time s)``, decoding in a background thread.
 
     OpenCV releases the GIL while decoding, so decoding the next frames overlaps with
@@ -134,3 +149,5 @@ def _decoded_frames(cap: cv2.VideoCapture, depth: int = 8) -> Iterator[tuple[np.
                 pass
             thread.join(timeout=0.05)
         cap.release()
+        if on_close is not None:
+            on_close()

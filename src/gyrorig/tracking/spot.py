@@ -36,6 +36,15 @@ class SpotFit:
     saturated: bool
     converged: bool
     blended: bool = False
+    #: semi-axes of the spot's light as a uniform ellipse (from its second moments, the PSF's share taken
+    #: out): a sphere's spot has both near ``radius_px``, a tilted disc's the major near its radius [px]
+    major_px: float = math.nan
+    minor_px: float = math.nan
+    #: direction of the major axis from the x axis (elliptical fits only) [rad]
+    angle_rad: float = math.nan
+    #: reduced chi-square over the spot's own pixels (its edge + 3 PSF sigmas; for a blended spot, those
+    #: nearer to it than to its neighbour): how well the spot itself is fitted
+    chi2_own: float = math.nan
 
 
 def spot_model(params, xx, yy, sigma):
@@ -190,14 +199,29 @@ def _neighbour_start(win, xx, yy, p, foreign) -> np.ndarray:
     return np.array([*p[:4], nx, ny, nr, max(namp, 1.0), p[4]])
 
 
+def _light_axes(win, xx, yy, p, near, sigma) -> tuple[float, float]:
+    """Semi-axes of the light above the fitted background in ``near``, as a uniform ellipse: 2 sqrt(eigenvalue
+    of the second moments minus the PSF's variance)."""
+    w = np.where(near, np.clip(win - p[-1], 0.0, None), 0.0)
+    total = w.sum()
+    if total <= 0:
+        return math.nan, math.nan
+    cx, cy = (w * xx).sum() / total, (w * yy).sum() / total
+    dx, dy = xx - cx, yy - cy
+    m = np.array([[(w * dx * dx).sum(), (w * dx * dy).sum()], [(w * dx * dy).sum(), (w * dy * dy).sum()]]) / total
+    lo, hi = np.linalg.eigvalsh(m) - sigma * sigma
+    return 2.0 * math.sqrt(max(hi, 0.0)), 2.0 * math.sqrt(max(lo, 0.0))
+
+
 def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
-             iterations: int = 10) -> SpotFit | None:
+             iterations: int = 10, neighbour: str = "joint") -> SpotFit | None:
     """Weighted least-squares fit of the disc-spot model in a window around ``(x0, y0)``.
 
     Light from a neighbouring spot inside the window (pixels beyond ``r + 3 sigma`` from the
     fitted centre that are brighter than the model by more than 5 standard deviations)
-    triggers a joint fit of both discs; ``SpotFit.blended`` says so.  Saturated pixels are
-    left out.  The centre's covariance is the inverse Fisher matrix; with a known sensor it is
+    triggers a joint fit of both discs (``neighbour="joint"``), or a fit of this spot alone with the
+    neighbour's light masked out (``"mask"``: for a neighbour that is not a disc, e.g. a streak);
+    ``SpotFit.blended`` says so.  Saturated pixels are left out.  The centre's covariance is the inverse Fisher matrix; with a known sensor it is
     scaled up by the reduced chi-square only when the fit is worse than the noise (and not for
     a blended spot, whose neighbour's imperfect model leaves residuals near the tip that do not
     move it); with an unknown sensor it is scaled to the residuals.  Returns ``None`` when the
@@ -227,7 +251,13 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
     excess = (win - mu) / np.sqrt(pixel_variance(mu, cam, bvar))
     foreign = (np.hypot(xx - p[0], yy - p[1]) > p[2] + 3 * sigma) & (excess > 5.0)
     blended = bool(foreign.sum() >= 3)
-    if blended:
+    if blended and neighbour == "mask":
+        grown = cv2.dilate(foreign.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+        use = use & ~grown
+        p, converged, (fisher, chi2_sum, mu) = _gauss_newton(win, xf, yf, use, p, cam, iterations, bvar)
+        if p is None:
+            return None
+    elif blended:
         p, converged, (fisher, chi2_sum, mu) = _gauss_newton(win, xf, yf, use, _neighbour_start(win, xx, yy, p, foreign),
                                                              cam, 2 * iterations, bvar)
         if p is None:
@@ -236,13 +266,14 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
         return None
     dof = max(int(use.sum()) - len(p), 1)
     chi2_red = float(chi2_sum / dof)
-    scale_chi2 = chi2_red
-    if blended:
-        # judge the fit where the tip's own light is
-        near = use & (np.hypot(xx - p[0], yy - p[1]) <= p[2] + 3 * sigma)
-        n_near = int(near.sum())
-        if n_near > 10:
-            scale_chi2 = float(((win - mu)[near] ** 2 / pixel_variance(mu[near], cam, bvar)).sum() / max(n_near - 5, 1))
+    near = use & (np.hypot(xx - p[0], yy - p[1]) <= p[2] + 3 * sigma)
+    if blended and neighbour == "joint":
+        near &= np.hypot(xx - p[0], yy - p[1]) <= np.hypot(xx - p[4], yy - p[5])
+    n_near = int(near.sum())
+    chi2_own = (float(((win - mu)[near] ** 2 / pixel_variance(mu[near], cam, bvar)).sum() / max(n_near - 5, 1))
+                if n_near > 10 else chi2_red)
+    # a blended spot is judged where its own light is
+    scale_chi2 = chi2_own if blended else chi2_red
     try:
         finv = np.linalg.inv(fisher)
         if blended and cam.sensor_known:
@@ -251,8 +282,12 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
             cov = finv[:2, :2] * (max(1.0, scale_chi2) if cam.sensor_known else scale_chi2)
     except np.linalg.LinAlgError:
         return None
+    own = use & (np.hypot(xx - p[0], yy - p[1]) <= p[2] + 4 * sigma)
+    if blended and neighbour == "joint":
+        own &= np.hypot(xx - p[0], yy - p[1]) <= np.hypot(xx - p[4], yy - p[5])  # nearer this spot than the other
+    major, minor = _light_axes(win, xx, yy, p, own, sigma)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[-1]), cov, chi2_red,
-                   bool(sat.any()), converged, blended)
+                   bool(sat.any()), converged, blended, major, minor, math.nan, chi2_own)
 
 
 def spot_crb_px(x: float, y: float, radius_px: float, amplitude_adu: float, background_adu: float, cam) -> float:

@@ -33,17 +33,27 @@ from ..markers import Marker, parse_markers
 from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count
 from .camera_file import TrackingCamera
-from .detect import detection_threshold, find_blobs
+from .detect import detection_threshold
+from .follow import TipFollower
 from .dots import DotTracker
 from .errors import TrackingError
 from .pose import camera_modes, estimate_pose
-from .rays import angles_with_covariance, tip_from_pixel
+from .rays import angles_with_covariance
+from .scatter import SigmaCheck, check_sigmas
 from .sources import as_source
-from .spot import SpotFit, fit_spot
+from .spot import SpotFit
 
 __all__ = ["TrackResult", "track", "track_video", "tip_marker"]
 
 Progress = Callable[[int, int], None]
+
+#: a container time within this many frame intervals of a frame's nominal time is that frame's (rounded)
+TIME_SNAP_FRAMES = 0.3
+#: errors the sensor and spot models give are scaled up when the scatter exceeds them by this many standard
+#: errors of the check
+SIGMA_CHECK_Z = 4.0
+#: a class of frames (blended or clear) needs this many checked coordinates for a factor of its own
+MIN_CLASS_COORDINATES = 30
 
 
 @dataclass(frozen=True)
@@ -69,6 +79,8 @@ class TrackResult:
     #: the fiducial pose summary (None when camera.json had a pose)
     pose: dict | None = None
     camera_sigma_rad: list[float] = field(default_factory=lambda: [math.nan, math.nan])
+    #: the per-frame errors checked against the tip's scatter about its path (:mod:`gyrorig.tracking.scatter`)
+    sigma_check: SigmaCheck | None = None
 
     @property
     def camera_modes(self) -> int:
@@ -79,7 +91,8 @@ class TrackResult:
         return {"frames": self.frames, "tracked_fraction": self.tracked_fraction, "decode_s": self.decode_s,
                 "track_s": self.track_s, "pose": self.pose, "camera_modes": self.camera_modes,
                 "camera_sigma_rad": self.camera_sigma_rad, "rvec": self.camera.rvec.tolist(),
-                "tvec": self.camera.tvec.tolist()}
+                "tvec": self.camera.tvec.tolist(),
+                "sigma_check": self.sigma_check.as_dict() if self.sigma_check is not None else None}
 
 
 def tip_marker(protocol: Protocol) -> Marker:
@@ -92,58 +105,6 @@ def tip_marker(protocol: Protocol) -> Marker:
         raise ProtocolError(f"markers.tip.position_m = {list(tip.position_m)!r}: the tip must be on the axis, above "
                             "the pivot ([0, 0, L] with L > 0)")
     return tip
-
-
-class _TipFollower:
-    """Finds the tip spot in each frame: near the motion prediction, else anywhere."""
-
-    def __init__(self, camera: TrackingCamera, length_m: float, radius_m: float):
-        self.camera, self.length_m = camera, length_m
-        depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, length_m])))
-        self.r_expected = camera.camera_matrix[0, 0] * radius_m / depth  # tip upright [px]
-        self.last: list[tuple[float, float]] = []  # recent (x, y) of the tip
-        self.last_r = self.r_expected  # its latest fitted radius [px]
-
-    def _sized(self, blobs):
-        return [c for c in blobs if 0.5 * self.r_expected <= c[2] <= 1.6 * self.r_expected]
-
-    def locate(self, frame: np.ndarray, threshold: float) -> tuple[SpotFit | None, str]:
-        """The tip's spot fit (None if not found) and the frame's quality flag so far."""
-        h, w = frame.shape
-        quality = "ok"
-        cand, predicted = [], None
-        if self.last:
-            predicted = (np.array(self.last[-1]) if len(self.last) < 2
-                         else 2 * np.array(self.last[-1]) - np.array(self.last[-2]))
-            reach = int(4 * self.r_expected + 20)
-            x0, y0 = max(int(predicted[0]) - reach, 0), max(int(predicted[1]) - reach, 0)
-            cand = find_blobs(frame, x0, y0, min(int(predicted[0]) + reach, w), min(int(predicted[1]) + reach, h),
-                              threshold)
-        sized = self._sized(cand)
-        if not sized:
-            if self.last:
-                quality = "reacquired"
-            sized = self._sized(find_blobs(frame, 0, 0, w, h, threshold))
-        # candidates must lie on the tip's sphere
-        sized = [c for c in sized if tip_from_pixel(c[0], c[1], self.camera, self.length_m) is not None]
-        if predicted is not None and len(sized) > 1:
-            sized.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
-        elif len(sized) > 1:
-            sized.sort(key=lambda c: -c[2])  # no history: the largest spot of the tip's size
-        if not sized:
-            return None, quality
-        x0, y0, r0 = sized[0]
-        if predicted is not None and math.hypot(x0 - predicted[0], y0 - predicted[1]) < max(2.0, 0.3 * r0):
-            # the motion prediction is sub-pixel; the blob's inscribed centre is not: fewer iterations
-            x0, y0, r0 = float(predicted[0]), float(predicted[1]), self.last_r
-        return fit_spot(frame, x0, y0, r0, self.camera), quality
-
-    def found(self, fit: SpotFit) -> None:
-        self.last = (self.last + [(fit.x_px, fit.y_px)])[-2:]
-        self.last_r = fit.radius_px
-
-    def lost(self) -> None:
-        self.last = []
 
 
 def _empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
@@ -172,34 +133,49 @@ class _Tables:
         self.angles: list[tuple] = []
         self.markers: list[tuple] = []
         self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
+        self.tip_var: dict[int, tuple[float, float]] = {}  # angle row -> its variances in x and y [px^2]
         self.psi: dict[int, tuple[float, float]] = {}
+        self.last_frame: tuple[int, float, float] | None = None  # (index, t_frame, threshold) of the last frame
 
-    def frame(self, camera: TrackingCamera, tip: Marker, follower: _TipFollower, dots: DotTracker | None,
+    def frame(self, camera: TrackingCamera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: float) -> None:
         """Track one (new) frame and add its rows."""
-        fit, quality = follower.locate(frame, threshold)
-        t_mid = t_frame + camera.exposure_s / 2
-        if fit is None:
-            self.angles.append(_empty_angle_row(index, t_mid, "missing"))
-            follower.lost()
+        located = follower.locate(frame, threshold)
+        if located.previous is not None and self.last_frame is not None:
+            # this frame confirmed the tip found in the previous one: that frame gets its position back
+            self._tip_rows(camera, tip, follower, None, None, *self.last_frame, located.previous, located.quality,
+                           row=len(self.angles) - 1)
+        self.last_frame = (index, t_frame, threshold)
+        if located.fit is None:
+            self.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "missing"))
             return
-        t_mid += camera.row_delay_s(fit.y_px)
+        self._tip_rows(camera, tip, follower, dots, frame, index, t_frame, threshold, located.fit, located.quality)
+
+    def _tip_rows(self, camera, tip, follower, dots, frame, index, t_frame, threshold, fit: SpotFit, quality: str,
+                  row: int | None = None) -> None:
+        """The angle row (appended, or put in place of ``row``) and the marker rows of a tip fit."""
+        t_mid = t_frame + camera.exposure_s / 2 + camera.row_delay_s(fit.y_px)
         for flag, on in (("saturated", fit.saturated), ("blended", fit.blended)):
             if on:
                 quality = flag if quality == "ok" else quality + "," + flag
         geo = angles_with_covariance(fit.x_px, fit.y_px, fit.cov_xy, camera, tip.position_m[2])
         if geo is None:
-            self.angles.append(_empty_angle_row(index, t_mid, "off-sphere"))
+            angle_row = _empty_angle_row(index, t_mid, "off-sphere")
             follower.lost()
         else:
             th, ph, n, cov = geo
             sth, sph = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
-            self.angles.append((index, t_mid, th, ph, sth, sph, cov[0, 1] / (sth * sph), n[0], n[1], n[2], quality))
+            angle_row = (index, t_mid, th, ph, sth, sph, cov[0, 1] / (sth * sph), n[0], n[1], n[2], quality)
+        if row is None:
+            self.angles.append(angle_row)
             row = len(self.angles) - 1
+        else:
+            self.angles[row] = angle_row
+        if geo is not None:
             self.tip_px[row] = (fit.x_px, fit.y_px)
-            follower.found(fit)
+            self.tip_var[row] = (float(fit.cov_xy[0, 0]), float(fit.cov_xy[1, 1]))
             if dots is not None:
-                psi, psi_sigma, found = dots.step(frame, t_mid, n, (fit.x_px, fit.y_px), fit.radius_px, threshold)
+                psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
                 self.psi[row] = (psi, psi_sigma)
                 for name, dfit in found:
                     t_dot = t_frame + camera.exposure_s / 2 + camera.row_delay_s(dfit.y_px)
@@ -215,7 +191,67 @@ class _Tables:
                 psi_col[r_] = v_
             angles["psi_rad"], angles["psi_sigma_rad"] = psi_col[:, 0], psi_col[:, 1]
         angles["exposure_s"] = float(camera.exposure_s)
-        return angles, pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS))
+        markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS))
+        return angles, markers.sort_values("frame", kind="stable").reset_index(drop=True)
+
+
+def _sensor_doubts(camera: TrackingCamera, lossy: bool, follower: TipFollower) -> str:
+    """Why the per-frame errors cannot come from the sensor and spot models alone ('' when they can)."""
+    doubts = []
+    if not math.isfinite(camera.gain_e_per_adu):
+        doubts.append("no sensor gain in camera.json")
+    if camera.gamma != 1.0:
+        doubts.append(f"sensor gamma {camera.gamma:g}")
+    if lossy:
+        doubts.append("lossy codec")
+    if follower.shape == "blob":
+        doubts.append("a tip marker of no exact model (blob)")
+    return "; ".join(doubts)
+
+
+def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, tip_name: str
+                     ) -> SigmaCheck:
+    """Check the tip's errors against its scatter about its path (:mod:`gyrorig.tracking.scatter`), for
+    blended frames and the rest apart; scale a class's errors by its factor when the models are in doubt,
+    or when they are evidently too small (a class with fewer than :data:`MIN_CLASS_COORDINATES` checked
+    coordinates takes the overall factor); turn the outliers into ``outlier`` rows without angles."""
+    index = np.array(sorted(rows.tip_px))
+    if len(index) == 0:
+        return SigmaCheck(math.nan, math.nan, 0, ())
+    blended = angles.quality.to_numpy()[index].astype(str)
+    classes = np.where(np.char.find(blended, "blended") >= 0, "blended", "clear")
+    check = check_sigmas(angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index],
+                         np.array([rows.tip_px[r] for r in index]), np.array([rows.tip_var[r] for r in index]),
+                         classes)
+    if not math.isfinite(check.factor):
+        return replace(check, reason="too few runs of 7 nearby tracked frames to check")
+    factors, reasons = {}, []
+    for label in ("clear", "blended"):
+        f, se, n = check.by_class.get(label, (check.factor, check.factor_se, 0))
+        if n < MIN_CLASS_COORDINATES:
+            f, se = check.factor, check.factor_se
+        if doubts or f > 1.0 + SIGMA_CHECK_Z * se:
+            factors[label] = f
+            if not doubts:
+                reasons.append(f"{label} frames' errors are smaller than their scatter")
+    reason = doubts or "; ".join(reasons) or "sensor and spot models hold"
+    tip_rows = markers.marker == tip_name
+    for label, f in factors.items():
+        rows_c = index[classes == label]
+        for col in ("theta_sigma_rad", "phi_sigma_rad"):
+            angles.loc[rows_c, col] *= f
+        frames_c = angles.frame.to_numpy()[rows_c]
+        markers.loc[tip_rows & markers.frame.isin(frames_c), ["sigma_x_px", "sigma_y_px"]] *= f
+    bad = index[list(check.outliers)]
+    if len(bad):
+        cols = [c for c in ("theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
+                            "tip_x", "tip_y", "tip_z", "psi_rad", "psi_sigma_rad") if c in angles]
+        angles.loc[bad, cols] = np.nan
+        angles.loc[bad, "quality"] = "outlier"
+        markers.loc[tip_rows & markers.frame.isin(angles.frame.to_numpy()[bad]), "quality"] = "outlier"
+        for r in bad:
+            del rows.tip_px[r]
+    return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
 
 
 def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera, length_m: float,
@@ -232,6 +268,16 @@ def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera
     if len(modes):
         return np.sqrt(np.mean(np.sum(modes**2, axis=0), axis=0)).tolist()
     return [float("nan"), float("nan")]
+
+
+def _linearizer(camera: TrackingCamera):
+    """For a sensor with gamma: a function that maps recorded values back to linear ones (same full scale,
+    float32); None for a linear sensor."""
+    if camera.gamma == 1.0:
+        return None
+    top = float(camera.max_adu)
+    table = (top * (np.arange(camera.max_adu + 1) / top) ** camera.gamma).astype(np.float32)
+    return lambda frame: table[frame]
 
 
 def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progress | None = None,
@@ -259,7 +305,11 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
             raise TrackingError(f"camera file says {camera.width_px} x {camera.height_px}, the video is "
                                 f"{frames.width_px} x {frames.height_px}")
-        follower = _TipFollower(camera, tip.position_m[2], tip.radius_m)
+        lossy = frames.lossy
+        if lossy and camera.sensor_known:  # the codec changed the pixel values: the noise model does not hold
+            camera = replace(camera, gain_e_per_adu=math.nan)
+        linear = _linearizer(camera)
+        follower = TipFollower(camera, tip)
         dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         rows = _Tables()
@@ -277,12 +327,18 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             frame, t_frame = item
             t_frame = t_frame if math.isfinite(t_frame) else k / camera.fps
             index = int(round(t_frame * camera.fps))
+            if abs(t_frame - index / camera.fps) <= TIME_SNAP_FRAMES / camera.fps:
+                # a container's time base rounds (Matroska: to 1 ms); the frame's own time is its index's
+                t_frame = index / camera.fps
             digest = hash(frame[::7, ::7].tobytes())
             if digest == prev_hash:
                 rows.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
+                rows.last_frame = None
                 k += 1
                 continue
             prev_hash = digest
+            if linear is not None:
+                frame = linear(frame)
             if k % 100 == 0:  # background level and noise, refreshed every 100 frames (slow illumination drift)
                 threshold, _ = detection_threshold(frame)
             rows.frame(camera, tip, follower, dots, frame, index, t_frame, threshold)
@@ -295,11 +351,12 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     angles, markers = rows.tables(camera, dots is not None)
     if not angles.theta_rad.notna().any():
         raise TrackingError(f"{source}: the tip marker was never found in {k} frames")
+    check = _check_and_scale(angles, markers, rows, _sensor_doubts(camera, lossy, follower), tip.name)
     camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2], pose_info)
     if progress:
         progress(k, k)
     return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
-                       pose_info, camera_sigma)
+                       pose_info, camera_sigma, check)
 
 
 def track_video(video, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,

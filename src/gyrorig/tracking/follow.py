@@ -1,0 +1,225 @@
+"""Following the tip from frame to frame, and refusing what is not the tip.
+
+A spot is taken for the tip only when it looks like the tip at that instant and is where the tip can
+be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse than a gap):
+
+- **shape and size**: a sphere's fitted radius against its image's (:data:`SIZE_RANGE`); a flat
+  disc on the stem axis must make the ellipse that the camera and the axis at that position predict
+  (semi-axes and orientation, :class:`~gyrorig.tracking.ellipse.DiscGeometry`); a blob of unknown
+  appearance only a loose size range;
+- **appearance**: once the tip has been followed for a few frames, its fitted radius, amplitude and
+  reduced chi-square must stay near their running medians (a different marker, or a neighbour's light
+  under the tip's own, changes them);
+- **motion**: the spot must lie within a gate around the position predicted from the last frames
+  (the gate grows with the tip's observed speed and acceleration in pixels);
+- **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
+  only when the next frame confirms it nearby: dots on the spinning rotor jump by a large fraction of
+  a turn between frames, a static spot of the wrong size fails the size test.
+
+A sphere's spot fitted jointly with a neighbour (``blended``) that fails these is fitted again with the
+neighbour's light masked out (a whirling dot is a streak, not a disc); if that fails too, the frame
+is ``missing``.
+
+Localisation follows the shape: the sphere model (:func:`~gyrorig.tracking.spot.fit_spot`) for
+spheres; the elliptical model (:func:`~gyrorig.tracking.ellipse.fit_ellipse_spot`) for discs and
+blobs.  A disc's position is then moved from its ellipse's centre to the image of its centre (the
+perspective offset); a blob's is the ellipse's centre, and a disc whose normal is not the stem axis
+is followed as a blob (its appearance depends on the spin angle).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..markers import Marker
+from .camera_file import TrackingCamera
+from .detect import find_blobs
+from .ellipse import DiscGeometry, fit_ellipse_spot
+from .rays import tip_from_pixel
+from .spot import SpotFit, fit_spot
+
+__all__ = ["TipFollower", "Located", "SIZE_RANGE"]
+
+#: the fitted radius over the marker's expected image radius allowed for the tip (a sphere, or a blob)
+SIZE_RANGE = {"sphere": (0.7, 1.4), "blob": (0.4, 2.5)}
+#: once followed, the fitted radius and amplitude must stay within these factors of their running medians
+RADIUS_CHANGE = (0.8, 1.25)
+AMPLITUDE_CHANGE = (0.6, 1.6)
+#: once followed, the fit's reduced chi-square may exceed its running median by at most this factor (foreign
+#: light under the tip's own, which no mask can separate, makes the fit much worse than usual)
+CHI2_CHANGE = 2.0
+#: the smallest motion gate around the prediction [px]
+MIN_GATE_PX = 3.0
+#: a candidate confirms one of the last frame's when it lies within this many expected radii (+5 px) of it
+ACQUIRE_REACH = 1.0
+#: frames the follower coasts on its prediction after a rejected frame before it searches anew
+COAST_FRAMES = 3
+
+
+@dataclass(frozen=True)
+class Located:
+    """The follower's verdict on one frame: the tip's fit (None: missing), its quality flag, and the fit of
+    the previous frame when this frame confirmed an acquisition started there."""
+
+    fit: SpotFit | None
+    quality: str
+    previous: SpotFit | None = None
+
+
+class TipFollower:
+    """Finds the tip spot in each frame (see the module docstring)."""
+
+    def __init__(self, camera: TrackingCamera, tip: Marker):
+        self.camera, self.tip = camera, tip
+        self.length_m = tip.position_m[2]
+        axial = tip.shape == "disc" and abs(abs(tip.normal[2]) - 1.0) < 1e-9
+        #: the disc model, for a disc facing along the stem; None: a sphere, or followed as a blob
+        self.disc = DiscGeometry(camera, self.length_m, tip.radius_m) if axial else None
+        self.shape = "blob" if tip.shape == "disc" and not axial else tip.shape
+        depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, self.length_m])))
+        self.r_expected = camera.camera_matrix[0, 0] * tip.radius_m / depth  # tip upright [px]
+        self.last: deque[tuple[float, float]] = deque(maxlen=4)  # accepted positions, latest last
+        self.last_r = self.r_expected
+        self.radii: deque[float] = deque(maxlen=15)
+        self.amplitudes: deque[float] = deque(maxlen=15)
+        self.chi2s: deque[float] = deque(maxlen=15)
+        self.misses = 0
+        self.pending: list[SpotFit] = []  # the last frame's candidates, when searching
+        self.confirmed: SpotFit | None = None  # the candidate of the last frame that this frame confirmed
+        self.had_lock = False
+
+    # ------------------------------------------------------------------------------- checks
+    def _appearance_ok(self, fit: SpotFit) -> bool:
+        if len(self.radii) < 3:
+            return True
+        r0, a0 = float(np.median(self.radii)), float(np.median(self.amplitudes))
+        # a disc's size changes with its view (its shape gate follows that); a sphere's and a blob's do not
+        radius_ok = self.disc is not None or RADIUS_CHANGE[0] * r0 <= fit.radius_px <= RADIUS_CHANGE[1] * r0
+        chi2_ok = fit.chi2_own <= CHI2_CHANGE * max(float(np.median(self.chi2s)), 1.0)
+        return radius_ok and chi2_ok and AMPLITUDE_CHANGE[0] * a0 <= fit.amplitude_adu <= AMPLITUDE_CHANGE[1] * a0
+
+    def _looks_like_tip(self, fit: SpotFit) -> bool:
+        """The shape and size test for a fit whose position is already the tip's (see the module docstring)."""
+        if self.disc is None:
+            lo, hi = SIZE_RANGE[self.shape]
+            return bool(math.isfinite(fit.radius_px) and lo * self.r_expected <= fit.radius_px <= hi * self.r_expected)
+        img = self.disc.at_centre(fit.x_px, fit.y_px)
+        return img is not None and self.disc.looks_right(fit, img)
+
+    def _fit(self, frame: np.ndarray, x0: float, y0: float, r0: float, neighbour: str = "joint") -> SpotFit | None:
+        """The shape's spot fit at a start point; for a disc, moved to its centre's image."""
+        if self.shape == "sphere":
+            return fit_spot(frame, x0, y0, r0, self.camera, neighbour=neighbour)
+        fit = fit_ellipse_spot(frame, x0, y0, max(r0, 0.5 * self.r_expected), self.camera)
+        if fit is None or self.disc is None:
+            return fit
+        centre = self.disc.centre_px(fit)
+        return None if centre is None else replace(fit, x_px=centre[0], y_px=centre[1])
+
+    def _prediction(self) -> tuple[np.ndarray, float]:
+        """The predicted position (constant velocity, coasting over missed frames) and the motion gate [px]."""
+        p = np.array(self.last)
+        v = p[-1] - p[-2] if len(p) >= 2 else np.zeros(2)
+        acc = max((float(np.linalg.norm(p[k + 1] - 2 * p[k] + p[k - 1])) for k in range(1, len(p) - 1)), default=0.0)
+        steps = 1 + self.misses
+        gate = MIN_GATE_PX + 0.5 * float(np.linalg.norm(v)) * steps + 2.0 * acc * steps * steps
+        return p[-1] + v * steps, gate
+
+    def _acceptable(self, fit: SpotFit | None, predicted: np.ndarray | None, gate: float) -> bool:
+        if fit is None or not self._looks_like_tip(fit) or not self._appearance_ok(fit):
+            return False
+        return predicted is None or math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) <= gate
+
+    # ------------------------------------------------------------------------------- search
+    def _candidates(self, frame: np.ndarray, threshold: float, centre=None, reach: int = 0):
+        h, w = frame.shape
+        if centre is None:
+            blobs = find_blobs(frame, 0, 0, w, h, threshold)
+        else:
+            x0, y0 = max(int(centre[0]) - reach, 0), max(int(centre[1]) - reach, 0)
+            blobs = find_blobs(frame, x0, y0, min(int(centre[0]) + reach, w), min(int(centre[1]) + reach, h),
+                               threshold)
+        # a tilted disc's inscribed circle is its minor semi-axis: accept down to a steep view of it
+        lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
+        return [c for c in blobs if lo <= c[2] <= 1.6 * self.r_expected
+                and tip_from_pixel(c[0], c[1], self.camera, self.length_m) is not None]
+
+    def _track(self, frame: np.ndarray, threshold: float) -> SpotFit | None:
+        """The tip near its prediction, or None."""
+        predicted, gate = self._prediction()
+        cand = self._candidates(frame, threshold, predicted, int(4 * self.r_expected + 20 + gate))
+        cand.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
+        for x0, y0, r0 in cand[:3]:
+            if math.hypot(x0 - predicted[0], y0 - predicted[1]) < max(2.0, 0.3 * r0):
+                # the motion prediction is sub-pixel; the blob's inscribed centre is not: fewer iterations
+                x0, y0, r0 = float(predicted[0]), float(predicted[1]), self.last_r
+            fit = self._fit(frame, x0, y0, r0)
+            if self._acceptable(fit, predicted, gate):
+                return fit
+            if fit is not None and fit.blended and self.shape == "sphere":
+                fit = self._fit(frame, x0, y0, r0, neighbour="mask")
+                if self._acceptable(fit, predicted, gate):
+                    return fit
+        return None
+
+    def _acquire(self, frame: np.ndarray, threshold: float) -> SpotFit | None:
+        """Candidates that look like the tip anywhere; the one nearest to a candidate of the previous frame
+        (within :data:`ACQUIRE_REACH`, of similar amplitude), or None (this frame's candidates then wait
+        for the next)."""
+        cand = sorted(self._candidates(frame, threshold), key=lambda c: abs(c[2] - self.r_expected))
+        fits = []
+        for x0, y0, r0 in cand[:6]:
+            fit = self._fit(frame, x0, y0, r0)
+            if fit is not None and fit.blended and self.shape == "sphere" and not self._looks_like_tip(fit):
+                fit = self._fit(frame, x0, y0, r0, neighbour="mask")
+            if fit is not None and self._looks_like_tip(fit):
+                fits.append(fit)
+        reach = ACQUIRE_REACH * self.r_expected + 5.0
+        pairs = [(math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
+                 for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
+                 if AMPLITUDE_CHANGE[0] <= f.amplitude_adu / g.amplitude_adu <= AMPLITUDE_CHANGE[1]]
+        pairs = [p for p in pairs if p[0] <= reach]
+        if pairs:
+            _, _, fit, self.confirmed = min(pairs, key=lambda p: (p[0], p[1]))
+            return fit
+        self.pending = fits
+        return None
+
+    # ------------------------------------------------------------------------------- per frame
+    def locate(self, frame: np.ndarray, threshold: float) -> Located:
+        """The tip in this frame."""
+        if self.last:
+            fit = self._track(frame, threshold)
+            if fit is not None:
+                self._accept(fit)
+                return Located(fit, "ok")
+            self.misses += 1
+            if self.misses > COAST_FRAMES:
+                self.last.clear()
+            return Located(None, "missing")
+        fit = self._acquire(frame, threshold)
+        if fit is None:
+            return Located(None, "missing")
+        previous, self.pending, self.confirmed = self.confirmed, [], None
+        quality = "reacquired" if self.had_lock else "ok"
+        self._accept(previous)
+        self._accept(fit)
+        return Located(fit, quality, previous)
+
+    def _accept(self, fit: SpotFit) -> None:
+        self.last.append((fit.x_px, fit.y_px))
+        self.last_r = fit.radius_px
+        self.radii.append(fit.radius_px)
+        self.amplitudes.append(fit.amplitude_adu)
+        self.chi2s.append(fit.chi2_own)
+        self.misses = 0
+        self.had_lock = True
+
+    def lost(self) -> None:
+        """The located spot was not usable (its ray misses the tip's sphere): search anew."""
+        self.last.clear()
+        self.misses = 0
