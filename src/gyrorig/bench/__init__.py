@@ -3,7 +3,8 @@
 * :mod:`~gyrorig.bench.methods`: the simulator's error against run time (``bench methods``, ``bench accuracy``);
 * :mod:`~gyrorig.bench.stability`: stiff and extreme cases (``bench stability``);
 * :mod:`~gyrorig.bench.throughput`: rendering, tracking and smoothing speed and precision (``bench render``,
-  ``bench track``, ``bench smooth``).
+  ``bench track``, ``bench smooth``);
+* :mod:`~gyrorig.bench.variants`: tracking footage unlike the tracker's own assumptions (``bench variants``).
 
 The fit benchmark (``bench fit``) is the Monte Carlo of the full chain, :mod:`gyrorig.montecarlo`.
 """

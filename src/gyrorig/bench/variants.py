@@ -4,7 +4,7 @@ Each variant renders the air-cushion rig (set A, released from rest at 45 deg, 8
 something the tracker was not written for, and tracks it with a protocol that names only what a
 user would write down (the tip marker and the rotor can; the camera pose in ``camera.json``).
 Against the renderer's truth it reports, per variant: the fraction of frames with the tip visible
-that were tracked, frames whose position is wrong by more than 5 sigma (all, and those flagged
+that were tracked, and of those whose tip is clear of other markers (:func:`clear_frames`), frames whose position is wrong by more than 5 sigma (all, and those flagged
 ``ok``), the SD of (error / sigma) in theta and phi, the RMS pixel error of the tip against that of a
 plain 50 %-threshold weighted centroid on the same frames (windowed on the truth: the centroid's best
 case), and the tracking speed.
@@ -23,20 +23,22 @@ Variants (:data:`VARIANTS`):
 from __future__ import annotations
 
 import copy
+import json
 import math
 import tempfile
 import time
 import tomllib
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pandas as pd
 
 from ..protocols import BUNDLED_PROTOCOL_DIR, parse_protocol
 from ..render import render_video
-from ..tracking import load_camera, track
+from ..tracking import VideoFile, load_camera, track
 
-__all__ = ["VARIANTS", "variant_protocols", "centroid_50", "track_variant", "variant_benchmark"]
+__all__ = ["VARIANTS", "variant_protocols", "centroid_50", "clear_frames", "track_variant", "variant_benchmark"]
 
 VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip")
 
@@ -109,8 +111,6 @@ def centroid_50(image: np.ndarray, x: float, y: float, half: int = 12) -> tuple[
     win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
     bg = float(np.median(np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])))
     w = win - bg
-    import cv2
-
     mask = (w > 0.5 * w.max()).astype(np.uint8)
     _, labels = cv2.connectedComponents(mask, connectivity=8)
     iy, ix = np.unravel_index(int(np.argmax(w)), w.shape)
@@ -120,35 +120,53 @@ def centroid_50(image: np.ndarray, x: float, y: float, half: int = 12) -> tuple[
 
 
 def _centroid_rms(video: Path, truth: pd.DataFrame, frames: np.ndarray) -> float:
-    import cv2
-
-    cap = cv2.VideoCapture(str(video), cv2.CAP_FFMPEG)
-    cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
     tip = truth[truth.marker == "tip"].set_index("frame")
-    errs, k = [], 0
+    errs = []
     wanted = set(int(f) for f in frames)
-    while True:
-        ok, img = cap.read()
-        if not ok:
-            break
-        if k in wanted:
-            r = tip.loc[k]
-            cx, cy = centroid_50(img[:, :, 0] if img.ndim == 3 else img, r.x_px, r.y_px)
-            errs.append((cx - r.x_px) ** 2 + (cy - r.y_px) ** 2)
-        k += 1
-    cap.release()
+    with VideoFile(video).open() as source:
+        for k, (img, _) in enumerate(source):
+            if k in wanted:
+                r = tip.loc[k]
+                cx, cy = centroid_50(img, r.x_px, r.y_px)
+                errs.append((cx - r.x_px) ** 2 + (cy - r.y_px) ** 2)
     return float(np.sqrt(np.mean(errs) / 2)) if errs else math.nan
 
 
-def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0) -> dict:
-    """Render one variant, track it with the user's protocol, and compare with the truth."""
-    scene, user, codec = variant_protocols(name, duration_s)
+#: a frame's tip is clear when no other visible marker's centre lies within this many tip radii plus its own
+#: radius (image radii, from the camera's focal length and the markers' distances)
+CLEAR_TIP_RADII = 3.0
+
+
+def clear_frames(truth: pd.DataFrame, scene: dict, camera: dict) -> pd.Index:
+    """Frames whose tip is visible and clear of every other visible marker (:data:`CLEAR_TIP_RADII`)."""
+    focal = float(camera["camera_matrix"][0][0])
+    rot = cv2.Rodrigues(np.asarray(camera["rvec"], float))[0]
+    centre = -rot.T @ np.asarray(camera["tvec"], float).ravel()
+    radius_px = {name: focal * m["radius_m"] / float(np.linalg.norm(centre - np.asarray(m["position_m"], float)))
+                 for name, m in scene["markers"].items() if "position_m" in m and "radius_m" in m}
+    tip = truth[(truth.marker == "tip") & truth.visible].set_index("frame")
+    others = truth[(truth.marker != "tip") & truth.visible & truth.frame.isin(tip.index)
+                   & truth.marker.isin(list(radius_px))]
+    gap = (np.hypot(others.x_px.to_numpy() - tip.loc[others.frame, "x_px"].to_numpy(),
+                    others.y_px.to_numpy() - tip.loc[others.frame, "y_px"].to_numpy())
+           - CLEAR_TIP_RADII * radius_px["tip"] - others.marker.map(radius_px).to_numpy())
+    crowded = set(others.frame.to_numpy()[gap < 0])
+    return pd.Index([f for f in tip.index if f not in crowded])
+
+
+def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0, protocols: tuple | None = None) -> dict:
+    """Render one variant, track it with the user's protocol, and compare with the truth.
+
+    ``protocols``: ``(scene, user, codec)`` to use instead of :func:`variant_protocols`'s (e.g. a user
+    protocol that describes the marker differently)."""
+    scene, user, codec = protocols if protocols is not None else variant_protocols(name, duration_s)
     with tempfile.TemporaryDirectory() as tmp:
         rendered = render_video(parse_protocol(scene), f"{tmp}/v", seed=seed, codec=codec, calibration_views=0)
         start = time.perf_counter()
         res = track(rendered["video"], load_camera(f"{tmp}/v/camera.json"), parse_protocol(user))
         wall = time.perf_counter() - start
         truth = pd.read_csv(f"{tmp}/v/truth.csv")
+        clear = clear_frames(truth, scene, json.loads(Path(f"{tmp}/v/camera.json").read_text()))
         tip = truth[truth.marker == "tip"]
         m = res.angles.merge(tip[["frame", "visible", "theta_rad", "phi_rad", "x_px", "y_px"]], on="frame",
                              suffixes=("", "_true"))
@@ -164,10 +182,14 @@ def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0) -> dict:
         centroid = _centroid_rms(Path(rendered["video"]), truth, found.frame.to_numpy())
     ok = ~wrong
     return {"variant": name, "frames": res.frames, "tip_visible": int(len(visible)),
-            "tracked_fraction": len(found) / max(len(visible), 1), "wrong": int(wrong.sum()),
+            "tracked_fraction": len(found) / max(len(visible), 1), "tip_clear": int(len(clear)),
+            "tracked_clear_fraction": float(found.frame.isin(clear).sum() / max(len(clear), 1)),
+            "wrong": int(wrong.sum()),
             "wrong_ok": int((wrong & (found.quality == "ok")).sum()),
             "pull_sd_theta": float(e_th[ok].std()), "pull_sd_phi": float(e_ph[ok].std()),
-            "rms_error_px": float(err_px), "centroid_rms_px": centroid, "frames_per_s": res.frames / wall}
+            "rms_error_px": float(err_px), "centroid_rms_px": centroid, "frames_per_s": res.frames / wall,
+            "sigma_factor": res.sigma_check.factor if res.sigma_check else math.nan,
+            "sigma_scaled": bool(res.sigma_check.applied) if res.sigma_check else False}
 
 
 def variant_benchmark(names=VARIANTS, *, duration_s: float = 1.0, seed: int = 0, progress=None) -> pd.DataFrame:

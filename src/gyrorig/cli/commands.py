@@ -16,6 +16,7 @@ from ..demo import run_demo
 from ..physics import METHODS, exact_solution, exact_solution_applies, simulate
 from ..physics.exact import ExactSolutionError
 from ..physics.simulate import output_times
+from .._validate import number
 from ..protocols import load_protocol, protocol_summary
 from .printing import print_fit, print_plan, print_prediction, progress_printer
 
@@ -254,6 +255,22 @@ def _cmd_bench_track(args: argparse.Namespace) -> int:
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if args.out:
         _io.write_csv(table, Path(args.out) / "track.csv")
+    return EXIT_OK
+
+
+def _cmd_bench_variants(args: argparse.Namespace) -> int:
+    from ..bench.variants import VARIANTS, variant_benchmark
+
+    names = args.variants or VARIANTS
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown:
+        raise ValueError(f"--variants {' '.join(unknown)}: allowed {', '.join(VARIANTS)}")
+    number("", "--duration", args.duration, lo=0.0, lo_open=True, hi=60.0)
+    table = variant_benchmark(names, duration_s=args.duration, seed=args.seed,
+                              progress=lambda k, n: print(f"  {k}/{n} variants", file=sys.stderr))
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    if args.out:
+        _io.write_csv(table, Path(args.out) / "variants.csv")
     return EXIT_OK
 
 

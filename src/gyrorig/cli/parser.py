@@ -64,6 +64,13 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--quick", action="store_true", help="640x480 only")
     bt.add_argument("--out", default=None, help="also write track.csv here")
     bt.set_defaults(func=c._cmd_bench_track)
+    bv = bsub.add_parser("variants", help="tracking footage unlike the tracker's own assumptions: disc markers, "
+                                          "rotor dots, gamma, mp4, rolling shutter, a plain top, a dim tip")
+    bv.add_argument("--variants", nargs="+", default=None, help="variants to run (default: all)")
+    bv.add_argument("--duration", type=float, default=1.0, help="video length [s] (default 1)")
+    bv.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    bv.add_argument("--out", default=None, help="also write variants.csv here")
+    bv.set_defaults(func=c._cmd_bench_variants)
 
     bsm = bsub.add_parser("smooth", help="compiled smoother against filterpy: speed and agreement")
     bsm.add_argument("--frames", type=int, default=100_000, help="frames for the compiled path (default 100000)")

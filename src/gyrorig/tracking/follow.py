@@ -12,9 +12,11 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   under the tip's own, changes them);
 - **motion**: the spot must lie within a gate around the position predicted from the last frames
   (the gate grows with the tip's observed speed and acceleration in pixels);
+- **lab markers**: a spot where one of the protocol's lab-fixed markers appears is never the tip;
 - **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
-  only when the next frame confirms it nearby: dots on the spinning rotor jump by a large fraction of
-  a turn between frames, a static spot of the wrong size fails the size test.
+  only when the next frame confirms it nearby (of the confirmed ones, the nearest to the tip's
+  expected size): dots on the spinning rotor jump by a large fraction of a turn between frames, a
+  static spot of the wrong size fails the size test.
 
 A sphere's spot fitted jointly with a neighbour (``blended``) that fails these is fitted again with the
 neighbour's light masked out (a whirling dot is a streak, not a disc); if that fails too, the frame
@@ -33,6 +35,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from ..markers import Marker
@@ -70,11 +73,26 @@ class Located:
     previous: SpotFit | None = None
 
 
+def _lab_images(camera: TrackingCamera, markers: tuple[Marker, ...]) -> list[tuple[float, float, float]]:
+    """Where the lab-fixed markers appear: ``(x, y, radius)`` [px] of each one in front of the camera."""
+    out = []
+    for m in markers:
+        p = np.asarray(m.position_m, float)
+        depth = float((camera.rotation @ p + camera.tvec.ravel())[2])
+        if depth <= 0:
+            continue
+        xy = cv2.projectPoints(p[None], camera.rvec, camera.tvec, camera.camera_matrix, camera.dist_coeffs)[0].ravel()
+        out.append((float(xy[0]), float(xy[1]), camera.camera_matrix[0, 0] * m.radius_m / depth))
+    return out
+
+
 class TipFollower:
     """Finds the tip spot in each frame (see the module docstring)."""
 
-    def __init__(self, camera: TrackingCamera, tip: Marker):
+    def __init__(self, camera: TrackingCamera, tip: Marker, lab_markers: tuple[Marker, ...] = ()):
         self.camera, self.tip = camera, tip
+        #: images of the protocol's lab-fixed markers (x, y, radius) [px]: a spot there is never the tip
+        self.lab_px = _lab_images(camera, lab_markers)
         self.length_m = tip.position_m[2]
         axial = tip.shape == "disc" and abs(abs(tip.normal[2]) - 1.0) < 1e-9
         #: the disc model, for a disc facing along the stem; None: a sphere, or followed as a blob
@@ -146,6 +164,7 @@ class TipFollower:
         # a tilted disc's inscribed circle is its minor semi-axis: accept down to a steep view of it
         lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
         return [c for c in blobs if lo <= c[2] <= 1.6 * self.r_expected
+                and not any(math.hypot(c[0] - x, c[1] - y) <= r + 2.0 for x, y, r in self.lab_px)
                 and tip_from_pixel(c[0], c[1], self.camera, self.length_m) is not None]
 
     def _track(self, frame: np.ndarray, threshold: float) -> SpotFit | None:
@@ -179,12 +198,12 @@ class TipFollower:
             if fit is not None and self._looks_like_tip(fit):
                 fits.append(fit)
         reach = ACQUIRE_REACH * self.r_expected + 5.0
-        pairs = [(math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
+        pairs = [(abs(math.log(f.radius_px / self.r_expected)), math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
                  for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
                  if AMPLITUDE_CHANGE[0] <= f.amplitude_adu / g.amplitude_adu <= AMPLITUDE_CHANGE[1]]
-        pairs = [p for p in pairs if p[0] <= reach]
-        if pairs:
-            _, _, fit, self.confirmed = min(pairs, key=lambda p: (p[0], p[1]))
+        pairs = [p for p in pairs if p[1] <= reach]
+        if pairs:  # the confirmed candidate nearest the tip's expected size
+            _, _, _, fit, self.confirmed = min(pairs, key=lambda p: p[:3])
             return fit
         self.pending = fits
         return None

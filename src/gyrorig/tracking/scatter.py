@@ -61,6 +61,27 @@ class SigmaCheck:
                 "applied": self.applied, "applied_factors": self.applied_factors, "reason": self.reason}
 
 
+def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The frames that can be checked, their six neighbours (m, 6) and the neighbours' interpolation
+    weights (m, 6): three active frames before and three after, spanning at most :data:`MAX_SPAN` frames."""
+    h = HALF_WINDOW
+    act = np.flatnonzero(active)
+    if len(act) < 2 * h + 1:
+        return np.empty(0, int), np.empty((0, 2 * h), int), np.empty((0, 2 * h))
+    pos = np.arange(h, len(act) - h)
+    pos = pos[frames[act[pos + h]] - frames[act[pos - h]] <= MAX_SPAN]
+    offsets = [j for j in range(-h, h + 1) if j != 0]
+    nb = np.column_stack([act[pos + j] for j in offsets]) if len(pos) else np.empty((0, 2 * h), int)
+    idx = act[pos]
+    t0 = t_s[idx]
+    weights = np.ones(nb.shape)
+    for a in range(nb.shape[1]):
+        for b in range(nb.shape[1]):
+            if a != b:
+                weights[:, a] *= (t0 - t_s[nb[:, b]]) / (t_s[nb[:, a]] - t_s[nb[:, b]])
+    return idx, nb, weights
+
+
 def path_residuals(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray, var: np.ndarray, active: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Leave-one-out residuals about the degree-5 path through each frame's six nearest active neighbours
@@ -71,29 +92,47 @@ def path_residuals(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray, var: np.
     Returns ``(centres, z)``: the indices of the frames checked and their residuals over their
     predicted standard deviations (m, 2).
     """
-    h = HALF_WINDOW
-    act = np.flatnonzero(active)
-    if len(act) < 2 * h + 1:
-        return np.empty(0, int), np.empty((0, 2))
-    pos = np.arange(h, len(act) - h)
-    pos = pos[frames[act[pos + h]] - frames[act[pos - h]] <= MAX_SPAN]
-    if len(pos) == 0:
-        return np.empty(0, int), np.empty((0, 2))
-    idx = act[pos]
-    offsets = [j for j in range(-h, h + 1) if j != 0]
-    t0 = t_s[idx]
-    pred = np.zeros((len(idx), 2))
-    pvar = var[idx].copy()
-    for j in offsets:
-        tj = t_s[act[pos + j]]
-        c = np.ones(len(idx))
-        for m in offsets:
-            if m != j:
-                tm = t_s[act[pos + m]]
-                c *= (t0 - tm) / (tj - tm)
-        pred += c[:, None] * xy[act[pos + j]]
-        pvar += (c * c)[:, None] * var[act[pos + j]]
+    idx, nb, w = _stencils(t_s, frames, active)
+    if len(idx) == 0:
+        return idx, np.empty((0, 2))
+    pred = np.einsum("mj,mjk->mk", w, xy[nb])
+    pvar = var[idx] + np.einsum("mj,mjk->mk", w * w, var[nb])
     return idx, (xy[idx] - pred) / np.sqrt(pvar)
+
+
+def _class_factors(t_s, frames, xy, var, active, labels) -> dict:
+    """Each class's factor, solved jointly: a residual's expected square is linear in the classes' squared
+    factors (``E r^2 = sum_c f_c^2 A_c``, ``A_c`` the reported variances of the stencil's frames of class
+    ``c`` times their squared weights), so they follow from weighted least squares of ``r^2`` on ``A``
+    (weights ``1 / (2 (E r^2)^2)``, found in two passes).  Returns ``{class: (factor, se, coordinates)}``."""
+    idx, nb, w = _stencils(t_s, frames, active)
+    if len(idx) == 0:
+        return {}
+    classes = sorted(set(labels[idx]) | set(labels[nb].ravel()))
+    pred = np.einsum("mj,mjk->mk", w, xy[nb])
+    r2 = ((xy[idx] - pred) ** 2).ravel()
+    design = np.zeros((len(idx), 2, len(classes)))
+    for c, label in enumerate(classes):
+        design[:, :, c] += np.where((labels[idx] == label)[:, None], var[idx], 0.0)
+        design[:, :, c] += np.einsum("mj,mjk->mk", w * w * (labels[nb] == label), var[nb])
+    design = design.reshape(-1, len(classes))
+    f2 = np.ones(len(classes))
+    cov = None
+    for _ in range(3):
+        expected = np.maximum(design @ f2, 1e-300)
+        wt = 1.0 / (2.0 * expected * expected)
+        normal = design.T @ (design * wt[:, None])
+        try:
+            cov = np.linalg.inv(normal)
+        except np.linalg.LinAlgError:
+            return {}
+        f2 = np.maximum(cov @ (design.T @ (wt * r2)), 1e-12)
+    out = {}
+    for c, label in enumerate(classes):
+        n_c = 2 * int(np.sum(labels[idx] == label))
+        f = math.sqrt(f2[c])
+        out[str(label)] = (f, math.sqrt(cov[c, c]) / (2 * f), n_c)
+    return out
 
 
 def check_sigmas(t_s, frames, xy, var, classes=None) -> SigmaCheck:
@@ -120,26 +159,6 @@ def check_sigmas(t_s, frames, xy, var, classes=None) -> SigmaCheck:
         outliers.append(int(centres[k]))
     by_class = {}
     if classes is not None:
-        # each class's factor, with its neighbours' errors scaled by theirs (a clear frame's prediction
-        # leans on blended neighbours): a fixed point, reached in a few passes
-        labels = np.asarray(classes).astype(str)
-        scale = {str(label): 1.0 for label in np.unique(labels)}
-        for _ in range(8):
-            f_frame = np.array([scale[label] for label in labels])
-            c2, zs = path_residuals(t_s, frames, xy, var * (f_frame * f_frame)[:, None], active)
-            lab_c = labels[c2]
-            new = {}
-            for label in scale:
-                zc = zs[lab_c == label]
-                new[label] = scale[label] * math.sqrt(float(np.mean(zc * zc))) if zc.size else scale[label]
-            done = all(abs(new[k] / scale[k] - 1.0) < 1e-3 for k in scale)
-            scale = new
-            if done:
-                break
-        lab_c = labels[centres]
-        for label, f in scale.items():
-            n_c = int(z[lab_c == label].size)
-            if n_c:
-                by_class[label] = (f, f / math.sqrt(2 * n_c), n_c)
+        by_class = _class_factors(t_s, frames, xy, var, active, np.asarray(classes).astype(str))
     factor = math.sqrt(float(np.mean(z * z)))
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class)

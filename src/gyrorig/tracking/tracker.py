@@ -54,6 +54,9 @@ TIME_SNAP_FRAMES = 0.3
 SIGMA_CHECK_Z = 4.0
 #: a class of frames (blended or clear) needs this many checked coordinates for a factor of its own
 MIN_CLASS_COORDINATES = 30
+#: ... and a relative standard error below this (the classes' factors are told apart only when frames of one
+#: class have neighbours of the same class often enough)
+MAX_CLASS_RELATIVE_SE = 0.15
 
 
 @dataclass(frozen=True)
@@ -206,6 +209,8 @@ def _sensor_doubts(camera: TrackingCamera, lossy: bool, follower: TipFollower) -
         doubts.append("lossy codec")
     if follower.shape == "blob":
         doubts.append("a tip marker of no exact model (blob)")
+    elif follower.shape == "disc":
+        doubts.append("a disc marker's model is approximate (first-order edge)")
     return "; ".join(doubts)
 
 
@@ -213,8 +218,8 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
                      ) -> SigmaCheck:
     """Check the tip's errors against its scatter about its path (:mod:`gyrorig.tracking.scatter`), for
     blended frames and the rest apart; scale a class's errors by its factor when the models are in doubt,
-    or when they are evidently too small (a class with fewer than :data:`MIN_CLASS_COORDINATES` checked
-    coordinates takes the overall factor); turn the outliers into ``outlier`` rows without angles."""
+    or when they are evidently too small (a class whose factor is not known well enough,
+    :data:`MIN_CLASS_COORDINATES` and :data:`MAX_CLASS_RELATIVE_SE`, takes the overall factor); turn the outliers into ``outlier`` rows without angles."""
     index = np.array(sorted(rows.tip_px))
     if len(index) == 0:
         return SigmaCheck(math.nan, math.nan, 0, ())
@@ -228,8 +233,12 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     factors, reasons = {}, []
     for label in ("clear", "blended"):
         f, se, n = check.by_class.get(label, (check.factor, check.factor_se, 0))
-        if n < MIN_CLASS_COORDINATES:
+        if n < MIN_CLASS_COORDINATES or not se < MAX_CLASS_RELATIVE_SE * f:
             f, se = check.factor, check.factor_se
+        if doubts:
+            # interleaved classes are told apart imprecisely: when the models are in doubt, a class is never
+            # given narrower errors than the record as a whole shows
+            f = max(f, check.factor)
         if doubts or f > 1.0 + SIGMA_CHECK_Z * se:
             factors[label] = f
             if not doubts:
@@ -309,7 +318,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         if lossy and camera.sensor_known:  # the codec changed the pixel values: the noise model does not hold
             camera = replace(camera, gain_e_per_adu=math.nan)
         linear = _linearizer(camera)
-        follower = TipFollower(camera, tip)
+        follower = TipFollower(camera, tip, parse_markers(protocol).fiducials())
         dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         rows = _Tables()
