@@ -101,6 +101,7 @@ def fit_file(angles_csv: str | Path, protocol: Protocol, out: str | Path, *, tru
 def _write_tracking(out: Path, tracked: TrackResult) -> None:
     _io.write_csv(tracked.angles, out / "track" / "angles.csv")
     _io.write_csv(tracked.markers, out / "track" / "markers.csv")
+    _io.write_json(tracked.summary(), out / "track" / "track.json")
 
 
 def write_analysis(out: str | Path, analysis: Analysis, protocol: Protocol, *, title: str) -> Path:
@@ -110,8 +111,10 @@ def write_analysis(out: str | Path, analysis: Analysis, protocol: Protocol, *, t
     _io.write_json({"input": str(out / "track" / "angles.csv"), **analysis.smooth.summary()}, out / "smooth.json")
     fitted = Fitted(analysis.smooth, analysis.prediction, analysis.fit, analysis.time_s)
     _write_fit(out, analysis.angles, fitted, protocol, str(out / "track" / "angles.csv"))
+    check = analysis.tracking.sigma_check
     tracking = {"frames": analysis.tracking.frames, "tracked_fraction": analysis.tracking.tracked_fraction,
-                "quality_counts": quality_counts(analysis.angles)}
+                "quality_counts": quality_counts(analysis.angles),
+                "sigma_check": check.as_dict() if check is not None else None}
     return write_report(out / "report.html", protocol=protocol, fit=analysis.fit, angles=analysis.angles,
                         smooth=analysis.smooth, prediction=analysis.prediction, tracking=tracking, title=title)
 

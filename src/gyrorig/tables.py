@@ -35,8 +35,9 @@ MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma
                   "amplitude_adu", "background_adu", "chi2_red", "quality")
 #: ``ok``; ``blended`` (fitted jointly with a neighbouring spot); ``saturated``; ``reacquired`` (found
 #: by a full-frame search after a loss); ``missing`` (no position: a gap); ``off-sphere`` (the ray
-#: misses the tip's sphere); ``duplicate`` (a repeated frame)
-QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate")
+#: misses the tip's sphere); ``duplicate`` (a repeated frame); ``outlier`` (off the tip's smooth path by more
+#: than 5 of its errors: angles removed, see :mod:`gyrorig.tracking.scatter`)
+QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate", "outlier")
 
 
 def camera_mode_columns(k: int) -> tuple[str, str]:

@@ -242,6 +242,12 @@ def _cmd_track(args: argparse.Namespace) -> int:
               "phi, common to all frames (columns theta_cam_k_rad, phi_cam_k_rad; the fit includes them)")
     else:
         print("camera model taken as exact (camera.json has no intrinsics_covariance or pose_covariance)")
+    check = summary.get("sigma_check")
+    if check and check["coordinates"]:
+        print(f"per-frame errors against the tip's scatter about its path: factor {check['factor']:.3g} +- "
+              f"{check['factor_se']:.2g} ({check['coordinates']} coordinates), "
+              f"{'applied' if check['applied'] else 'not applied'}: {check['reason']}; "
+              f"{check['outliers']} outlier frame(s)")
     print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; "
           f"{n / (summary['track_s'] + summary['decode_s']):.0f} frames/s -> {summary['angles']}, {summary['markers']}")
     return EXIT_OK

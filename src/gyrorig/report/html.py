@@ -95,7 +95,14 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
     if tracking:
         q = tracking.get("quality_counts", {})
         tr = ("<p>Tracking: " + html.escape(", ".join(f"{k}: {v}" for k, v in q.items())) + f"; "
-              f"{tracking.get('frames', '?')} frames.</p>")
+              f"{tracking.get('frames', '?')} frames.")
+        check = tracking.get("sigma_check")
+        if check and check.get("coordinates"):
+            tr += html.escape(f" Per-frame errors against the tip's scatter about its path: factor "
+                              f"{check['factor']:.3g} +- {check['factor_se']:.2g}, "
+                              f"{'applied' if check['applied'] else 'not applied'} ({check['reason']}); "
+                              f"{check['outliers']} outlier frame(s).")
+        tr += "</p>"
     spec = fit.spec
     model = (f"axis {'fitted' if spec.fit_axis else 'vertical'}; {'damped' if spec.damped else 'undamped'}; "
              f"{FitTerms.of(spec).describe()}; "

@@ -7,7 +7,10 @@ Works on any video OpenCV decodes, or on frames held in memory; it reads only th
 * :mod:`~gyrorig.tracking.camera_file`: ``camera.json`` (:class:`TrackingCamera`, :func:`load_camera`);
 * :mod:`~gyrorig.tracking.sources`: video files and in-memory frames;
 * :mod:`~gyrorig.tracking.detect`: blobs above a threshold (start points);
+* :mod:`~gyrorig.tracking.follow`: which spot is the tip (shape, appearance, motion, acquisition gates);
 * :mod:`~gyrorig.tracking.spot`: the spot model, its weighted least-squares fit and its Cramér-Rao bound;
+* :mod:`~gyrorig.tracking.ellipse`: elliptical spots of disc and blob markers, a disc's perspective offset;
+* :mod:`~gyrorig.tracking.scatter`: the per-frame errors checked on the record itself;
 * :mod:`~gyrorig.tracking.rays`: pixels -> rays -> the tip's sphere -> angles with covariance;
 * :mod:`~gyrorig.tracking.pose`: the pose from the fiducials, the camera model's uncertainty as modes;
 * :mod:`~gyrorig.tracking.dots`: the frame's dots and its angle ``psi``;
@@ -21,9 +24,10 @@ from .errors import TrackingError
 from .pose import camera_modes, estimate_pose
 from .rays import tip_from_pixel, tips_from_pixels
 from .sources import FrameArrays, VideoFile
+from .scatter import SigmaCheck, check_sigmas
 from .spot import SpotFit, fit_spot, spot_crb_px, warm_up
 from .tracker import TrackResult, track, track_video
 
 __all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
            "tip_from_pixel", "tips_from_pixels", "camera_modes", "track", "track_video", "TrackResult",
-           "TrackingError", "VideoFile", "FrameArrays", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]
+           "TrackingError", "VideoFile", "FrameArrays", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]

@@ -1,20 +1,23 @@
 """The tracking loop: frames in, the tip's angle table and the marker detections out.
 
-Per frame:
+Per frame (a sensor with gamma is linearised first):
 
-1. **find** the tip spot: blobs above a threshold in a window around the position predicted
-   from the previous frames; a full-frame search only to acquire or reacquire.  Candidates
-   must have the tip's expected size (from the camera and the marker radius) and lie on the
-   tip's sphere; a spurious bright spot fails one of these.
-2. **localise** it (:func:`gyrorig.tracking.spot.fit_spot`): weighted least squares of the
-   rendered-spot model with the sensor's noise model, jointly with a neighbouring spot when
-   one reaches into the window.
+1. **find** the tip spot (:class:`gyrorig.tracking.follow.TipFollower`): blobs above a threshold
+   in a window around the position predicted from the previous frames, a full-frame search
+   only to acquire (confirmed by the next frame) or reacquire; a spot is taken for the tip only
+   when its shape, size, appearance and motion are the tip's, and it is not a lab marker.
+2. **localise** it: the sphere model (:func:`gyrorig.tracking.spot.fit_spot`, weighted least
+   squares with the sensor's noise model, jointly with a neighbouring spot when one reaches
+   into the window) or, for disc and blob markers, the elliptical one
+   (:mod:`gyrorig.tracking.ellipse`).
 3. **3D**: the undistorted ray through the spot centre meets the sphere of the tip's radius
    about the pivot (the nearer intersection); ``theta, phi`` follow, with their covariance.
 4. the frame's dots, if any (:mod:`gyrorig.tracking.dots`), give the frame angle ``psi``.
 
-After the loop the camera model's uncertainty is propagated as angle modes
-(:func:`gyrorig.tracking.pose.camera_modes`).  The tables' columns are in :mod:`gyrorig.tables`.
+After the loop the per-frame errors are checked against the tip's scatter about its path and
+scaled when needed, outliers removed (:mod:`gyrorig.tracking.scatter`), and the camera model's
+uncertainty is propagated as angle modes (:func:`gyrorig.tracking.pose.camera_modes`).  The
+tables' columns are in :mod:`gyrorig.tables`.
 """
 
 from __future__ import annotations
@@ -370,7 +373,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
 
 def track_video(video, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,
                 progress: Progress | None = None, frame_dots: bool = True) -> dict:
-    """:func:`track`, then write ``angles.csv`` and ``markers.csv`` into ``out_dir`` (nothing on failure).
+    """:func:`track`, then write ``angles.csv``, ``markers.csv`` and ``track.json`` (the summary) into
+    ``out_dir`` (nothing on failure).
 
     Returns :meth:`TrackResult.summary` with the paths written (``angles``, ``markers``).
     """
@@ -378,4 +382,5 @@ def track_video(video, camera: TrackingCamera, protocol: Protocol, out_dir: str 
     out = Path(out_dir)
     _io.write_csv(result.angles, out / "angles.csv")
     _io.write_csv(result.markers, out / "markers.csv")
+    _io.write_json(result.summary(), out / "track.json")
     return {**result.summary(), "angles": str(out / "angles.csv"), "markers": str(out / "markers.csv")}
