@@ -13,6 +13,7 @@ import math
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
 
 from _stats import sd_ratio_band
@@ -156,3 +157,29 @@ def test_a_blob_tip_is_tracked_with_errors_from_the_data():
     assert r["sigma_scaled"] and r["wrong_ok"] == 0 and r["tracked_clear_fraction"] >= 0.99
     lo, hi = sd_ratio_band(r["tip_visible"])
     assert lo <= r["pull_sd_theta"] <= hi and lo <= r["pull_sd_phi"] <= hi, r
+
+
+def test_track_overlay_shows_the_chosen_frames(tmp_path):
+    """``gyrorig track --overlay`` writes a contact sheet of frames spread over the record plus those
+    not flagged ``ok``."""
+    import tomllib
+
+    from conftest import PROTOCOL_DIR
+    from gyrorig.cli import main
+    from gyrorig.report.overlay import overlay_frames
+
+    proto = PROTOCOL_DIR / "air-cushion-heavy-top.toml"
+    d = tomllib.loads(proto.read_text())
+    d["camera"].update(width_px=640, height_px=480, pixel_size_um=3.45 * 2.25)
+    d["scene"]["duration_s"] = 0.3
+    render_video(parse_protocol(d), tmp_path / "v", seed=0, calibration_views=0)
+    code = main(["track", str(tmp_path / "v" / "video.mkv"), "--camera", str(tmp_path / "v" / "camera.json"),
+                 "--protocol", str(proto), "--out", str(tmp_path / "t"), "--overlay", "--tip-only"])
+    assert code == 0
+    # camera crops are dark: the sheet decodes, is large, and is not a blank or solid image
+    sheet = cv2.imread(str(tmp_path / "t" / "overlay.png"), cv2.IMREAD_GRAYSCALE)
+    assert sheet is not None and min(sheet.shape) >= 300 and sheet.std() > 20
+    angles = pd.read_csv(tmp_path / "t" / "angles.csv")
+    chosen = overlay_frames(angles)
+    assert 12 <= len(chosen) <= 20 and chosen[0] == 0 and chosen[-1] == angles.frame.iloc[-1]
+    assert set(angles.frame[angles.quality != "ok"]) <= set(chosen) or len(set(chosen)) >= 20

@@ -250,6 +250,14 @@ def _cmd_track(args: argparse.Namespace) -> int:
               f"{check['outliers']} outlier frame(s)")
     print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; "
           f"{n / (summary['track_s'] + summary['decode_s']):.0f} frames/s -> {summary['angles']}, {summary['markers']}")
+    if args.overlay:
+        import pandas as pd
+
+        from ..report.overlay import write_overlay
+
+        path = write_overlay(args.video, pd.read_csv(summary["angles"]), pd.read_csv(summary["markers"]),
+                             Path(args.out) / "overlay.png", fps=summary["fps"], title=str(args.video))
+        print(f"overlay: {path} (the tip as found in chosen frames, with its path and flags)")
     return EXIT_OK
 
 

@@ -143,6 +143,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--out", required=True, help="output directory")
     k.add_argument("--tip-only", action="store_true",
                    help="skip the frame's off-axis dots (no psi_rad; about twice as fast)")
+    k.add_argument("--overlay", action="store_true",
+                   help="also write overlay.png: a contact sheet of frames with the tip as found, its path and "
+                        "the quality flags, to see without any truth that the tracker followed the tip")
     k.set_defaults(func=c._cmd_track)
 
     sm = sub.add_parser("smooth", help="Kalman/RTS smoothing of angles.csv (noise levels by maximum likelihood)")

@@ -94,7 +94,7 @@ class TrackResult:
         return camera_mode_count(self.angles.columns)
 
     def summary(self) -> dict:
-        return {"frames": self.frames, "tracked_fraction": self.tracked_fraction, "decode_s": self.decode_s,
+        return {"frames": self.frames, "fps": self.camera.fps, "tracked_fraction": self.tracked_fraction, "decode_s": self.decode_s,
                 "track_s": self.track_s, "pose": self.pose, "camera_modes": self.camera_modes,
                 "camera_sigma_rad": self.camera_sigma_rad, "rvec": self.camera.rvec.tolist(),
                 "tvec": self.camera.tvec.tolist(),
