@@ -224,8 +224,9 @@ def _cmd_track(args: argparse.Namespace) -> int:
     from ..tracking import TrackingError, load_camera, track_video
 
     protocol = load_protocol(args.protocol)
+    camera = load_camera(args.camera, require_pose=False)  # a bad camera file is bad input (exit 2)
     try:
-        summary = track_video(args.video, load_camera(args.camera, require_pose=False), protocol, args.out,
+        summary = track_video(args.video, camera, protocol, args.out,
                               progress=progress_printer("track"), frame_dots=not args.tip_only)
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
@@ -403,7 +404,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis import analyze_batch, analyze_video
-    from ..tracking import TrackingError
+    from ..tracking import CameraFileError, TrackingError
 
     src = Path(args.video)
     out = Path(args.out)
@@ -420,6 +421,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
                             terms=terms_arg(args.terms),
                             stage=lambda msg: print(msg, flush=True))
+    except CameraFileError:
+        raise  # bad input: exit 2
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
         return EXIT_FAILED

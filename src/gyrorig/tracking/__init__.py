@@ -20,7 +20,7 @@ Works on any video OpenCV decodes, or on frames held in memory; it reads only th
 
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS
 from .camera_file import INTRINSIC_PARAMETERS, TrackingCamera, load_camera
-from .errors import TrackingError
+from .errors import CameraFileError, TrackingError
 from .pose import camera_modes, estimate_pose
 from .rays import tip_from_pixel, tips_from_pixels
 from .sources import FrameArrays, VideoFile
@@ -30,4 +30,4 @@ from .tracker import TrackResult, track, track_video
 
 __all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
            "tip_from_pixel", "tips_from_pixels", "camera_modes", "track", "track_video", "TrackResult",
-           "TrackingError", "VideoFile", "FrameArrays", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]
+           "TrackingError", "CameraFileError", "VideoFile", "FrameArrays", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .errors import TrackingError
+from .errors import CameraFileError, TrackingError
 
 __all__ = ["TrackingCamera", "load_camera", "INTRINSIC_PARAMETERS"]
 
@@ -89,6 +89,75 @@ class TrackingCamera:
         return replace(self, camera_matrix=K, dist_coeffs=dist)
 
 
+#: lengths of ``dist_coeffs`` OpenCV accepts (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4 [tx ty]]]])
+DIST_COEFFS_LENGTHS = (4, 5, 8, 12, 14)
+
+
+def _array(path, key, value, shape) -> np.ndarray:
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise CameraFileError(f"{path}: {key} = {value!r}: expected numbers of shape {shape}") from None
+    if a.shape != shape and a.size != int(np.prod(shape)):
+        raise CameraFileError(f"{path}: {key} has shape {a.shape}; expected {shape}")
+    if not np.all(np.isfinite(a)):
+        raise CameraFileError(f"{path}: {key} must be finite (no NaN or inf)")
+    return a.reshape(shape)
+
+
+def _scalar(path, key, value, lo: float, *, lo_open: bool = False, hi: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CameraFileError(f"{path}: {key} = {value!r}: expected a number")
+    v = float(value)
+    if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
+        left = "(" if lo_open else "["
+        raise CameraFileError(f"{path}: {key} = {value!r} is out of range; allowed {left}{lo:g}, {hi:g}]")
+    return v
+
+
+def _check_camera_values(path: Path, d: dict) -> None:
+    """Every value the tracker uses, against its allowed range (the file and the key named)."""
+    k = _array(path, "camera_matrix", d["camera_matrix"], (3, 3))
+    if not (k[0, 0] > 0 and k[1, 1] > 0 and np.allclose(k[2], [0, 0, 1]) and k[1, 0] == 0):
+        raise CameraFileError(f"{path}: camera_matrix must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    dist = np.asarray(d["dist_coeffs"], dtype=object).ravel() if isinstance(d["dist_coeffs"], list) else None
+    if dist is None or len(dist) not in DIST_COEFFS_LENGTHS:
+        raise CameraFileError(f"{path}: dist_coeffs must be a list of {', '.join(map(str, DIST_COEFFS_LENGTHS))} "
+                              "numbers (k1 k2 p1 p2 [k3 ...], OpenCV's order)")
+    _array(path, "dist_coeffs", d["dist_coeffs"], (len(dist),))
+    size = d["image_size"]
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise CameraFileError(f"{path}: image_size = {size!r}: expected [width, height], positive integers")
+    for key in ("rvec", "tvec"):
+        if key in d:
+            _array(path, key, d[key], (3,))
+    if "rvec" in d and "tvec" in d:
+        if float(np.asarray(d["tvec"], float).ravel()[2]) <= 0:
+            raise CameraFileError(f"{path}: the pose (rvec, tvec) puts the pivot behind the camera (tvec z <= 0)")
+    if "fps" in d:
+        _scalar(path, "fps", d["fps"], 0.0, lo_open=True, hi=1e6)
+    if "exposure_s" in d:
+        _scalar(path, "exposure_s", d["exposure_s"], 0.0, hi=10.0)
+    if d.get("shutter", "global") not in ("global", "rolling"):
+        raise CameraFileError(f"{path}: shutter = {d['shutter']!r}: allowed 'global', 'rolling'")
+    if "readout_time_s" in d:
+        _scalar(path, "readout_time_s", d["readout_time_s"], 0.0, hi=10.0)
+    if "psf_sigma_px" in d:
+        _scalar(path, "psf_sigma_px", d["psf_sigma_px"], 0.05, hi=100.0)
+    sensor = d.get("sensor", {})
+    if not isinstance(sensor, dict):
+        raise CameraFileError(f"{path}: sensor must be an object (gain_e_per_adu, read_noise_e, bit_depth, gamma)")
+    if "gain_e_per_adu" in sensor:
+        _scalar(path, "sensor.gain_e_per_adu", sensor["gain_e_per_adu"], 0.0, lo_open=True, hi=1e6)
+    if "read_noise_e" in sensor:
+        _scalar(path, "sensor.read_noise_e", sensor["read_noise_e"], 0.0, hi=1e6)
+    if "bit_depth" in sensor and (not isinstance(sensor["bit_depth"], int) or not 1 <= sensor["bit_depth"] <= 16):
+        raise CameraFileError(f"{path}: sensor.bit_depth = {sensor['bit_depth']!r}: allowed integers 1 to 16")
+    if "gamma" in sensor:
+        _scalar(path, "sensor.gamma", sensor["gamma"], 0.1, hi=10.0)
+
+
 def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamera:
     """Read ``camera.json`` (as written by ``gyrorig render``, or by ``gyrorig calibrate``).
 
@@ -97,15 +166,18 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
     """
     path = Path(path)
     try:
-        d = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise TrackingError(f"cannot read camera file {path}: {exc}") from exc
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CameraFileError(f"cannot read camera file {path}: {exc}") from exc
+    if not isinstance(d, dict):
+        raise CameraFileError(f"{path}: expected a JSON object with camera_matrix, dist_coeffs, image_size")
     missing = [k for k in ("camera_matrix", "dist_coeffs", "image_size") if k not in d]
     if missing:
-        raise TrackingError(f"{path}: missing key(s) {', '.join(missing)}")
+        raise CameraFileError(f"{path}: missing key(s) {', '.join(missing)}")
     if ("rvec" not in d or "tvec" not in d) and require_pose:
-        raise TrackingError(f"{path}: no camera pose (rvec, tvec) relative to the pivot; "
-                            "the tracker needs it to turn pixels into directions")
+        raise CameraFileError(f"{path}: no camera pose (rvec, tvec) relative to the pivot; "
+                              "the tracker needs it to turn pixels into directions")
+    _check_camera_values(path, d)
     sensor = d.get("sensor", {})
     bits = int(sensor.get("bit_depth", 8))
     cov_i = names = cov_p = None
@@ -114,16 +186,16 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         unknown = [n for n in names if n not in INTRINSIC_PARAMETERS]
         cov_i = np.asarray(d["intrinsics_covariance"], dtype=float)
         if unknown or cov_i.shape != (len(names), len(names)):
-            raise TrackingError(f"{path}: intrinsics_covariance must be a {len(names)} x {len(names)} matrix over "
+            raise CameraFileError(f"{path}: intrinsics_covariance must be a {len(names)} x {len(names)} matrix over "
                                 f"intrinsics_parameters (any of {', '.join(INTRINSIC_PARAMETERS)}); unknown: {unknown}")
     if "pose_covariance" in d:
         cov_p = np.asarray(d["pose_covariance"], dtype=float)
         if cov_p.shape != (6, 6):
-            raise TrackingError(f"{path}: pose_covariance must be 6 x 6 over (rvec, tvec), not {cov_p.shape}")
+            raise CameraFileError(f"{path}: pose_covariance must be 6 x 6 over (rvec, tvec), not {cov_p.shape}")
     for key, c in (("intrinsics_covariance", cov_i), ("pose_covariance", cov_p)):
         if c is not None and (not np.all(np.isfinite(c)) or np.linalg.eigvalsh(0.5 * (c + c.T)).min()
                               < -1e-9 * max(np.abs(c).max(), 1e-300)):
-            raise TrackingError(f"{path}: {key} must be finite, symmetric and positive semi-definite")
+            raise CameraFileError(f"{path}: {key} must be finite, symmetric and positive semi-definite")
     return TrackingCamera(
         np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
         np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),

@@ -1,0 +1,89 @@
+"""camera.json enters through one gate: every value the tracker uses is checked against its range, and a
+bad file is bad input (exit 2, nothing written, no traceback), never a crash of the decoder or a silent
+wrong answer (issue 23: dist_coeffs of length 3 or 7 and a zero gain aborted the interpreter; fps 0 or
+negative gave zero or negative frame numbers; a pivot behind the camera was accepted)."""
+
+import copy
+import json
+import math
+
+import pytest
+
+from conftest import PROTOCOL_DIR
+from gyrorig.cli import main
+from gyrorig.tracking import CameraFileError, load_camera
+
+GOOD = {
+    "camera_matrix": [[1000.0, 0.0, 320.0], [0.0, 1000.0, 240.0], [0.0, 0.0, 1.0]],
+    "dist_coeffs": [-0.1, 0.05, 0.0, 0.0, 0.0],
+    "image_size": [640, 480],
+    "rvec": [math.pi, 0.0, 0.0],
+    "tvec": [0.0, 0.0, 0.7],
+    "fps": 200.0,
+    "exposure_s": 3e-4,
+    "psf_sigma_px": 1.0,
+    "sensor": {"gain_e_per_adu": 2.0, "read_noise_e": 3.0, "bit_depth": 8},
+}
+
+
+def _with(path_keys, value):
+    d = copy.deepcopy(GOOD)
+    *head, last = path_keys
+    target = d
+    for k in head:
+        target = target[k]
+    if value is _DELETE:
+        del target[last]
+    else:
+        target[last] = value
+    return d
+
+
+_DELETE = object()
+
+BAD = {
+    "null": None,
+    "dist-3": _with(["dist_coeffs"], [0.1, 0.0, 0.0]),
+    "dist-7": _with(["dist_coeffs"], [0.1] * 7),
+    "dist-nan": _with(["dist_coeffs"], [0.1, None, 0.0, 0.0, 0.0]),
+    "gain-0": _with(["sensor", "gain_e_per_adu"], 0.0),
+    "fps-0": _with(["fps"], 0.0),
+    "fps-negative": _with(["fps"], -200.0),
+    "image-size-short": _with(["image_size"], [640]),
+    "rvec-2": _with(["rvec"], [0.1, 0.2]),
+    "pivot-behind": _with(["tvec"], [0.0, 0.0, -0.7]),
+    "psf-0": _with(["psf_sigma_px"], 0.0),
+    "singular-matrix": _with(["camera_matrix"], [[0.0, 0.0, 320.0], [0.0, 1000.0, 240.0], [0.0, 0.0, 1.0]]),
+    "no-dist": _with(["dist_coeffs"], _DELETE),
+    "shutter": _with(["shutter"], "sideways"),
+    "gamma-0": _with(["sensor", "gamma"], 0.0),
+}
+
+
+def test_a_good_camera_file_loads(tmp_path):
+    (tmp_path / "camera.json").write_text(json.dumps(GOOD))
+    cam = load_camera(tmp_path / "camera.json")
+    assert cam.fps == 200.0 and cam.width_px == 640 and cam.sensor_known
+
+
+@pytest.mark.parametrize("name", sorted(BAD))
+def test_a_bad_camera_file_is_refused_where_it_enters(tmp_path, name):
+    (tmp_path / "camera.json").write_text(json.dumps(BAD[name]))
+    with pytest.raises(CameraFileError):
+        load_camera(tmp_path / "camera.json")
+
+
+@pytest.mark.parametrize("name", ["dist-7", "gain-0", "fps-negative", "pivot-behind"])
+def test_track_exits_2_on_a_bad_camera_file_and_writes_nothing(tmp_path, capsys, name):
+    (tmp_path / "camera.json").write_text(json.dumps(BAD[name]))
+    code = main(["track", str(tmp_path / "any.mkv"), "--camera", str(tmp_path / "camera.json"), "--protocol",
+                 str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out", str(tmp_path / "out")])
+    assert code == 2
+    assert not (tmp_path / "out").exists()
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_camera_file_that_is_not_utf8_is_bad_input(tmp_path):
+    (tmp_path / "camera.json").write_bytes(b"\xff\xfe{\x00")
+    with pytest.raises(CameraFileError):
+        load_camera(tmp_path / "camera.json")
