@@ -221,13 +221,15 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
-    from ..tracking import TrackingError, load_camera, track_video
+    from ..tracking import BadInputError, TrackingError, load_camera, track_video
 
     protocol = load_protocol(args.protocol)
     camera = load_camera(args.camera, require_pose=False)  # a bad camera file is bad input (exit 2)
     try:
         summary = track_video(args.video, camera, protocol, args.out,
                               progress=progress_printer("track"), frame_dots=not args.tip_only)
+    except BadInputError:
+        raise  # bad input: exit 2
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
@@ -404,12 +406,18 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis import analyze_batch, analyze_video
-    from ..tracking import CameraFileError, TrackingError
+    from ..tracking import BadInputError, TrackingError
 
     src = Path(args.video)
     out = Path(args.out)
     protocol = load_protocol(args.protocol) if args.protocol else None
-    if src.is_dir() or src.suffix.lower() == ".csv":
+    from ..analysis import VIDEO_SUFFIXES
+    from ..tracking.sources import IMAGE_SUFFIXES
+
+    # a folder of images with no videos is one image sequence; a folder of videos (or a manifest) a batch
+    sequence = src.is_dir() and not any(p.suffix.lower() in VIDEO_SUFFIXES for p in src.iterdir()) and any(
+        p.suffix.lower() in IMAGE_SUFFIXES for p in src.iterdir())
+    if (src.is_dir() and not sequence) or src.suffix.lower() == ".csv":
         summary = analyze_batch(src, out, camera=args.camera, protocol=protocol, progress_line=print,
                                 terms=terms_arg(args.terms))
         ok = int((summary.status == "ok").sum())
@@ -421,7 +429,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
                             terms=terms_arg(args.terms),
                             stage=lambda msg: print(msg, flush=True))
-    except CameraFileError:
+    except BadInputError:
         raise  # bad input: exit 2
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)

@@ -137,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
     cal.set_defaults(func=c._cmd_calibrate)
 
     k = sub.add_parser("track", help="track the markers: video -> angles.csv, markers.csv")
-    k.add_argument("video", help="any video OpenCV can decode")
+    k.add_argument("video", help="any video OpenCV can decode, or a folder of PNG/TIFF images in name order "
+                                 "(frame times from its timestamps.csv: frame, t_s; else camera.json's fps)")
     k.add_argument("--camera", required=True, help="camera.json with intrinsics and the pose relative to the pivot")
     k.add_argument("--protocol", required=True, help="protocol with the [markers] geometry")
     k.add_argument("--out", required=True, help="output directory")

@@ -5,7 +5,7 @@ Works on any video OpenCV decodes, or on frames held in memory; it reads only th
 ``truth.csv`` (this package imports neither).
 
 * :mod:`~gyrorig.tracking.camera_file`: ``camera.json`` (:class:`TrackingCamera`, :func:`load_camera`);
-* :mod:`~gyrorig.tracking.sources`: video files and in-memory frames;
+* :mod:`~gyrorig.tracking.sources`: video files, image folders (with a timestamps file) and in-memory frames;
 * :mod:`~gyrorig.tracking.detect`: blobs above a threshold (start points);
 * :mod:`~gyrorig.tracking.follow`: which spot is the tip (shape, appearance, motion, acquisition gates);
 * :mod:`~gyrorig.tracking.spot`: the spot model, its weighted least-squares fit and its Cramér-Rao bound;
@@ -20,14 +20,14 @@ Works on any video OpenCV decodes, or on frames held in memory; it reads only th
 
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS
 from .camera_file import INTRINSIC_PARAMETERS, TrackingCamera, load_camera
-from .errors import CameraFileError, TrackingError
+from .errors import BadInputError, CameraFileError, TrackingError
 from .pose import camera_modes, estimate_pose
 from .rays import tip_from_pixel, tips_from_pixels
-from .sources import FrameArrays, VideoFile
+from .sources import FrameArrays, ImageFolder, VideoFile
 from .scatter import SigmaCheck, check_sigmas
 from .spot import SpotFit, fit_spot, spot_crb_px, warm_up
 from .tracker import TrackResult, track, track_video
 
 __all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
            "tip_from_pixel", "tips_from_pixels", "camera_modes", "track", "track_video", "TrackResult",
-           "TrackingError", "CameraFileError", "VideoFile", "FrameArrays", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]
+           "TrackingError", "BadInputError", "CameraFileError", "VideoFile", "ImageFolder", "FrameArrays", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]

@@ -1,16 +1,24 @@
-"""Where frames come from: a video file (decoded in a background thread) or frames held in memory.
+"""Where frames come from: a video file (decoded in a background thread), a folder of images, or
+frames held in memory.
 
 A source opens to :class:`Frames`: the image size, the nominal frame rate (NaN when unknown),
 the frame count (0 when unknown) and an iterator of ``(image, t_s)`` pairs, ``image`` a 2-D
 array (the first channel of a colour frame) and ``t_s`` the frame's start time from the
 container's timestamps (NaN when the source has none: the tracker then counts frames at the
 camera's rate).
+
+An image folder (:class:`ImageFolder`) holds one image per frame (PNG or TIFF, 8 or 16 bit; a
+16-bit file may carry 12-bit values), in name order (numbers in names compare as numbers:
+``f9.png`` before ``f10.png``); its frame times come from ``timestamps.csv`` in the folder (or a
+file given), with columns ``frame, t_s`` and one row per image in the same order (a camera that
+dropped frames leaves gaps in ``t_s``), or else from the camera's rate.
 """
 
 from __future__ import annotations
 
 import math
 import queue
+import re
 import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -19,9 +27,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .errors import TrackingError
+from .errors import BadInputError, TrackingError
 
-__all__ = ["Frames", "VideoFile", "FrameArrays", "as_source"]
+__all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "as_source", "IMAGE_SUFFIXES"]
 
 
 #: container codes (FourCC) of codecs that keep every pixel value: FFV1, raw, Y800/GREY/Y16, HuffYUV, PNG
@@ -106,10 +114,81 @@ class FrameArrays:
         return Frames(int(w), int(h), math.nan, len(self.frames), items)
 
 
-def as_source(video) -> VideoFile | FrameArrays:
-    """A path (str or Path) becomes a :class:`VideoFile`; a source is returned as it is."""
+#: image files an :class:`ImageFolder` reads
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+
+
+def _name_key(path: Path) -> list:
+    return [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", path.name.lower())]
+
+
+class ImageFolder:
+    """A folder of images, one per frame (see the module docstring)."""
+
+    def __init__(self, path: str | Path, timestamps: str | Path | None = None):
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise BadInputError(f"{self.path}: not a folder of images")
+        self.files = sorted((f for f in self.path.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES and f.is_file()),
+                            key=_name_key)
+        if not self.files:
+            raise BadInputError(f"{self.path}: no images ({', '.join(IMAGE_SUFFIXES)})")
+        stamps = Path(timestamps) if timestamps is not None else self.path / "timestamps.csv"
+        self.t_s = self._read_timestamps(stamps) if (timestamps is not None or stamps.exists()) else None
+
+    def _read_timestamps(self, path: Path) -> np.ndarray:
+        import pandas as pd
+
+        try:
+            table = pd.read_csv(path)
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise BadInputError(f"cannot read timestamps {path}: {exc}") from exc
+        if "t_s" not in table.columns:
+            raise BadInputError(f"{path}: needs a column t_s (and frame), one row per image")
+        t = pd.to_numeric(table["t_s"], errors="coerce").to_numpy(float)
+        if len(t) != len(self.files):
+            raise BadInputError(f"{path}: {len(t)} rows for {len(self.files)} images in {self.path}")
+        bad = np.flatnonzero(~np.isfinite(t))
+        if len(bad):
+            raise BadInputError(f"{path}: row {int(bad[0]) + 1}, column t_s: not a number")
+        back = np.flatnonzero(np.diff(t) <= 0)
+        if len(back):
+            raise BadInputError(f"{path}: row {int(back[0]) + 2}, column t_s: times must increase "
+                                f"({t[back[0]]:g} then {t[back[0] + 1]:g})")
+        return t
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    def _read(self, k: int) -> np.ndarray:
+        image = cv2.imread(str(self.files[k]), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise BadInputError(f"{self.files[k]}: unreadable image")
+        if image.dtype not in (np.uint8, np.uint16):
+            raise BadInputError(f"{self.files[k]}: {image.dtype} pixels; allowed 8- or 16-bit")
+        return image[:, :, 0] if image.ndim == 3 else image
+
+    def open(self) -> Frames:
+        first = self._read(0)
+        h, w = first.shape
+        times = self.t_s if self.t_s is not None else [math.nan] * len(self.files)
+
+        def items():
+            for k, t in enumerate(times):
+                image = first if k == 0 else self._read(k)
+                if image.shape != (h, w):
+                    raise BadInputError(f"{self.files[k]}: {image.shape[1]} x {image.shape[0]} pixels; the first "
+                                        f"image ({self.files[0].name}) is {w} x {h}")
+                yield np.ascontiguousarray(image), float(t)
+
+        return Frames(int(w), int(h), math.nan, len(self.files), items())
+
+
+def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
+    """A path (str or Path) becomes a :class:`VideoFile`, or an :class:`ImageFolder` when it is a folder;
+    a source is returned as it is."""
     if isinstance(video, (str, Path)):
-        return VideoFile(video)
+        return ImageFolder(video) if Path(video).is_dir() else VideoFile(video)
     if hasattr(video, "open"):
         return video
     raise TypeError(f"expected a video path or a frame source, got {type(video).__name__}")

@@ -1,0 +1,109 @@
+"""Image sequences (issue 19): a folder of PNG or TIFF frames in name order, with frame times from its
+timestamps.csv or from camera.json's fps, tracks exactly like the video it was copied from; bad folders
+and timestamps are bad input (exit 2, the file, row and column named, nothing written)."""
+
+import copy
+import tomllib
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import PROTOCOL_DIR
+from gyrorig import parse_protocol
+from gyrorig.cli import main
+from gyrorig.render import render_video
+from gyrorig.tracking import BadInputError, ImageFolder, load_camera, track
+
+BASE = tomllib.loads((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text())
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    d = copy.deepcopy(BASE)
+    d["camera"].update(width_px=640, height_px=480, pixel_size_um=3.45 * 2.25)
+    d["scene"]["duration_s"] = 0.15
+    out = tmp_path_factory.mktemp("seq")
+    render_video(parse_protocol(d), out / "v", seed=4, calibration_views=0)
+    cap = cv2.VideoCapture(str(out / "v" / "video.mkv"))
+    frames = []
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(np.ascontiguousarray(f[:, :, 0]))
+    return out, parse_protocol(d), load_camera(out / "v" / "camera.json"), frames
+
+
+def _write(folder, frames, suffix, dtype, names=None):
+    folder.mkdir()
+    for k, f in enumerate(frames):
+        name = names[k] if names else f"frame{k}{suffix}"  # no zero padding: name order must be numeric
+        assert cv2.imwrite(str(folder / name), f.astype(dtype))
+    return folder
+
+
+@pytest.mark.parametrize("suffix,dtype", [(".png", np.uint16), (".tif", np.uint8)])
+def test_an_image_copy_tracks_like_the_video(rendered, tmp_path, suffix, dtype):
+    out, protocol, cam, frames = rendered
+    folder = _write(tmp_path / "images", frames, suffix, dtype)
+    from_video = track(out / "v" / "video.mkv", cam, protocol, frame_dots=False).angles
+    from_images = track(folder, cam, protocol, frame_dots=False).angles
+    assert from_images.frame.tolist() == from_video.frame.tolist()
+    for col in ("t_s", "theta_rad", "phi_rad", "theta_sigma_rad"):
+        np.testing.assert_allclose(from_images[col], from_video[col], rtol=0, atol=1e-12)
+
+
+def test_timestamps_with_dropped_frames_give_gaps(rendered, tmp_path):
+    out, protocol, cam, frames = rendered
+    dropped = {7, 12}
+    kept = [k for k in range(len(frames)) if k not in dropped]
+    folder = _write(tmp_path / "images", [frames[k] for k in kept], ".png", np.uint8)
+    pd.DataFrame({"frame": kept, "t_s": np.array(kept) / cam.fps}).to_csv(folder / "timestamps.csv", index=False)
+    angles = track(folder, cam, protocol, frame_dots=False).angles
+    assert angles.frame.tolist() == kept
+    np.testing.assert_allclose(angles.t_s, np.array(kept) / cam.fps + cam.exposure_s / 2, rtol=0, atol=1e-12)
+
+
+def _bad_folder(tmp_path, frames, kind):
+    folder = _write(tmp_path / "images", frames[:12], ".png", np.uint8)
+    n = 12
+    if kind == "mixed-sizes":
+        cv2.imwrite(str(folder / "frame5.png"), frames[5][:200, :300])
+    elif kind == "unreadable":
+        (folder / "frame3.png").write_bytes(b"not an image")
+    elif kind == "times-not-increasing":
+        t = np.arange(n) / 200.0
+        t[6] = t[4]
+        pd.DataFrame({"frame": range(n), "t_s": t}).to_csv(folder / "timestamps.csv", index=False)
+    elif kind == "times-count":
+        pd.DataFrame({"frame": range(n - 2), "t_s": np.arange(n - 2) / 200.0}).to_csv(folder / "timestamps.csv",
+                                                                                      index=False)
+    elif kind == "times-column":
+        pd.DataFrame({"frame": range(n), "time": np.arange(n) / 200.0}).to_csv(folder / "timestamps.csv", index=False)
+    elif kind == "empty":
+        for f in folder.iterdir():
+            f.unlink()
+    return folder
+
+
+BAD_KINDS = ["mixed-sizes", "unreadable", "times-not-increasing", "times-count", "times-column", "empty"]
+
+
+@pytest.mark.parametrize("kind", BAD_KINDS)
+def test_bad_image_folders_are_bad_input(rendered, tmp_path, kind):
+    out, protocol, cam, frames = rendered
+    folder = _bad_folder(tmp_path, frames, kind)
+    with pytest.raises(BadInputError):
+        track(ImageFolder(folder) if kind != "empty" else folder, cam, protocol, frame_dots=False)
+
+
+@pytest.mark.parametrize("kind", ["mixed-sizes", "times-not-increasing"])
+def test_track_exits_2_on_a_bad_image_folder(rendered, tmp_path, capsys, kind):
+    out, protocol, cam, frames = rendered
+    folder = _bad_folder(tmp_path, frames, kind)
+    code = main(["track", str(folder), "--camera", str(out / "v" / "camera.json"), "--protocol",
+                 str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out", str(tmp_path / "t"), "--tip-only"])
+    assert code == 2 and not (tmp_path / "t").exists()
+    assert "Traceback" not in capsys.readouterr().err
