@@ -96,3 +96,20 @@ def test_demo_runs_the_chain_and_writes_its_plots(tmp_path, capsys):
     assert theory["precession_rate_slow_rad_s"]["sign_agrees"] is False
     report = (tmp_path / "report.html").read_text()
     assert all(name in report for name in fit["quantities"])
+
+
+def test_version_and_a_light_command_line():
+    """``gyrorig --version`` prints the installed version; parsing the command line imports neither the
+    physics nor the commands (they load after the arguments are read)."""
+    import subprocess
+    import sys
+
+    import gyrorig
+
+    out = subprocess.run([sys.executable, "-c", "import sys; from gyrorig.cli import main\n"
+                          "try:\n    main(['--version'])\nexcept SystemExit as e:\n    code = e.code\n"
+                          "print(code, 'gyrorig.physics' in sys.modules, 'gyrorig.cli.commands' in sys.modules)"],
+                         capture_output=True, text=True, check=True)
+    lines = out.stdout.split()
+    assert lines[:2] == ["gyrorig", gyrorig.__version__]
+    assert lines[2:] == ["0", "False", "False"]

@@ -69,3 +69,20 @@ def test_compiled_integrator_reports_divergence():
 
     with pytest.raises(SimulationError, match="failed|diverged|norm drifted"):
         simulate(make_protocol(spin=300.0, duration=2.0), method="DOP853-jit", rtol=0.9, atol=10.0)
+
+
+def test_dop853_tableau_is_the_published_one():
+    """The project's copy of the DOP853 constants: order conditions, and the same numbers as SciPy's
+    private copy where that module exists."""
+    import importlib
+
+    from gyrorig.physics import _dop853_tableau as t
+
+    np.testing.assert_allclose(t.A[:t.N_STAGES].sum(axis=1), t.C[:t.N_STAGES], rtol=0, atol=1e-14)
+    assert abs(t.B.sum() - 1.0) < 1e-14
+    try:
+        ref = importlib.import_module("scipy.integrate._ivp.dop853_coefficients")
+    except ImportError:
+        return
+    for name in ("A", "B", "C", "E3", "E5", "D"):
+        np.testing.assert_array_equal(getattr(t, name), getattr(ref, name))

@@ -17,10 +17,26 @@ The map of the code is ``docs/architecture.md``.  Conventions (SI units, Goldste
 x-convention Euler angles, gravity along -z) are in ``docs/conventions.md``.
 """
 
-from .physics import SimulationError, exact_solution, simulate
-from .protocols import Protocol, ProtocolError, load_protocol, parse_protocol
+from importlib import import_module
+from importlib.metadata import PackageNotFoundError, version
 
-__version__ = "0.1.0"
+try:
+    __version__ = version("gyrorig")
+except PackageNotFoundError:  # running from a source tree that was never installed
+    __version__ = "0.0.0+unknown"
+
+# imported on first use, so that ``gyrorig --help`` and ``import gyrorig.cli`` stay light
+_LAZY = {"SimulationError": "physics", "exact_solution": "physics", "simulate": "physics",
+         "Protocol": "protocols", "ProtocolError": "protocols", "load_protocol": "protocols",
+         "parse_protocol": "protocols"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'gyrorig' has no attribute {name!r}")
 
 __all__ = [
     "Protocol",

@@ -11,11 +11,10 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from ..physics import SimulationError
-from ..physics.exact import ExactSolutionError
-from ..protocols import ProtocolError
-from .commands import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from .parser import build_parser
+
+#: exit codes: success, bad input, a failed computation
+EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
 
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED"]
 
@@ -25,8 +24,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    # the physics and the commands are imported only now: --help and --version stay fast
+    from ..physics import SimulationError
+    from ..physics.exact import ExactSolutionError
+    from ..protocols import ProtocolError
+    from . import commands
+
     try:
-        return int(args.func(args))
+        return int(getattr(commands, args.func)(args))
     except (ProtocolError, ExactSolutionError, ValueError) as exc:
         print(f"gyrorig: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -18,9 +18,9 @@ from ..physics.exact import ExactSolutionError
 from ..physics.simulate import output_times
 from .._validate import number
 from ..protocols import load_protocol, protocol_summary
+from . import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from .printing import print_fit, print_plan, print_prediction, progress_printer
 
-EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
 
 
 def terms_arg(value: str):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..physics import METHODS
-from . import commands as c
+from .. import __version__
+from .._methods import METHODS
 
 __all__ = ["build_parser"]
 
@@ -23,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for documentation and tests)."""
     p = argparse.ArgumentParser(prog="gyrorig", description="experiment design and data fitting for air-bearing gyroscope rigs")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    p.add_argument("--version", action="version", version=f"gyrorig {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="integrate a protocol's scene; write trajectory.csv and manifest.json")
@@ -34,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--atol", type=float, default=None, help="absolute tolerance (default rtol/100)")
     s.add_argument("--duration", type=float, default=None, help="override scene.duration_s [s]")
     s.add_argument("--rate", type=float, default=None, help="output sample rate [Hz]")
-    s.set_defaults(func=c._cmd_simulate)
+    s.set_defaults(func="_cmd_simulate")
 
     b = sub.add_parser("bench", help="benchmarks that print figures")
     bsub = b.add_subparsers(dest="bench", required=True)
@@ -46,36 +47,36 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--rtol", type=float, default=None, help="one tolerance for all methods")
     bm.add_argument("--repeats", type=int, default=1, help="median of this many timings")
     bm.add_argument("--out", default=None, help="also write methods.csv here")
-    bm.set_defaults(func=c._cmd_bench_methods)
+    bm.set_defaults(func="_cmd_bench_methods")
     ba = bsub.add_parser("accuracy", help="work-precision study: error against wall time of every method")
     ba.add_argument("--quick", action="store_true", help="two scenes, short tolerance ladders (< 1 minute)")
     ba.add_argument("--out", default=None, help="output directory (default ./bench-accuracy)")
-    ba.set_defaults(func=c._cmd_bench_accuracy)
+    ba.set_defaults(func="_cmd_bench_accuracy")
     bs = bsub.add_parser("stability", help="stiff and extreme cases: invariants, agreement, verdict per case")
     bs.add_argument("--quick", action="store_true", help="shorter runs (long run: 1e4 instead of 1e6 spin periods)")
     bs.add_argument("--out", default=None, help="output directory (default ./bench-stability)")
-    bs.set_defaults(func=c._cmd_bench_stability)
+    bs.set_defaults(func="_cmd_bench_stability")
     br = bsub.add_parser("render", help="rendering and encoding throughput (frames per second)")
     br.add_argument("--frames", type=int, default=100, help="frames per measurement")
     br.add_argument("--out", default=None, help="also write render.csv here")
-    br.set_defaults(func=c._cmd_bench_render)
+    br.set_defaults(func="_cmd_bench_render")
     bt = bsub.add_parser("track", help="tracking precision against the Cramer-Rao bound, pull widths, speed")
     bt.add_argument("--duration", type=float, default=1.0, help="video length [s] (default 1)")
     bt.add_argument("--quick", action="store_true", help="640x480 only")
     bt.add_argument("--out", default=None, help="also write track.csv here")
-    bt.set_defaults(func=c._cmd_bench_track)
+    bt.set_defaults(func="_cmd_bench_track")
     bv = bsub.add_parser("variants", help="tracking footage unlike the tracker's own assumptions: disc markers, "
                                           "rotor dots, gamma, mp4, rolling shutter, a plain top, a dim tip")
     bv.add_argument("--variants", nargs="+", default=None, help="variants to run (default: all)")
     bv.add_argument("--duration", type=float, default=1.0, help="video length [s] (default 1)")
     bv.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     bv.add_argument("--out", default=None, help="also write variants.csv here")
-    bv.set_defaults(func=c._cmd_bench_variants)
+    bv.set_defaults(func="_cmd_bench_variants")
 
     bsm = bsub.add_parser("smooth", help="compiled smoother against filterpy: speed and agreement")
     bsm.add_argument("--frames", type=int, default=100_000, help="frames for the compiled path (default 100000)")
     bsm.add_argument("--filterpy-frames", type=int, default=20_000, help="frames for filterpy (default 20000)")
-    bsm.set_defaults(func=c._cmd_bench_smooth)
+    bsm.set_defaults(func="_cmd_bench_smooth")
     bf = bsub.add_parser("fit", help="Monte Carlo of render -> track -> smooth -> fit: pulls, bias, sd / CRB")
     bf.add_argument("--scenes", nargs="+", default=None, help="bundled protocol names (default: three rigs)")
     bf.add_argument("--seeds", type=int, default=None, help="runs per scene (default 40; 4 with --quick)")
@@ -90,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--combine", nargs="+", default=None, metavar="DIR",
                     help="run nothing: summarise the runs.csv of earlier --out batches together "
                          "(batches must have distinct seeds)")
-    bf.set_defaults(func=c._cmd_bench_fit)
+    bf.set_defaults(func="_cmd_bench_fit")
 
     pl = sub.add_parser("plan", help="what a rig and camera will measure: resolution, expected errors, advice")
     pl.add_argument("protocol", nargs="?", help="protocol TOML file")
@@ -107,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--scheduler", default=None, help="Dask scheduler address for the Monte Carlo (gyrorig[dask])")
     pl.add_argument("--sweep", nargs="+", default=None, metavar="KEY=START:STOP:N",
                     help="scan protocol keys, e.g. launch.spin_rate_rad_s=200:800:7 camera.fps=50:400:8")
-    pl.set_defaults(func=c._cmd_plan)
+    pl.set_defaults(func="_cmd_plan")
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
     t.add_argument("protocol", nargs="?", help="protocol TOML file")
@@ -116,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--validate", action="store_true", help="judge every formula against the simulator over sweeps")
     t.add_argument("--quick", action="store_true", help="with --validate: small sweeps (seconds)")
     t.add_argument("--out", default=None, help="with --validate: output directory (default ./theory-validation)")
-    t.set_defaults(func=c._cmd_theory)
+    t.set_defaults(func="_cmd_theory")
 
     r = sub.add_parser("render", help="synthetic video of a protocol's scene, with truth and calibration images")
     r.add_argument("protocol", help="protocol TOML file with [camera] and [markers]")
@@ -127,14 +128,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "decodes ~50x faster); mp4: video.mp4 (mp4v, 8-bit, lossy)")
     r.add_argument("--duration", type=float, default=None, help="override scene.duration_s [s]")
     r.add_argument("--calibration-views", type=int, default=12, help="checkerboard images (0: none)")
-    r.set_defaults(func=c._cmd_render)
+    r.set_defaults(func="_cmd_render")
 
     cal = sub.add_parser("calibrate", help="camera calibration from checkerboard images (OpenCV)")
     cal.add_argument("images", help="directory of checkerboard images")
     cal.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6")
     cal.add_argument("--square-mm", type=float, required=True, help="square size [mm]")
     cal.add_argument("--out", required=True, help="camera.json to write")
-    cal.set_defaults(func=c._cmd_calibrate)
+    cal.set_defaults(func="_cmd_calibrate")
 
     k = sub.add_parser("track", help="track the markers: video -> angles.csv, markers.csv")
     k.add_argument("video", help="any video OpenCV can decode, or a folder of PNG/TIFF images in name order "
@@ -147,19 +148,19 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--overlay", action="store_true",
                    help="also write overlay.png: a contact sheet of frames with the tip as found, its path and "
                         "the quality flags, to see without any truth that the tracker followed the tip")
-    k.set_defaults(func=c._cmd_track)
+    k.set_defaults(func="_cmd_track")
 
     sm = sub.add_parser("smooth", help="Kalman/RTS smoothing of angles.csv (noise levels by maximum likelihood)")
     sm.add_argument("angles", help="angles.csv from 'gyrorig track'")
     sm.add_argument("--out", required=True, help="output directory (smoothed.csv, smooth.json)")
-    sm.set_defaults(func=c._cmd_smooth)
+    sm.set_defaults(func="_cmd_smooth")
 
     f = sub.add_parser("fit", help="least-squares fit of angles.csv with the scene's model, against theory")
     f.add_argument("angles", help="angles.csv from 'gyrorig track'")
     f.add_argument("--protocol", required=True, help="protocol TOML (decides the model)")
     f.add_argument("--out", required=True, help="output directory (fit.json, fit.png, fit_residuals.csv)")
     add_fit_options(f)
-    f.set_defaults(func=c._cmd_fit)
+    f.set_defaults(func="_cmd_fit")
 
     an = sub.add_parser("analyze", help="track -> smooth -> fit -> report.html; a folder or manifest CSV for a batch")
     an.add_argument("video", help="a video, a folder of videos, or a manifest CSV (video, protocol[, camera])")
@@ -167,11 +168,11 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--protocol", default=None, help="protocol TOML")
     an.add_argument("--out", required=True, help="output directory")
     add_fit_options(an)
-    an.set_defaults(func=c._cmd_analyze)
+    an.set_defaults(func="_cmd_analyze")
 
     d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track, smooth, fit, report")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")
     d.add_argument("--duration", type=float, default=10.0, help="simulated time [s] (default 10)")
     d.add_argument("--video-duration", type=float, default=3.0, help="length of the rendered video [s] (default 3)")
-    d.set_defaults(func=c._cmd_demo)
+    d.set_defaults(func="_cmd_demo")
     return p

@@ -20,8 +20,8 @@ import math
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
-from scipy.integrate._ivp import dop853_coefficients as _dop
 
+from . import _dop853_tableau as _dop
 from .torques import EddyFieldTorque, GravityTorque, TransverseViscousTorque
 
 __all__ = ["pack_torques", "integrate_dop853", "rhs_reference_check", "STATUS_MESSAGES"]

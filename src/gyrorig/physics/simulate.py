@@ -44,6 +44,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
+from .._methods import METHODS
 from ..protocols import EddyFieldDamping, Protocol
 from .rotations import unwrapped_angles_from_tip, euler_from_matrix, euler_to_matrix, matrix_to_quaternion, quaternion_to_matrix
 from ._jit import STATUS_MESSAGES, integrate_dop853, pack_torques
@@ -64,20 +65,6 @@ __all__ = [
     "initial_state",
 ]
 
-#: method name -> (formulation, scipy solver)
-METHODS: dict[str, tuple[str, str]] = {
-    "gyro": ("axis", "DOP853-jit"),
-    "gyro-scipy": ("axis", "DOP853"),
-    "gyro-radau": ("axis", "Radau"),
-    "DOP853-jit": ("body", "DOP853-jit"),
-    "phasor": ("phasor", "DOP853"),
-    "RK23": ("body", "RK23"),
-    "RK45": ("body", "RK45"),
-    "DOP853": ("body", "DOP853"),
-    "Radau": ("body", "Radau"),
-    "BDF": ("body", "BDF"),
-    "LSODA": ("body", "LSODA"),
-}
 
 #: default relative tolerance per solver
 DEFAULT_RTOL = {"DOP853-jit": 1e-10, "DOP853": 1e-10, "RK45": 1e-8, "RK23": 1e-6, "Radau": 1e-8, "BDF": 1e-8, "LSODA": 1e-9}
