@@ -132,3 +132,15 @@ def test_modules_and_functions_stay_small():
                 if length > 100:
                     long_functions.append((f"{f.name}:{node.name}", length))
     assert not big_files and not long_functions, (big_files, long_functions)
+
+
+def test_every_package_is_installed():
+    """pyproject.toml lists the packages explicitly (the bundled protocols map to another folder): the list
+    must hold every package under src/gyrorig, and the bundled protocols."""
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(root / "src").parts) for p in (root / "src" / "gyrorig").rglob("__init__.py")}
+    assert found | {"gyrorig.bundled_protocols"} == listed

@@ -110,8 +110,8 @@ def run_demo(out: str | Path, *, duration_s: float = 10.0, video_duration_s: flo
     progress_for = progress_for or (lambda label: None)
     path = BUNDLED_PROTOCOL_DIR / DEMO_PROTOCOL
     if not path.exists():
-        raise ProtocolError(f"bundled protocol {DEMO_PROTOCOL} not found at {path}: install gyrorig from a clone "
-                            "of the repository with 'pip install -e .'")
+        raise ProtocolError(f"bundled protocol {DEMO_PROTOCOL} not found at {path}: the installation is incomplete "
+                            "(reinstall gyrorig)")
     protocol = load_protocol(path)
     start = time.perf_counter()
     say(f"demo: {protocol.description}")

@@ -12,6 +12,7 @@ documented in ``README.md`` (section "Protocol format").
 
 from __future__ import annotations
 
+import importlib.resources
 import math
 import tomllib
 from collections.abc import Mapping
@@ -42,8 +43,9 @@ __all__ = [
 ]
 
 
-#: the repository's bundled protocol files (present when gyrorig is installed from a clone with ``pip install -e .``)
-BUNDLED_PROTOCOL_DIR = Path(__file__).resolve().parents[2] / "protocols"
+#: the bundled protocol files: the repository's ``protocols/``, installed as the package
+#: ``gyrorig.bundled_protocols`` (from a clone, an sdist or a wheel alike)
+BUNDLED_PROTOCOL_DIR = Path(str(importlib.resources.files("gyrorig.bundled_protocols")))
 
 
 @dataclass(frozen=True, slots=True)
