@@ -419,3 +419,33 @@ def test_an_unplanned_term_that_only_cancels_against_the_planned_model_is_left_o
     q = r.quantities["nutation_amplitude_rad"]
     assert q.standard_error < 1e-5  # the 200-run median is 5.0e-6; with the term it was 9.1e-5
     assert abs(q.value - 0.020475) < 4 * q.standard_error  # the truth of the other 199 records
+
+
+def test_fit_result_carries_its_covariance_and_a_table():
+    """fit.json's parameter covariance is over the named parameters, its diagonal gives their standard
+    errors, the correlation is symmetric with a unit diagonal; the quantities come as a DataFrame and as an
+    HTML table for notebooks."""
+    import json
+
+    from gyrorig.analysis import fit_document
+
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    angles, truth = _noisy(p, 2.0)
+    r = fit_angles(angles, p, prediction=predict(p, simulate_damping=False), truth=truth)
+    doc = json.loads(json.dumps(r.summary()))
+    cov = doc["parameter_covariance"]
+    names = cov["names"]
+    assert names == list(doc["parameters"])
+    c, rho = np.array(cov["covariance"]), np.array(cov["correlation"])
+    assert c.shape == rho.shape == (len(names), len(names))
+    np.testing.assert_allclose(np.sqrt(np.diag(c)), [doc["parameters"][n]["standard_error"] for n in names],
+                               rtol=1e-12)
+    np.testing.assert_allclose(rho, rho.T, atol=1e-12)
+    np.testing.assert_allclose(np.diag(rho), 1.0, atol=1e-12)
+    assert np.all(np.abs(rho) <= 1 + 1e-12)
+    frame = r.to_frame()
+    assert set(frame.index) == set(r.quantities)
+    assert frame.loc["precession_rate_rad_s", "value"] == r.quantities["precession_rate_rad_s"].value
+    html = r._repr_html_()
+    assert all(name in html for name in r.quantities)
+    assert "parameter_covariance" in fit_document(r, p, None, None, {})

@@ -202,6 +202,31 @@ class FitResult:
         """Optional terms the record asked for but could not tell apart from the planned model (left out)."""
         return tuple(n.term for n in self.notes_of(NoteKind.TERM_NOT_IDENTIFIABLE))
 
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """The fitted parameters, in the order of ``x`` and ``covariance``."""
+        return tuple(self.params)
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """The parameters' correlation matrix (from ``covariance``; the same whatever scales the errors)."""
+        sd = np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            corr = self.covariance / np.outer(sd, sd)
+        return np.where(np.outer(sd, sd) > 0, corr, np.nan)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The quantities as a table, one row each (:class:`Quantity`'s fields as columns), indexed by name."""
+        return pd.DataFrame([q.as_dict() for q in self.quantities.values()]).set_index("name")
+
+    def _repr_html_(self) -> str:
+        """Jupyter: quantity, value, standard error, the exact prediction and the pull against it."""
+        cols = ["value", "standard_error", "exact", "diff_exact_se", "truth", "pull", "status"]
+        frame = self.to_frame()
+        table = frame[[c for c in cols if c in frame]].to_html(float_format=lambda v: f"{v:.6g}", na_rep="")
+        return (f"<p>gyrorig fit: chi2_red = {self.chi2_red:.3g} ({self.dof} dof), errors {self.errors}</p>"
+                + table)
+
     def summary(self) -> dict:
         """The content of ``fit.json`` that comes from the fit."""
         model = {**self.spec.summary(), "terms_chosen": self.terms.source if self.terms is not None else "",
@@ -211,6 +236,10 @@ class FitResult:
             "errors": self.errors, "error_kind": str(self.error_kind), "notes": [n.as_dict() for n in self.notes],
             "quantities": {k: q.as_dict() for k, q in self.quantities.items()},
             "parameters": {k: {"value": v, "standard_error": s} for k, (v, s) in self.params.items()},
+            # the formal covariance (J^T J)^-1 of the parameters above, and their correlation
+            "parameter_covariance": {"names": list(self.parameter_names),
+                                     "covariance": self.covariance.tolist(),
+                                     "correlation": self.correlation.tolist()},
             "wall_time_s": self.wall_time_s,
         }
 
