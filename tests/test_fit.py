@@ -449,3 +449,19 @@ def test_fit_result_carries_its_covariance_and_a_table():
     html = r._repr_html_()
     assert all(name in html for name in r.quantities)
     assert "parameter_covariance" in fit_document(r, p, None, None, {})
+
+
+def test_a_record_mostly_missing_cannot_count_nutation_cycles():
+    """Rows 20-179 of 200 missing (issue 23): two stretches of one nutation period each, 0.8 s apart.
+    The cycles across the gap cannot be counted: the nutation is undetermined (too few periods in a
+    stretch), not 6.6 rad/s and 240 rad with formal errors; the precession stays honest."""
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    angles, _ = _noisy(p, 1.0)
+    angles = angles.iloc[:200].copy()
+    angles.loc[20:179, ["theta_rad", "phi_rad"]] = np.nan
+    r = fit_angles(angles, p, prediction=predict(p, simulate_damping=False))
+    for name in ("nutation_frequency_rad_s", "nutation_amplitude_rad"):
+        q = r.quantities[name]
+        assert q.status == "undetermined" and q.reason_kind == "too-few-periods", name
+    q = r.quantities["precession_rate_rad_s"]
+    assert abs(q.value - exact_solution(p).mean_precession_rate_rad_s) < 4 * q.standard_error

@@ -57,6 +57,17 @@ class FitData:
         """Times relative to the reference time (the middle of the record). [s]"""
         return self.t_s - self.t_ref_s
 
+    def longest_run_s(self, max_gap_s: float) -> float:
+        """The longest stretch of frames whose spacing never exceeds ``max_gap_s``, as a duration (its span
+        plus one frame interval). [s]"""
+        if len(self.t_s) < 2:
+            return 0.0
+        dt = np.diff(self.t_s)
+        breaks = np.flatnonzero(dt > max_gap_s)
+        starts = np.concatenate([[0], breaks + 1])
+        ends = np.concatenate([breaks, [len(self.t_s) - 1]])
+        return float(np.max(self.t_s[ends] - self.t_s[starts]) + np.median(dt))
+
     @property
     def nyquist_rad_s(self) -> float:
         dt = float(np.median(np.diff(self.t_s)))

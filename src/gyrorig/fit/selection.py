@@ -136,6 +136,14 @@ def _nutation_unresolvable(data: FitData, hint: float | None) -> Reason | None:
     if periods < 2:
         return Reason(Undetermined.TOO_FEW_PERIODS,
                       f"the record covers {periods:.2g} predicted nutation periods; at least 2 are needed")
+    # across a gap of more than half a period the cycles cannot be counted: some stretch without one must
+    # show the periods itself
+    period = 2 * np.pi / hint
+    run = data.longest_run_s(0.5 * period)
+    if run / period < 2:
+        return Reason(Undetermined.TOO_FEW_PERIODS,
+                      f"the longest stretch without a gap of half a nutation period covers {run / period:.2g} "
+                      "predicted periods; at least 2 are needed (the record has gaps)")
     return None
 
 
