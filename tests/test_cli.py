@@ -113,3 +113,22 @@ def test_version_and_a_light_command_line():
     lines = out.stdout.split()
     assert lines[:2] == ["gyrorig", gyrorig.__version__]
     assert lines[2:] == ["0", "False", "False"]
+
+
+@pytest.mark.parametrize("case", ["protocol-is-a-folder", "seeds-0", "plan-duration-0", "demo-video-duration-0",
+                                  "out-is-a-file"])
+def test_bad_invocations_exit_2_with_one_line(tmp_path, capsys, case):
+    """Issue 23: each of these printed a traceback (exit 1) or a message naming neither the option nor the
+    file; now exit 2 and one line, no traceback."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file where the output folder should go")
+    argv = {
+        "protocol-is-a-folder": ["theory", str(tmp_path)],
+        "seeds-0": ["bench", "fit", "--seeds", "0", "--quick"],
+        "plan-duration-0": ["plan", AIR, "--duration", "0"],
+        "demo-video-duration-0": ["demo", "--video-duration", "0", "--out", str(tmp_path / "d")],
+        "out-is-a-file": ["simulate", AIR, "--out", str(blocker / "sub"), "--duration", "0.1"],
+    }[case]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1

@@ -504,6 +504,12 @@ def load_protocol(path: str | Path) -> Protocol:
             data = tomllib.load(fh)
     except FileNotFoundError as exc:
         raise ProtocolError(f"protocol file not found: {path}") from exc
+    except IsADirectoryError as exc:
+        raise ProtocolError(f"{path}: is a folder; expected a protocol TOML file") from exc
+    except OSError as exc:
+        raise ProtocolError(f"cannot read protocol file {path}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ProtocolError(f"{path}: not UTF-8 text: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ProtocolError(f"{path}: not valid TOML: {exc}") from exc
     try:

@@ -1,7 +1,8 @@
 """Command line: ``gyrorig <command> ...`` (thin layer over the public functions).
 
-Exit codes: 0 success; 2 bad input (protocol, arguments); 3 a computation failed
-(integration error, lost quaternion norm).  Nothing is written under a final file
+Exit codes: 0 success; 2 bad input (protocol, arguments, a file that cannot be read or
+written); 3 a computation failed (integration error, lost quaternion norm, or an unexpected
+error: one line, the traceback only with ``--debug``); 130 interrupted (Ctrl-C).  Nothing is written under a final file
 name unless the whole computation succeeded.
 """
 
@@ -13,10 +14,10 @@ from collections.abc import Sequence
 
 from .parser import build_parser
 
-#: exit codes: success, bad input, a failed computation
-EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED = 0, 2, 3
+#: exit codes: success, bad input, a failed computation, interrupted (Ctrl-C)
+EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 130
 
-__all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED"]
+__all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_INTERRUPTED"]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -37,4 +38,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except SimulationError as exc:
         print(f"gyrorig: simulation failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print("gyrorig: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except OSError as exc:  # a file or folder that cannot be written or read
+        if args.debug:
+            raise
+        print(f"gyrorig: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as exc:  # noqa: BLE001 - the last net: one line, never a traceback (unless --debug)
+        if args.debug:
+            raise
+        print(f"gyrorig: failed: {type(exc).__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
         return EXIT_FAILED

@@ -304,6 +304,9 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
     else:
         scenes = args.scenes or (FIT_MC_SCENES[:1] if args.quick else FIT_MC_SCENES)
         seeds = args.seeds if args.seeds is not None else (4 if args.quick else 40)
+        if seeds < 1:
+            raise ValueError(f"--seeds {seeds}: at least 1 run per scene")
+        number("", "--duration", args.duration, lo=0.0, lo_open=True)
         start = time.perf_counter()
         runs = fit_monte_carlo(scenes, seeds=seeds, duration_s=args.duration, workers=args.workers,
                                progress=progress_printer("runs"), first_seed=args.first_seed, terms=args.terms)
@@ -343,6 +346,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if not args.protocol:
         raise ValueError("plan needs a protocol file")
     protocol = load_protocol(args.protocol)
+    if args.duration is not None:
+        number("", "--duration", args.duration, lo=0.0, lo_open=True)
     plan = plan_experiment(protocol, duration_s=args.duration,
                            draws=args.draws if args.draws is not None else DEFAULT_PLAN_DRAWS,
                            rng=np.random.default_rng(args.seed), progress=progress_printer("noisy draws"))
@@ -379,6 +384,9 @@ def _cmd_bench_smooth(args: argparse.Namespace) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    for option, value in (("--duration", args.duration), ("--video-duration", args.video_duration)):
+        if value is not None:
+            number("", option, value, lo=0.0, lo_open=True)
     run_demo(args.out, duration_s=args.duration, video_duration_s=args.video_duration,
              say=lambda line: print(line, flush=True), progress_for=progress_printer)
     return EXIT_OK

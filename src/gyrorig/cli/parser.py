@@ -24,6 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gyrorig", description="experiment design and data fitting for air-bearing gyroscope rigs")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
     p.add_argument("--version", action="version", version=f"gyrorig {__version__}")
+    p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="integrate a protocol's scene; write trajectory.csv and manifest.json")
