@@ -309,3 +309,26 @@ def test_crossbar_dots_give_the_frame_angle(tmp_path):
                 tmp_path / "tip_only", frame_dots=False)
     assert "psi_rad" not in pd.read_csv(tmp_path / "tip_only" / "angles.csv").columns
     assert set(pd.read_csv(tmp_path / "tip_only" / "markers.csv").marker) == {"tip"}
+
+
+def test_a_sleeping_top_has_honest_errors_at_the_pole(tmp_path):
+    """Tilt 0 (issue 23): the tip direction's error is what it is, and theta = |error| then follows a
+    Rayleigh law, so theta^2 / sigma_theta^2 has mean 2 (chi-square, 2 dof: standard error 2/sqrt(N));
+    the azimuth is honestly unknown (sigma ~ 1 rad).  The linearised angles gave sigmas 20-100x too small."""
+    d = scene(tilt_deg=0.0, duration=0.5)
+    p = parse_protocol(d)
+    render_video(p, tmp_path / "v", seed=0, calibration_views=0)
+    summary = track_video(tmp_path / "v" / "video.mkv", load_camera(tmp_path / "v" / "camera.json"), p,
+                          tmp_path / "t", frame_dots=False)
+    a = pd.read_csv(tmp_path / "t" / "angles.csv").dropna(subset=["theta_rad"])
+    assert summary["tracked_fraction"] == 1.0
+    z2 = (a.theta_rad / a.theta_sigma_rad) ** 2
+    assert abs(z2.mean() - 2.0) < 4 * 2.0 / np.sqrt(len(a))
+    assert a.phi_sigma_rad.median() > 0.3
+    # and the fit does not make a precession out of the noise's direction (it gave 27 +- 1 rad/s)
+    from gyrorig.fit import fit_angles
+    from gyrorig.theory import predict
+
+    fit = fit_angles(pd.read_csv(tmp_path / "t" / "angles.csv"), p, prediction=predict(p, simulate_damping=False))
+    q = fit.quantities["precession_rate_rad_s"]
+    assert q.status == "undetermined" and q.reason_kind == "azimuth-undefined"

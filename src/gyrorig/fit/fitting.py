@@ -12,7 +12,7 @@ from ..protocols import Protocol
 from .data import FitData, fit_data_from_angles
 from .model import FitModel, Residuals, model_for_scene
 from .quantities import build_quantities, quantity_functions, truth_values
-from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, Note, NoteKind
+from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, Note, NoteKind, Reason, Undetermined
 from .selection import PLANNED_NONCENTRALITY, fit_model, left_out_noncentrality
 from .solver import Solution
 from .spec import FitTerms
@@ -145,6 +145,9 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     scene = model_for_scene(protocol, prediction)
     data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s)
     sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
+    at_pole = _azimuth_undefined(data, sol.spec)
+    if at_pole is not None:
+        undetermined = {**undetermined, "precession_rate_rad_s": at_pole}
     fns = quantity_functions(sol.spec)
     error_kind, bootstrap, bootstrap_sd, error_notes = choose_errors(
         sol.spec, sol.x, sol.chi2, sol.dof, data, fns, rng, bootstrap_replicates, check_residuals)
@@ -160,6 +163,24 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
                      residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, error_kind=error_kind,
                      notes=tuple(notes), x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time,
                      terms=chosen, phase_uncertainty_rad=phases, bootstrap=bootstrap)
+
+
+#: a tilt below this many of its per-frame errors (medians over the record) leaves the azimuth undefined
+POLE_TILT_SIGMAS = 3.0
+
+
+def _azimuth_undefined(data: FitData, spec) -> Reason | None:
+    """Why the precession rate is not defined (None when it is): a tilt about the vertical within
+    :data:`POLE_TILT_SIGMAS` of its errors, where the measured azimuth is the direction of the noise."""
+    if spec.fit_axis:
+        return None
+    tilt = float(np.median(data.theta_rad))
+    sigma = float(np.median(np.sqrt(np.clip(data.cov[:, 0, 0], 0.0, None))))
+    if tilt < POLE_TILT_SIGMAS * sigma:
+        return Reason(Undetermined.AZIMUTH_UNDEFINED,
+                      f"the tilt ({tilt:.2g} rad) is within {POLE_TILT_SIGMAS:g} of its errors ({sigma:.2g} rad) of "
+                      "the vertical: the azimuth, and so the precession, is not defined (a sleeping top)")
+    return None
 
 
 def linear_response(angles: pd.DataFrame, fit: FitResult, protocol: Protocol, *, prediction: dict | None = None):

@@ -54,6 +54,8 @@ class Undetermined(StrEnum):
     OUT_OF_BAND = "out-of-band"
     #: tau = 1 / rate with a rate consistent with zero
     CONSISTENT_WITH_ZERO = "consistent-with-zero"
+    #: the tilt is within a few of its errors of the pole: the azimuth (and its rate) is not defined
+    AZIMUTH_UNDEFINED = "azimuth-undefined"
 
 
 @dataclass(frozen=True)

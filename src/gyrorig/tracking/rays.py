@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
-from ..geometry import angles_from_tip, ray_sphere_distances, wrap_angle
+from ..geometry import angles_from_tip, ray_sphere_distances
 from .camera_file import TrackingCamera
 
 __all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "angles_with_covariance"]
@@ -37,7 +39,13 @@ def tip_from_pixel(x_px: float, y_px: float, cam: TrackingCamera, radius_m: floa
 def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: TrackingCamera, radius_m: float
                            ) -> tuple[float, float, np.ndarray, np.ndarray] | None:
     """``theta, phi``, the unit tip and the 2x2 covariance of ``(theta, phi)`` of a spot at ``(x, y)``
-    with pixel covariance ``cov_xy`` (numerical Jacobian of pixel -> angles over +-0.05 px).
+    with pixel covariance ``cov_xy``.
+
+    The tip vector is smooth in the pixel position everywhere, the angles are not (at the poles ``phi`` is
+    undefined and ``theta`` has a cone): so the pixel covariance goes to the tip vector first (numerical
+    Jacobian over +-0.05 px), then onto the angles' local directions, ``d theta = e_theta . dn`` and
+    ``d phi = e_phi . dn / sin(theta)``.  Near a pole ``theta``'s error stays the tip's angular error and
+    ``phi``'s grows as ``1 / sin(theta)``: a sleeping top's azimuth is honestly unknown.
 
     None when the ray (or a neighbouring one) misses the tip's sphere.
     """
@@ -46,8 +54,11 @@ def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: Tracking
     tips = tips_from_pixels(xy, cam, radius_m)
     if not np.all(np.isfinite(tips)):
         return None
-    th, ph = angles_from_tip(tips)
-    jac = np.array([[(th[1] - th[2]) / (2 * eps), (th[3] - th[4]) / (2 * eps)],
-                    [wrap_angle(ph[1] - ph[2]) / (2 * eps), wrap_angle(ph[3] - ph[4]) / (2 * eps)]])
-    return float(th[0]), float(ph[0]), tips[0], jac @ cov_xy @ jac.T
-
+    jac_n = np.column_stack([(tips[1] - tips[2]) / (2 * eps), (tips[3] - tips[4]) / (2 * eps)])  # 3 x 2
+    cov_n = jac_n @ cov_xy @ jac_n.T
+    th, ph = angles_from_tip(tips[:1])
+    th, ph = float(th[0]), float(ph[0])
+    e_theta = np.array([math.cos(th) * math.sin(ph), -math.cos(th) * math.cos(ph), -math.sin(th)])
+    e_phi = np.array([math.cos(ph), math.sin(ph), 0.0])
+    proj = np.vstack([e_theta, e_phi / max(math.sin(th), 1e-12)])
+    return th, ph, tips[0], proj @ cov_n @ proj.T
