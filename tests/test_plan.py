@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import replace
 
@@ -11,7 +12,7 @@ import pytest
 from gyrorig.cli import main
 from gyrorig.fit import FitTerms
 from gyrorig.plan import parse_sweep, plan_experiment, sweep
-from gyrorig.protocols import load_protocol
+from gyrorig.protocols import load_protocol, parse_protocol
 
 from _stats import sd_ratio_band
 from conftest import PROTOCOL_DIR
@@ -209,3 +210,26 @@ def test_plan_says_when_the_fit_model_does_not_describe_a_long_damped_record():
     assert all(not q["reliable"] for q in plan["quantities"].values())
     assert "noisy_draws" not in plan["recording"]
     assert any("misses part of the simulated motion" in r for r in plan["recommendations"])
+
+
+def test_plan_respects_the_field_of_view(tmp_path):
+    """Issue 23: a long lens planned 1e-7 rad per frame for a tip outside the image in every frame, and a
+    sweep over the focal length promised better precision where the tip leaves the view.  Frames without the
+    tip are gaps of the expected record; a camera that never sees it measures nothing (exit 3)."""
+    import tomllib
+
+    text = (PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
+    base = tomllib.loads(text)
+    assert base["camera"]["focal_length_mm"] < 14
+    blind = copy.deepcopy(base)
+    blind["camera"]["focal_length_mm"] = 300.0
+    plan = plan_experiment(parse_protocol(blind), draws=0)
+    assert plan["camera"]["marker_in_view_fraction"] == 0.0 and plan["quantities"] == {}
+    path = tmp_path / "long-lens.toml"
+    path.write_text(text.replace(f"focal_length_mm = {base['camera']['focal_length_mm']}", "focal_length_mm = 300.0"))
+    assert main(["plan", str(path), "--draws", "0"]) == 3
+    table = sweep(PROTOCOL_DIR / "air-cushion-heavy-top.toml", "camera.focal_length_mm", np.array([8.0, 32.0]))
+    wide, narrow = table.iloc[0], table.iloc[1]
+    assert wide.marker_in_view_fraction == 1.0 and narrow.marker_in_view_fraction == 0.0
+    assert np.isfinite(wide.precession_rate_rad_s_relative_error)
+    assert np.isnan(narrow.precession_rate_rad_s_relative_error)

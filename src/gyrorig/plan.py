@@ -32,6 +32,7 @@ import logging
 import math
 import time
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -178,7 +179,8 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, pred: dict, rec: list
             rec.append(f"minimum frame rate: {4 * nut / (2 * math.pi):.0f} fps (4 frames per nutation period; this "
                        f"camera has {camera['frames_per_nutation_period']:.1f})")
     if not inside.all():
-        rec.append(f"the tip marker leaves the image in {1 - inside.mean():.0%} of the frames: widen the view")
+        rec.append(f"the tip marker leaves the image in {1 - inside.mean():.0%} of the frames (they are gaps in the "
+                   "expected record): widen the view (a shorter camera.focal_length_mm, or the camera further away)")
     if spot["saturates"]:
         rec.append("the marker saturates the sensor: shorten the exposure or dim the marker (saturated pixels carry "
                    "no position information)")
@@ -324,6 +326,19 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     T = float(duration_s if duration_s is not None else min(protocol.scene.duration_s, DEFAULT_PLAN_LENGTH_S))
     ex = expected_record(protocol, T)
     out["camera"] = _camera_checks(protocol, ex, pred, rec)
+    # frames where the tip's spot is not wholly in the image are gaps of the record, as the tracker will have them
+    inside = _spot_in_view(protocol, ex)
+    if not inside.all():
+        angles = ex.angles.copy()
+        angles.loc[~inside, ["theta_rad", "phi_rad"]] = np.nan
+        ex = replace(ex, angles=angles)
+    if inside.sum() < MIN_FRAMES_IN_VIEW:
+        out["quantities"] = {}
+        rec.append(f"the tip marker's spot is wholly in the image in {int(inside.sum())} of {len(inside)} frames: "
+                   "nothing can be measured; widen the view (a shorter camera.focal_length_mm, the camera further "
+                   "away, or camera.look_at_m on the pivot)")
+        out["wall_time_s"] = time.perf_counter() - start
+        return out
     # the expected errors: Cramér-Rao bound of the fit model for this motion and camera
     fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
     misfit = {"noiseless_chi2": float(fit.chi2), "dof": int(fit.dof), "chi2_per_dof": float(fit.chi2 / max(fit.dof, 1))}
@@ -355,6 +370,20 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     rec.extend(_damping_advice(protocol, pred))
     out["wall_time_s"] = time.perf_counter() - start
     return out
+
+
+#: fewer frames with the tip in view than this and a plan measures nothing
+MIN_FRAMES_IN_VIEW = 10
+
+
+def _spot_in_view(protocol: Protocol, ex: ExpectedRecord) -> np.ndarray:
+    """Per frame: whether the tip marker's spot (its radius and 2 px) lies wholly inside the image."""
+    setup, _ = tip_setup(protocol)
+    cam = setup.camera
+    px = project(setup, ex.pos)
+    margin = float(ex.spot.get("radius_px", 0.0)) + 2.0
+    return ((px[:, 0] >= margin) & (px[:, 0] <= cam.width_px - 1 - margin)
+            & (px[:, 1] >= margin) & (px[:, 1] <= cam.height_px - 1 - margin))
 
 
 def _damping_assessment(protocol: Protocol, pred: dict) -> dict:
@@ -450,8 +479,9 @@ def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s
           progress=None) -> pd.DataFrame:
     """Expected relative error of every quantity as one protocol key is scanned.
 
-    Columns: the key, ``<quantity>_relative_error`` (NaN where not resolvable), ``motion_blur_px``,
-    ``sigma_px``.
+    Columns: the key, ``<quantity>_relative_error`` (NaN where not resolvable, or where the camera does not
+    see the tip), ``motion_blur_px``, ``sigma_px``, ``marker_in_view_fraction`` (the frames whose tip is in the
+    image: below 1 the setting loses the marker, and its frames are gaps of the expected record).
     """
     with open(protocol_path, "rb") as fh:
         base = tomllib.load(fh)
@@ -467,6 +497,7 @@ def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s
         cam = plan.get("camera") or {}
         row["motion_blur_px"] = cam.get("motion_blur_px", math.nan)
         row["sigma_px"] = cam.get("sigma_px", math.nan)
+        row["marker_in_view_fraction"] = cam.get("marker_in_view_fraction", math.nan)
         rows.append(row)
         if progress:
             progress(i + 1, len(values))

@@ -360,13 +360,15 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     doc = _io.json_safe(plan)
     if out:
         _io.write_json(doc, out / "plan.json")
+    # a camera that never sees the tip measures nothing: the plan says so, and the exit code too
+    blind = plan.get("camera") is not None and not plan.get("quantities")
     if args.json:
         print(json.dumps(doc, indent=2, sort_keys=True))
-        return EXIT_OK
+        return EXIT_FAILED if blind else EXIT_OK
     print_plan(plan)
     if out:
         print(f"-> {out / 'plan.json'}")
-    return EXIT_OK
+    return EXIT_FAILED if blind else EXIT_OK
 
 
 def _cmd_bench_smooth(args: argparse.Namespace) -> int:

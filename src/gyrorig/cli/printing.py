@@ -52,8 +52,11 @@ def print_plan(plan: dict) -> None:
                   f"({cam.get('nutation_amplitude_over_sigma_px', float('nan')):.3g} x the bound)")
         print(f"  motion blur {cam['motion_blur_px']:.2f} px; rolling-shutter skew {cam['rolling_shutter_skew_px']:.2f} px"
               f"; saturates: {cam['saturates']}")
-        rec = plan["recording"]
-        print(f"  expected errors for a {rec['length_s']:g} s record (Cramer-Rao bound of the fit):")
+        rec = plan.get("recording") or {}
+        if not rec:
+            print("  expected errors: none (the camera does not see the tip: see the advice)")
+        else:
+            print(f"  expected errors for a {rec['length_s']:g} s record (Cramer-Rao bound of the fit):")
         for name, q in plan["quantities"].items():
             if not q["resolvable"]:
                 print(f"    {name}: not resolvable: {q['reason']}")
@@ -76,7 +79,8 @@ def print_plan(plan: dict) -> None:
                   + (f" ({max(rms, key=rms.get)})" if rms else "")
                   + (": linear over the noise" if draws["ok"] else
                      f": NOT linear over the noise ({', '.join(draws['nonlinear']) or 'failed draws'})"))
-        print(f"  note: {plan['note']}")
+        if "note" in plan:
+            print(f"  note: {plan['note']}")
     for r in plan["recommendations"]:
         print(f"  - {r}")
     mc = plan.get("monte_carlo")
