@@ -87,3 +87,23 @@ def test_a_camera_file_that_is_not_utf8_is_bad_input(tmp_path):
     (tmp_path / "camera.json").write_bytes(b"\xff\xfe{\x00")
     with pytest.raises(CameraFileError):
         load_camera(tmp_path / "camera.json")
+
+
+def test_an_fps_that_does_not_match_the_video_is_bad_input(tmp_path, capsys):
+    """camera.json's fps at half the video's rate numbered two frames alike (issue 23): now exit 2."""
+    import tomllib
+
+    from gyrorig import parse_protocol
+    from gyrorig.render import render_video
+
+    d = tomllib.loads((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text())
+    d["camera"].update(width_px=320, height_px=240, pixel_size_um=3.45 * 4.5)
+    d["scene"]["duration_s"] = 0.1
+    render_video(parse_protocol(d), tmp_path / "v", seed=0, calibration_views=0)
+    cam = json.loads((tmp_path / "v" / "camera.json").read_text())
+    cam["fps"] = cam["fps"] / 2
+    (tmp_path / "half.json").write_text(json.dumps(cam))
+    code = main(["track", str(tmp_path / "v" / "video.mkv"), "--camera", str(tmp_path / "half.json"), "--protocol",
+                 str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out", str(tmp_path / "t"), "--tip-only"])
+    assert code == 2 and not (tmp_path / "t").exists()
+    assert "Traceback" not in capsys.readouterr().err

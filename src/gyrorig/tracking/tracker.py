@@ -39,7 +39,7 @@ from .camera_file import TrackingCamera
 from .detect import detection_threshold
 from .follow import TipFollower
 from .dots import DotTracker
-from .errors import TrackingError
+from .errors import BadInputError, TrackingError
 from .pose import camera_modes, estimate_pose
 from .rays import angles_with_covariance
 from .scatter import SigmaCheck, check_sigmas
@@ -326,6 +326,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         rows = _Tables()
         prev_hash = None
+        last_index = -1
         k = 0
         t_decode = t_track = 0.0  # t_decode: time spent waiting for decoded frames
         it = iter(frames)
@@ -339,6 +340,12 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             frame, t_frame = item
             t_frame = t_frame if math.isfinite(t_frame) else k / camera.fps
             index = int(round(t_frame * camera.fps))
+            if index <= last_index:
+                raise BadInputError(
+                    f"{source}: frames at {t_frame:.6g} s and before both number {index} at camera.json's fps "
+                    f"{camera.fps:g} (the video's nominal rate is {frames.fps:g} fps): the camera file's fps does "
+                    "not match the video's frame times")
+            last_index = index
             if abs(t_frame - index / camera.fps) <= TIME_SNAP_FRAMES / camera.fps:
                 # a container's time base rounds (Matroska: to 1 ms); the frame's own time is its index's
                 t_frame = index / camera.fps
