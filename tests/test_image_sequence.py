@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from conftest import PROTOCOL_DIR
+from test_tracking import gray_frames
 from gyrorig import parse_protocol
 from gyrorig.cli import main
 from gyrorig.render import render_video
@@ -26,13 +27,7 @@ def rendered(tmp_path_factory):
     d["scene"]["duration_s"] = 0.15
     out = tmp_path_factory.mktemp("seq")
     render_video(parse_protocol(d), out / "v", seed=4, calibration_views=0)
-    cap = cv2.VideoCapture(str(out / "v" / "video.mkv"))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(np.ascontiguousarray(f[:, :, 0]))
+    frames = gray_frames(out / "v" / "video.mkv")
     return out, parse_protocol(d), load_camera(out / "v" / "camera.json"), frames
 
 

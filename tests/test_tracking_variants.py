@@ -17,6 +17,7 @@ import pandas as pd
 import pytest
 
 from _stats import sd_ratio_band
+from test_tracking import gray_frames
 from gyrorig.bench.variants import track_variant, variant_protocols
 from gyrorig.protocols import parse_protocol
 from gyrorig.render import render_video
@@ -135,13 +136,7 @@ def test_container_time_rounding_gives_the_nominal_frame_times(tmp_path):
     scene["camera"]["fps"] = 240.0
     render_video(parse_protocol(scene), tmp_path / "v", seed=0, calibration_views=0)
     cam = load_camera(tmp_path / "v" / "camera.json")
-    cap = cv2.VideoCapture(str(tmp_path / "v" / "video.mkv"))
-    frames = []
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        frames.append(np.ascontiguousarray(f[:, :, 0]))
+    frames = gray_frames(tmp_path / "v" / "video.mkv")
     t_ms = np.round(np.arange(len(frames)) / 240.0, 3)
     res = track(FrameArrays(frames, t_ms), cam, parse_protocol(user))
     np.testing.assert_allclose(res.angles.t_s, np.arange(len(frames)) / 240.0 + cam.exposure_s / 2, rtol=0,

@@ -24,7 +24,7 @@ from scipy.special import erfc
 
 from .camera_file import TrackingCamera
 from .rays import tip_from_pixel
-from .spot import SpotFit, pixel_variance
+from .spot import SpotFit, pixel_variance, spot_window
 
 __all__ = ["ellipse_model", "fit_ellipse_spot", "disc_image", "DiscImage", "DiscGeometry"]
 
@@ -111,19 +111,11 @@ def fit_ellipse_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Tr
     """
     sigma = cam.psf_sigma_px
     half = int(math.ceil(2 * r0 + 4 * sigma + 4))
-    xi, yi = int(round(x0)), int(round(y0))
-    h, w = image.shape
-    if xi - half < 0 or yi - half < 0 or xi + half >= w or yi + half >= h:
+    window = spot_window(image, x0, y0, half, cam)
+    if window is None:
         return None
-    win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    sat = win >= cam.max_adu
+    win, xx, yy, sat, border, bg, amp = window
     use = ~sat
-    border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
-    bg = float(np.median(border))
-    amp = float(np.percentile(win, 99)) - bg
-    if amp <= 0:
-        return None
     noise = max(1.4826 * float(np.median(np.abs(border - bg))), math.sqrt(1.0 / 12.0))
     bvar = noise * noise
     others = _other_spots(win, bg + max(5.0 * noise, 0.1 * amp), x0 - xx[0, 0], y0 - yy[0, 0], sigma)

@@ -213,6 +213,25 @@ def _light_axes(win, xx, yy, p, near, sigma) -> tuple[float, float]:
     return 2.0 * math.sqrt(max(hi, 0.0)), 2.0 * math.sqrt(max(lo, 0.0))
 
 
+def spot_window(image: np.ndarray, x0: float, y0: float, half: int, cam: TrackingCamera):
+    """The square window of half-width ``half`` around ``(x0, y0)`` as float64, its pixel coordinates, the
+    saturated pixels, the border pixels, the background (their median) and the amplitude (99th percentile above
+    it): ``(win, xx, yy, saturated, border, background, amplitude)``; None when the window leaves the image or
+    holds no light above the background."""
+    xi, yi = int(round(x0)), int(round(y0))
+    h, w = image.shape
+    if xi - half < 0 or yi - half < 0 or xi + half >= w or yi + half >= h:
+        return None
+    win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
+    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
+    border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
+    bg = float(np.median(border))
+    amp = float(np.percentile(win, 99)) - bg
+    if amp <= 0:
+        return None
+    return win, xx, yy, win >= cam.max_adu, border, bg, amp
+
+
 def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
              iterations: int = 10, neighbour: str = "joint") -> SpotFit | None:
     """Weighted least-squares fit of the disc-spot model in a window around ``(x0, y0)``.
@@ -229,20 +248,12 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
     """
     sigma = cam.psf_sigma_px
     half = int(math.ceil(r0 + 4 * sigma + 4))
-    xi, yi = int(round(x0)), int(round(y0))
-    h, w = image.shape
-    if xi - half < 0 or yi - half < 0 or xi + half >= w or yi + half >= h:
+    window = spot_window(image, x0, y0, half, cam)
+    if window is None:
         return None
-    win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    xf, yf = float(xi - half), float(yi - half)
-    sat = win >= cam.max_adu
+    win, xx, yy, sat, border, bg, amp = window
+    xf, yf = float(xx[0, 0]), float(yy[0, 0])
     use = ~sat
-    border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
-    bg = float(np.median(border))
-    amp = float(np.percentile(win, 99)) - bg
-    if amp <= 0:
-        return None
     bvar = max(float(np.var(border)), 1.0 / 12.0)
     p, converged, (fisher, chi2_sum, mu) = _gauss_newton(win, xf, yf, use, np.array([x0, y0, r0, amp, bg]), cam,
                                                          iterations, bvar)
