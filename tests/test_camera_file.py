@@ -64,6 +64,9 @@ def test_a_good_camera_file_loads(tmp_path):
     (tmp_path / "camera.json").write_text(json.dumps(GOOD))
     cam = load_camera(tmp_path / "camera.json")
     assert cam.fps == 200.0 and cam.width_px == 640 and cam.sensor_known
+    # OpenCV writes its distortion as a 1 x n array
+    (tmp_path / "nested.json").write_text(json.dumps(_with(["dist_coeffs"], [GOOD["dist_coeffs"]])))
+    assert load_camera(tmp_path / "nested.json").dist_coeffs.tolist() == GOOD["dist_coeffs"]
 
 
 @pytest.mark.parametrize("name", sorted(BAD))

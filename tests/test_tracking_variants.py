@@ -23,7 +23,7 @@ from gyrorig.protocols import parse_protocol
 from gyrorig.render import render_video
 from gyrorig.tracking import FrameArrays, TrackingCamera, load_camera, track
 from gyrorig.tracking.ellipse import DiscGeometry, disc_image, fit_ellipse_spot
-from gyrorig.tracking.scatter import OUTLIER_Z, check_sigmas
+from gyrorig.tracking.scatter import check_sigmas
 
 
 @pytest.mark.parametrize("name", ["disc", "disc-mp4", "plain-top", "dim-tip"])
@@ -74,7 +74,6 @@ def test_scatter_check_per_class_and_across_gaps():
     for label, truth in (("blended", 3.0), ("clear", 1.0)):
         f, se, n = check.by_class[label]
         assert n > 300 and abs(f / truth - 1) < 4 * se, (label, f)
-    assert OUTLIER_Z == 5.0
 
 
 def _camera():

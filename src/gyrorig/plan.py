@@ -142,8 +142,9 @@ def noisy_draws(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, pred: di
     return out
 
 
-def _camera_checks(protocol: Protocol, ex: ExpectedRecord, pred: dict, rec: list[str]) -> dict:
-    """The camera against the motion: spot, per-frame errors, nutation, blur, skew, field of view; advice to ``rec``."""
+def _camera_checks(protocol: Protocol, ex: ExpectedRecord, inside: np.ndarray, pred: dict, rec: list[str]) -> dict:
+    """The camera against the motion: spot, per-frame errors, nutation, blur, skew, field of view (``inside``:
+    :func:`_spot_in_view`); advice to ``rec``."""
     setup, marker = tip_setup(protocol)
     cam = setup.camera
     lever = float(np.linalg.norm(marker.position_m))
@@ -155,7 +156,6 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, pred: dict, rec: list
     speed_px_s = np.linalg.norm(np.gradient(px, 1 / cam.fps, axis=0), axis=1)
     blur_px = float(np.max(speed_px_s) * cam.exposure_s)
     skew_px = float(np.max(speed_px_s) * cam.readout_time_s) if cam.shutter == "rolling" else 0.0
-    inside = (px[:, 0] >= 0) & (px[:, 0] < cam.width_px) & (px[:, 1] >= 0) & (px[:, 1] < cam.height_px)
     camera = {"fps": cam.fps, "exposure_s": cam.exposure_s, "lever_arm_m": lever, "marker_depth_m": ex.depth, **spot,
               "theta_sigma_rad_median": float(np.median(np.sqrt(cov[:, 0, 0]))),
               "phi_sigma_rad_median": float(np.median(np.sqrt(cov[:, 1, 1]))),
@@ -179,8 +179,9 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, pred: dict, rec: list
             rec.append(f"minimum frame rate: {4 * nut / (2 * math.pi):.0f} fps (4 frames per nutation period; this "
                        f"camera has {camera['frames_per_nutation_period']:.1f})")
     if not inside.all():
-        rec.append(f"the tip marker leaves the image in {1 - inside.mean():.0%} of the frames (they are gaps in the "
-                   "expected record): widen the view (a shorter camera.focal_length_mm, or the camera further away)")
+        rec.append(f"the tip marker's spot is not wholly in the image in {1 - inside.mean():.0%} of the frames (gaps "
+                   "in the expected record): widen the view (a shorter camera.focal_length_mm, or the camera further "
+                   "away)")
     if spot["saturates"]:
         rec.append("the marker saturates the sensor: shorten the exposure or dim the marker (saturated pixels carry "
                    "no position information)")
@@ -325,9 +326,9 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         return out
     T = float(duration_s if duration_s is not None else min(protocol.scene.duration_s, DEFAULT_PLAN_LENGTH_S))
     ex = expected_record(protocol, T)
-    out["camera"] = _camera_checks(protocol, ex, pred, rec)
     # frames where the tip's spot is not wholly in the image are gaps of the record, as the tracker will have them
     inside = _spot_in_view(protocol, ex)
+    out["camera"] = _camera_checks(protocol, ex, inside, pred, rec)
     if not inside.all():
         angles = ex.angles.copy()
         angles.loc[~inside, ["theta_rad", "phi_rad"]] = np.nan
@@ -480,8 +481,8 @@ def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s
     """Expected relative error of every quantity as one protocol key is scanned.
 
     Columns: the key, ``<quantity>_relative_error`` (NaN where not resolvable, or where the camera does not
-    see the tip), ``motion_blur_px``, ``sigma_px``, ``marker_in_view_fraction`` (the frames whose tip is in the
-    image: below 1 the setting loses the marker, and its frames are gaps of the expected record).
+    see the tip), ``motion_blur_px``, ``sigma_px``, ``marker_in_view_fraction`` (the frames whose tip spot is
+    wholly in the image: below 1 the setting loses the marker, and its frames are gaps of the expected record).
     """
     with open(protocol_path, "rb") as fh:
         base = tomllib.load(fh)

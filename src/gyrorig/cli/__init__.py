@@ -29,13 +29,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ..physics import SimulationError
     from ..physics.exact import ExactSolutionError
     from ..protocols import ProtocolError
+    from ..tracking.errors import TrackingError
     from . import commands
 
     try:
         return int(getattr(commands, args.func)(args))
-    except (ProtocolError, ExactSolutionError, ValueError) as exc:
+    except (ProtocolError, ExactSolutionError, ValueError) as exc:  # includes tracking's BadInputError
         print(f"gyrorig: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except TrackingError as exc:
+        print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
+        return EXIT_FAILED
     except SimulationError as exc:
         print(f"gyrorig: simulation failed: {exc}", file=sys.stderr)
         return EXIT_FAILED

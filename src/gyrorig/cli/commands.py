@@ -221,18 +221,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
-    from ..tracking import BadInputError, TrackingError, load_camera, track_video
+    from ..tracking import load_camera, track_video
 
     protocol = load_protocol(args.protocol)
-    camera = load_camera(args.camera, require_pose=False)  # a bad camera file is bad input (exit 2)
-    try:
-        summary = track_video(args.video, camera, protocol, args.out,
-                              progress=progress_printer("track"), frame_dots=not args.tip_only)
-    except BadInputError:
-        raise  # bad input: exit 2
-    except TrackingError as exc:
-        print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+    camera = load_camera(args.camera, require_pose=False)
+    summary = track_video(args.video, camera, protocol, args.out, progress=progress_printer("track"),
+                          frame_dots=not args.tip_only)
     n = summary["frames"]
     if summary["pose"]:
         pose = summary["pose"]
@@ -416,7 +410,6 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
     from ..analysis import analyze_batch, analyze_video
-    from ..tracking import BadInputError, TrackingError
 
     src = Path(args.video)
     out = Path(args.out)
@@ -435,15 +428,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         return EXIT_OK if ok == len(summary) else EXIT_FAILED
     if protocol is None or args.camera is None:
         raise ValueError("analyze VIDEO needs --camera and --protocol")
-    try:
-        res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
-                            terms=terms_arg(args.terms),
-                            stage=lambda msg: print(msg, flush=True))
-    except BadInputError:
-        raise  # bad input: exit 2
-    except TrackingError as exc:
-        print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+    res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
+                        terms=terms_arg(args.terms), stage=lambda msg: print(msg, flush=True))
     ts = res["time_s"]
     print(f"{res['frames']} frames, {res['tracked_fraction']:.1%} tracked; track {ts['track']:.1f} s, smooth "
           f"{ts['smooth']:.2f} s, fit {ts['fit']:.2f} s")

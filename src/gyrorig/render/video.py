@@ -61,8 +61,14 @@ def render_frames(protocol: Protocol, *, seed: int = 0, duration_s: float | None
         t_mid = frames / cam.fps + cam.exposure_s / 2
         # each marker's rows carry the tip's angles at that marker's own mid-exposure time (a rolling
         # shutter exposes its row later than the frame's start)
-        angles = {m.name: unwrapped_angles_from_tip(paths.tip(per_marker[m.name].t_mid),
-                                                    phi_at_pole_rad=paths.phi_reference_rad) for m in setup.markers}
+        by_times: dict[bytes, tuple] = {}  # with a global shutter every marker shares one time grid
+        angles = {}
+        for m in setup.markers:
+            t_m = per_marker[m.name].t_mid
+            key = t_m.tobytes()
+            if key not in by_times:
+                by_times[key] = unwrapped_angles_from_tip(paths.tip(t_m), phi_at_pole_rad=paths.phi_reference_rad)
+            angles[m.name] = by_times[key]
         for i, f in enumerate(frames):
             light = float(cam.illumination(t_mid[i]))
             table, bg = tables(light)

@@ -120,11 +120,14 @@ def _check_camera_values(path: Path, d: dict) -> None:
     k = _array(path, "camera_matrix", d["camera_matrix"], (3, 3))
     if not (k[0, 0] > 0 and k[1, 1] > 0 and np.allclose(k[2], [0, 0, 1]) and k[1, 0] == 0):
         raise CameraFileError(f"{path}: camera_matrix must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-    dist = np.asarray(d["dist_coeffs"], dtype=object).ravel() if isinstance(d["dist_coeffs"], list) else None
-    if dist is None or len(dist) not in DIST_COEFFS_LENGTHS:
-        raise CameraFileError(f"{path}: dist_coeffs must be a list of {', '.join(map(str, DIST_COEFFS_LENGTHS))} "
+    try:  # a flat list, or OpenCV's 1 x n or n x 1 array
+        n_dist = np.asarray(d["dist_coeffs"], dtype=float).size
+    except (TypeError, ValueError):
+        n_dist = -1
+    if n_dist not in DIST_COEFFS_LENGTHS:
+        raise CameraFileError(f"{path}: dist_coeffs must hold {', '.join(map(str, DIST_COEFFS_LENGTHS))} "
                               "numbers (k1 k2 p1 p2 [k3 ...], OpenCV's order)")
-    _array(path, "dist_coeffs", d["dist_coeffs"], (len(dist),))
+    _array(path, "dist_coeffs", d["dist_coeffs"], (n_dist,))
     size = d["image_size"]
     if (not isinstance(size, list) or len(size) != 2
             or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):

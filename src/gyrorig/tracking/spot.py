@@ -36,8 +36,7 @@ class SpotFit:
     saturated: bool
     converged: bool
     blended: bool = False
-    #: semi-axes of the spot's light as a uniform ellipse (from its second moments, the PSF's share taken
-    #: out): a sphere's spot has both near ``radius_px``, a tilted disc's the major near its radius [px]
+    #: semi-axes of an elliptical fit (:mod:`gyrorig.tracking.ellipse`; NaN for the sphere model) [px]
     major_px: float = math.nan
     minor_px: float = math.nan
     #: direction of the major axis from the x axis (elliptical fits only) [rad]
@@ -199,20 +198,6 @@ def _neighbour_start(win, xx, yy, p, foreign) -> np.ndarray:
     return np.array([*p[:4], nx, ny, nr, max(namp, 1.0), p[4]])
 
 
-def _light_axes(win, xx, yy, p, near, sigma) -> tuple[float, float]:
-    """Semi-axes of the light above the fitted background in ``near``, as a uniform ellipse: 2 sqrt(eigenvalue
-    of the second moments minus the PSF's variance)."""
-    w = np.where(near, np.clip(win - p[-1], 0.0, None), 0.0)
-    total = w.sum()
-    if total <= 0:
-        return math.nan, math.nan
-    cx, cy = (w * xx).sum() / total, (w * yy).sum() / total
-    dx, dy = xx - cx, yy - cy
-    m = np.array([[(w * dx * dx).sum(), (w * dx * dy).sum()], [(w * dx * dy).sum(), (w * dy * dy).sum()]]) / total
-    lo, hi = np.linalg.eigvalsh(m) - sigma * sigma
-    return 2.0 * math.sqrt(max(hi, 0.0)), 2.0 * math.sqrt(max(lo, 0.0))
-
-
 def spot_window(image: np.ndarray, x0: float, y0: float, half: int, cam: TrackingCamera):
     """The square window of half-width ``half`` around ``(x0, y0)`` as float64, its pixel coordinates, the
     saturated pixels, the border pixels, the background (their median) and the amplitude (99th percentile above
@@ -293,12 +278,8 @@ def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCa
             cov = finv[:2, :2] * (max(1.0, scale_chi2) if cam.sensor_known else scale_chi2)
     except np.linalg.LinAlgError:
         return None
-    own = use & (np.hypot(xx - p[0], yy - p[1]) <= p[2] + 4 * sigma)
-    if blended and neighbour == "joint":
-        own &= np.hypot(xx - p[0], yy - p[1]) <= np.hypot(xx - p[4], yy - p[5])  # nearer this spot than the other
-    major, minor = _light_axes(win, xx, yy, p, own, sigma)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[-1]), cov, chi2_red,
-                   bool(sat.any()), converged, blended, major, minor, math.nan, chi2_own)
+                   bool(sat.any()), converged, blended, chi2_own=chi2_own)
 
 
 def spot_crb_px(x: float, y: float, radius_px: float, amplitude_adu: float, background_adu: float, cam) -> float:
