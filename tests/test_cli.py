@@ -132,3 +132,36 @@ def test_bad_invocations_exit_2_with_one_line(tmp_path, capsys, case):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_quiet_prints_only_the_data_asked_for(tmp_path, capsys):
+    """``-q``: a script gets nothing but the --json it asked for (parseable as a whole), and errors on stderr."""
+    assert main(["-q", "simulate", AIR, "--out", str(tmp_path / "s"), "--duration", "0.2"]) == 0
+    cap = capsys.readouterr()
+    assert cap.out == "" and cap.err == ""
+    assert (tmp_path / "s" / "trajectory.csv").exists()
+    assert main(["-q", "theory", AIR, "--json", "--no-simulate"]) == 0
+    cap = capsys.readouterr()
+    assert "mean_precession_rate_rad_s" in json.loads(cap.out)
+    assert cap.err == ""
+    assert main(["-q", "theory", str(tmp_path)]) == 2
+    cap = capsys.readouterr()
+    assert cap.out == "" and len(cap.err.strip().splitlines()) == 1
+    # and the next command in the same process talks again
+    assert main(["simulate", AIR, "--out", str(tmp_path / "t"), "--duration", "0.2"]) == 0
+    assert capsys.readouterr().out
+
+
+def test_the_one_time_compile_is_announced_once(tmp_path):
+    """With an empty numba cache the first run says (one line on stderr) that it compiles; the next run,
+    loading the kernels from the cache, says nothing."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    runs = [subprocess.run([sys.executable, "-m", "gyrorig", "simulate", AIR, "--out", str(tmp_path / f"s{k}"),
+                            "--duration", "0.1"], capture_output=True, text=True, env=env) for k in range(2)]
+    assert [r.returncode for r in runs] == [0, 0]
+    assert len(runs[0].stderr.strip().splitlines()) == 1
+    assert runs[1].stderr == ""

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from . import _io
-from .fit import QUANTITY_UNITS, FitResult, FitTerms
+from .fit import QUANTITY_UNITS, Constraints, FitResult, FitTerms
 from .pipeline import Analysis, Fitted, analyze, smooth_and_fit
 from .protocols import Protocol, load_protocol
 from .report import plot_fit, write_report
@@ -89,11 +89,13 @@ def _write_fit(out: Path, angles: pd.DataFrame, fitted: Fitted, protocol: Protoc
 
 def fit_file(angles_csv: str | Path, protocol: Protocol, out: str | Path, *, truth_csv: str | Path | None = None,
              smooth: SmoothResult | None = None, prediction: dict | None = None,
-             rng: np.random.Generator | None = None, terms: FitTerms | str = "data") -> FitResult:
+             rng: np.random.Generator | None = None, terms: FitTerms | str = "data",
+             constraints: Constraints | None = None) -> FitResult:
     """``gyrorig fit``: smooth (for the outlier marks) unless given, fit, write ``fit.json`` and plots."""
     angles = _read_angles(angles_csv)
     truth = load_truth(truth_csv) if truth_csv is not None else None
-    fitted = smooth_and_fit(angles, protocol, prediction=prediction, truth=truth, rng=rng, terms=terms, smooth=smooth)
+    fitted = smooth_and_fit(angles, protocol, prediction=prediction, truth=truth, rng=rng, terms=terms, smooth=smooth,
+                            constraints=constraints)
     _write_fit(Path(out), angles, fitted, protocol, str(angles_csv))
     return fitted.fit
 
@@ -122,7 +124,7 @@ def write_analysis(out: str | Path, analysis: Analysis, protocol: Protocol, *, t
 def analyze_video(video, camera, protocol: Protocol, out: str | Path, *, truth_csv: str | Path | None = None,
                   progress: Progress | None = None, rng: np.random.Generator | None = None,
                   stage: Callable[[str], None] | None = None, terms: FitTerms | str = "data",
-                  prediction: dict | None = None, title: str | None = None) -> dict:
+                  constraints: Constraints | None = None, prediction: dict | None = None, title: str | None = None) -> dict:
     """Track, smooth, fit and report one video (:func:`gyrorig.pipeline.analyze`); returns a summary dict
     (``video, out, report, fit, analysis, frames, tracked_fraction, time_s``).
 
@@ -131,7 +133,8 @@ def analyze_video(video, camera, protocol: Protocol, out: str | Path, *, truth_c
     """
     out = Path(out)
     truth = load_truth(truth_csv) if truth_csv is not None else None
-    res = analyze(video, camera, protocol, truth=truth, prediction=prediction, terms=terms, rng=rng, progress=progress,
+    res = analyze(video, camera, protocol, truth=truth, prediction=prediction, terms=terms, constraints=constraints,
+                  rng=rng, progress=progress,
                   stage=stage, on_tracked=lambda tracked: _write_tracking(out, tracked))
     (stage or logger.info)("writing the report ...")
     report = write_analysis(out, res, protocol, title=title or f"{protocol.name}: {Path(str(video)).name}")

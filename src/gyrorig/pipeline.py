@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .fit import FitResult, FitTerms, fit_angles
+from .fit import Constraints, FitResult, FitTerms, fit_angles
 from .protocols import Protocol
 from .smooth import SmoothResult, smooth_angles
 from .theory import predict
@@ -65,12 +65,13 @@ class Analysis:
 def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
                    truth: pd.DataFrame | None = None, rng: np.random.Generator | None = None,
                    terms: FitTerms | str = "data", smooth: SmoothResult | None = None,
-                   stage: Stage | None = None) -> Fitted:
+                   stage: Stage | None = None, constraints: Constraints | None = None) -> Fitted:
     """Smooth an angle table (its outlier marks leave frames out of the fit), predict, fit.
 
     ``prediction`` defaults to :func:`gyrorig.theory.predict` of the protocol; ``truth`` (noiseless
     ``t_s, theta_rad, phi_rad``, e.g. :func:`gyrorig.tables.tip_truth`) adds true values and pulls;
-    ``terms`` as in :func:`gyrorig.fit.fit_angles`; ``smooth``: an earlier result for these angles.
+    ``terms`` and ``constraints`` as in :func:`gyrorig.fit.fit_angles`; ``smooth``: an earlier result for
+    these angles.
     """
     say = stage or logger.info
     t0 = time.perf_counter()
@@ -82,12 +83,14 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict
     if prediction is None:
         prediction = predict(protocol)
     exclude = (smooth.table["status"] == "outlier").to_numpy()
-    fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms)
+    fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms,
+                     constraints=constraints)
     return Fitted(smooth, prediction, fit, {"smooth": t1 - t0, "fit": time.perf_counter() - t1})
 
 
 def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,
-            prediction: dict | None = None, terms: FitTerms | str = "data", rng: np.random.Generator | None = None,
+            prediction: dict | None = None, terms: FitTerms | str = "data", constraints: Constraints | None = None,
+            rng: np.random.Generator | None = None,
             progress: Progress | None = None, stage: Stage | None = None, frame_dots: bool = True,
             on_tracked: Callable[[TrackResult], None] | None = None) -> Analysis:
     """Track, smooth and fit one video.
@@ -119,6 +122,7 @@ def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, t
     if on_tracked is not None:
         on_tracked(tracked)
     fitted = smooth_and_fit(tracked.angles, protocol, prediction=prediction, truth=truth, rng=rng, terms=terms,
+                            constraints=constraints,
                             stage=stage)
     return Analysis(tracked, fitted.smooth, fitted.prediction, fitted.fit,
                     {"track": t1 - t0, **fitted.time_s, "total": time.perf_counter() - t0})

@@ -8,6 +8,8 @@ name unless the whole computation succeeded.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import sys
 from collections.abc import Sequence
@@ -20,20 +22,51 @@ EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 130
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_INTERRUPTED"]
 
 
+def _announce_compiling() -> None:
+    """Say so (once, on stderr) when a compiled kernel is not in numba's disk cache and is being compiled:
+    the first run after an install or an upgrade spends seconds there, later runs load it."""
+    from numba.core import event
+
+    class Notice(event.Listener):
+        said = False
+
+        def on_start(self, ev):
+            disp = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
+            module = getattr(getattr(disp, "py_func", None), "__module__", "") or ""
+            if not Notice.said and module.startswith("gyrorig"):
+                Notice.said = True
+                print("gyrorig: compiling the numerical kernels (once after an install or an upgrade; cached on "
+                      "disk for later runs) ...", file=sys.stderr, flush=True)
+
+        def on_end(self, ev):
+            pass
+
+    if not getattr(_announce_compiling, "registered", False):
+        event.register("numba:compile", Notice())
+        _announce_compiling.registered = True
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    level = logging.INFO if args.verbose else logging.ERROR if args.quiet else logging.WARNING
+    logging.basicConfig(level=level, format="%(levelname)s %(message)s")
     # the physics and the commands are imported only now: --help and --version stay fast
     from ..physics import SimulationError
     from ..physics.exact import ExactSolutionError
     from ..protocols import ProtocolError
     from ..tracking.errors import TrackingError
     from . import commands
+    from .printing import set_quiet
 
+    set_quiet(sys.stdout if args.quiet else None)
+    if not args.quiet:
+        _announce_compiling()
+    quiet = contextlib.redirect_stdout(io.StringIO()) if args.quiet else contextlib.nullcontext()
     try:
-        return int(getattr(commands, args.func)(args))
+        with quiet:
+            return int(getattr(commands, args.func)(args))
     except (ProtocolError, ExactSolutionError, ValueError) as exc:  # includes tracking's BadInputError
         print(f"gyrorig: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -19,7 +19,7 @@ from ..physics.simulate import output_times
 from .._validate import number
 from ..protocols import load_protocol, protocol_summary
 from . import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
-from .printing import print_fit, print_plan, print_prediction, progress_printer
+from .printing import print_data, print_fit, print_plan, print_prediction, progress_printer
 
 
 
@@ -278,7 +278,7 @@ def _cmd_bench_variants(args: argparse.Namespace) -> int:
         raise ValueError(f"--variants {' '.join(unknown)}: allowed {', '.join(VARIANTS)}")
     number("", "--duration", args.duration, lo=0.0, lo_open=True, hi=60.0)
     table = variant_benchmark(names, duration_s=args.duration, seed=args.seed,
-                              progress=lambda k, n: print(f"  {k}/{n} variants", file=sys.stderr))
+                              progress=progress_printer("variants"))
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if args.out:
         _io.write_csv(table, Path(args.out) / "variants.csv")
@@ -357,7 +357,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     # a camera that never sees the tip measures nothing: the plan says so, and the exit code too
     blind = plan.get("camera") is not None and not plan.get("quantities")
     if args.json:
-        print(json.dumps(doc, indent=2, sort_keys=True))
+        print_data(json.dumps(doc, indent=2, sort_keys=True))
         return EXIT_FAILED if blind else EXIT_OK
     print_plan(plan)
     if out:
@@ -399,11 +399,18 @@ def _cmd_smooth(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _constraints(args: argparse.Namespace):
+    from ..fit import Constraints
+
+    return Constraints.from_options(args.fix, args.prior)
+
+
 def _cmd_fit(args: argparse.Namespace) -> int:
     from ..analysis import fit_file
 
     out = Path(args.out)
-    fit = fit_file(args.angles, load_protocol(args.protocol), out, truth_csv=args.truth, terms=terms_arg(args.terms))
+    fit = fit_file(args.angles, load_protocol(args.protocol), out, truth_csv=args.truth, terms=terms_arg(args.terms),
+                   constraints=_constraints(args))
     print_fit(fit, out)
     return EXIT_OK
 
@@ -413,6 +420,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
     src = Path(args.video)
     out = Path(args.out)
+    constraints = _constraints(args)
     protocol = load_protocol(args.protocol) if args.protocol else None
     from ..analysis import VIDEO_SUFFIXES
     from ..tracking.sources import IMAGE_SUFFIXES
@@ -421,6 +429,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     sequence = src.is_dir() and not any(p.suffix.lower() in VIDEO_SUFFIXES for p in src.iterdir()) and any(
         p.suffix.lower() in IMAGE_SUFFIXES for p in src.iterdir())
     if (src.is_dir() and not sequence) or src.suffix.lower() == ".csv":
+        if constraints:
+            raise ValueError("--fix and --prior apply to one video, not to a batch (each run has its own parameters)")
         summary = analyze_batch(src, out, camera=args.camera, protocol=protocol, progress_line=print,
                                 terms=terms_arg(args.terms))
         ok = int((summary.status == "ok").sum())
@@ -429,7 +439,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if protocol is None or args.camera is None:
         raise ValueError("analyze VIDEO needs --camera and --protocol")
     res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
-                        terms=terms_arg(args.terms), stage=lambda msg: print(msg, flush=True))
+                        terms=terms_arg(args.terms), constraints=constraints,
+                        stage=lambda msg: print(msg, flush=True))
     ts = res["time_s"]
     print(f"{res['frames']} frames, {res['tracked_fraction']:.1%} tracked; track {ts['track']:.1f} s, smooth "
           f"{ts['smooth']:.2f} s, fit {ts['fit']:.2f} s")
@@ -447,7 +458,7 @@ def _cmd_theory(args: argparse.Namespace) -> int:
         raise ValueError("give a PROTOCOL, or --validate")
     pred = theory.predict(load_protocol(args.protocol), simulate_damping=not args.no_simulate)
     if args.json:
-        print(json.dumps(_io.json_safe(pred), indent=2))
+        print_data(json.dumps(_io.json_safe(pred), indent=2))
     else:
         print_prediction(pred)
     return EXIT_OK

@@ -11,18 +11,28 @@ __all__ = ["build_parser"]
 
 
 def add_fit_options(parser: argparse.ArgumentParser) -> None:
-    """``--truth`` and ``--terms``, shared by fit and analyze."""
+    """``--truth``, ``--terms``, ``--fix`` and ``--prior``, shared by fit and analyze."""
     parser.add_argument("--truth", default=None, help="truth.csv of a synthetic run: adds true values and pulls")
     parser.add_argument("--terms", default="data",
                         help="how the model's optional terms (nutation harmonics, damped-scene terms) are chosen: "
                         "'data' (default) by chi-square tests on this record, or a plan.json from 'gyrorig plan "
                         "--duration T --out DIR' (its fit_terms: the same model for every record of the scene)")
+    parser.add_argument("--fix", action="append", default=None, metavar="NAME=VALUE",
+                        help="hold a fit parameter at a value (SI units; names as in fit.json's parameters, e.g. "
+                        "nutation_frequency_rad_s); repeatable")
+    parser.add_argument("--prior", action="append", default=None, metavar="NAME=VALUE+-SD",
+                        help="a Gaussian prior on a fit parameter, e.g. precession_rate_rad_s=0.86+-0.01: one more "
+                        "measurement of it, combined with the record; repeatable")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for documentation and tests)."""
     p = argparse.ArgumentParser(prog="gyrorig", description="experiment design and data fitting for air-bearing gyroscope rigs")
-    p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    talk = p.add_mutually_exclusive_group()
+    talk.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    talk.add_argument("-q", "--quiet", action="store_true",
+                      help="for scripts: no progress and no summary, only errors on stderr and the output asked for "
+                           "(--json); the exit code says how it went")
     p.add_argument("--version", action="version", version=f"gyrorig {__version__}")
     p.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
     sub = p.add_subparsers(dest="command", required=True)

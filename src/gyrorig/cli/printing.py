@@ -8,11 +8,30 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["progress_printer", "print_plan", "print_fit", "print_prediction"]
+__all__ = ["progress_printer", "print_plan", "print_fit", "print_prediction", "print_data", "set_quiet"]
+
+#: ``-q/--quiet``: no progress and no summary; only the data asked for (``--json``) and errors
+_QUIET = {"on": False, "data": None}
+
+
+def set_quiet(data_stream) -> None:
+    """Quiet mode (``data_stream`` not None): progress printers go silent and :func:`print_data` writes to
+    ``data_stream`` (the real stdout); None: normal output."""
+    _QUIET.update(on=data_stream is not None, data=data_stream)
+
+
+def print_data(text: str) -> None:
+    """Output a script asked for (``--json``): printed even with ``--quiet``."""
+    stream = _QUIET["data"] if _QUIET["on"] else sys.stdout
+    stream.write(text + "\n")
+    stream.flush()
 
 
 def progress_printer(label: str):
-    """A progress bar on a terminal (stderr); elsewhere (a log file) a line at every tenth of the work."""
+    """A progress bar on a terminal (stderr); elsewhere (a log file) a line at every tenth of the work;
+    nothing with ``--quiet``."""
+    if _QUIET["on"]:
+        return lambda done, total: None
     tty = sys.stderr.isatty()
     start = time.perf_counter()
     logged = [-1]

@@ -10,6 +10,7 @@ Modules, like lmfit's Model / Parameters / MinimizerResult:
 * :mod:`~gyrorig.fit.terms`: one class per model term (parameters, value, Jacobian, when it applies);
 * :mod:`~gyrorig.fit.spec`: which terms a model has (:class:`ModelSpec`), terms fixed in advance (:class:`FitTerms`);
 * :mod:`~gyrorig.fit.data`: the measured frames (:class:`FitData`);
+* :mod:`~gyrorig.fit.constraints`: parameters held fixed or given priors (:class:`Constraints`);
 * :mod:`~gyrorig.fit.model`: the scene's model (:func:`model_for_scene`), its evaluation in the lab
   (:class:`FitModel`) and its whitened residuals (:class:`Residuals`);
 * :mod:`~gyrorig.fit.solver`: the least-squares solution (:class:`Solution`) and start values;
@@ -23,6 +24,7 @@ One quantity the data cannot determine is reported as undetermined with the reas
 a number.
 """
 
+from .constraints import Constraints, constrainable_names
 from .data import FIT_REQUIRED, FitData, FitError, fit_data_from_angles
 from .fitting import TERM_CHOICES, fit_angles, linear_response
 from .model import FitModel, Residuals, SceneModel, model_for_scene
@@ -35,7 +37,7 @@ from .spec import FitTerms, ModelSpec
 from .terms import MAX_HARMONICS, OPTIONAL_TERMS
 from .uncertainty import phase_uncertainty
 
-__all__ = ["FitError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "FitModel", "Residuals",
+__all__ = ["Constraints", "constrainable_names", "FitError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "FitModel", "Residuals",
            "SceneModel", "Solution", "Selector", "model_for_scene", "fit_data_from_angles", "fit_angles", "fit_model",
            "solve", "plan_terms", "phase_uncertainty", "left_out_noncentrality", "linear_response", "score_term",
            "trial_term", "ErrorKind", "Note", "NoteKind", "QuantityStatus", "Undetermined", "OPTIONAL_TERMS",

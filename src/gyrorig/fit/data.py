@@ -10,6 +10,7 @@ import pandas as pd
 
 from ..smooth import measurement_covariance
 from ..tables import camera_mode_columns, camera_mode_count, missing_columns
+from .constraints import Constraints
 
 __all__ = ["FitError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
 
@@ -39,6 +40,8 @@ class FitData:
     #: (a blurred spot's centroid is the mean position over the exposure, which shrinks an
     #: oscillation of angular frequency w by sinc(w T / 2)); None: instantaneous samples
     exposure_s: np.ndarray | None = None
+    #: parameters held fixed or given priors (outside information about the record's parameters)
+    constraints: Constraints = Constraints()
 
     @property
     def camera_modes(self) -> int:
@@ -99,7 +102,7 @@ def _exposures(a: pd.DataFrame, t: np.ndarray) -> np.ndarray | None:
 
 
 def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None,
-                         precession_hint_rad_s: float | None = None) -> FitData:
+                         precession_hint_rad_s: float | None = None, constraints: Constraints | None = None) -> FitData:
     """The measured frames of an angle table (:mod:`gyrorig.tables`), minus ``exclude`` (e.g. the
     smoother's outliers).  A gap longer than half a precession period (``precession_hint_rad_s``)
     starts a new azimuth segment."""
@@ -127,4 +130,4 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
         segment = np.concatenate([[0], np.cumsum(np.diff(t) > half_period)])
     return FitData(frame=frame, t_s=t, theta_rad=a["theta_rad"].to_numpy(float), phi_rad=a["phi_rad"].to_numpy(float),
                    cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]), camera_shift=_camera_shifts(a),
-                   exposure_s=_exposures(a, t))
+                   exposure_s=_exposures(a, t), constraints=constraints or Constraints())

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ..protocols import Protocol
+from .constraints import Constraints
 from .data import FitData, fit_data_from_angles
 from .model import FitModel, Residuals, model_for_scene
 from .quantities import build_quantities, quantity_functions, truth_values
@@ -108,7 +109,8 @@ def _residual_tables(sol: Solution, data: FitData) -> tuple[pd.DataFrame, pd.Dat
 def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
                exclude: np.ndarray | None = None, truth: pd.DataFrame | None = None,
                rng: np.random.Generator | None = None, bootstrap_replicates: int = 50,
-               check_residuals: bool = True, terms: FitTerms | str = "data") -> FitResult:
+               check_residuals: bool = True, terms: FitTerms | str = "data",
+               constraints: Constraints | None = None) -> FitResult:
     """Fit an angle table with the scene's model and compare with theory (and truth, if given).
 
     Parameters
@@ -140,11 +142,16 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         every record of the scene; a term the data need beyond them is still added (noted).
         ``"noiseless"``: the angles are noiseless model data (planning): a term is kept above a
         non-centrality of :data:`~gyrorig.fit.selection.PLANNED_NONCENTRALITY`.
+    constraints : Constraints, optional
+        Parameters held fixed or given Gaussian priors, by name (:mod:`gyrorig.fit.constraints`).
     """
     start_time = time.perf_counter()
     scene = model_for_scene(protocol, prediction)
-    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s)
+    constraints = constraints or Constraints()
+    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints)
     sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
+    if constraints:
+        notes.append(_constraint_note(constraints, sol.spec))
     at_pole = _azimuth_undefined(data, sol.spec)
     if at_pole is not None:
         undetermined = {**undetermined, "precession_rate_rad_s": at_pole}
@@ -162,7 +169,18 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     return FitResult(spec=sol.spec, params=params, quantities=quantities, chi2=sol.chi2, dof=sol.dof,
                      residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, error_kind=error_kind,
                      notes=tuple(notes), x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time,
-                     terms=chosen, phase_uncertainty_rad=phases, bootstrap=bootstrap)
+                     terms=chosen, phase_uncertainty_rad=phases, bootstrap=bootstrap, constraints=constraints)
+
+
+def _constraint_note(constraints: Constraints, spec) -> Note:
+    parts = [f"{n} fixed at {v:.6g}" for n, v in constraints.fixed]
+    parts += [f"{n} with prior {m:.6g} +- {s:.3g}" for n, m, s in constraints.priors]
+    unused = constraints.unused(spec)
+    text = "constrained by the user: " + "; ".join(parts) + " (a fixed parameter has standard error 0; a prior " \
+        "counts as one more measurement of its parameter)"
+    if unused:
+        text += f"; unused, the model has no such parameter: {', '.join(unused)}"
+    return Note(NoteKind.CONSTRAINED, text)
 
 
 #: a tilt below this many of its per-frame errors (medians over the record) leaves the azimuth undefined

@@ -130,7 +130,8 @@ def whitener(cov: np.ndarray) -> np.ndarray:
 
 class Residuals:
     """A model against the data: raw residuals (theta, phi), whitened ones (2n, then one prior residual
-    per camera mode) and their Jacobian.
+    per camera mode, then one per prior of :class:`~gyrorig.fit.constraints.Constraints`) and their
+    Jacobian (zero in the columns of fixed parameters).
 
     With exposures the model is the mean over each frame's exposure, by two-point Gauss-Legendre
     (exact for a cubic; for a sinusoid of angular frequency w off by (w T)^4 / 2900, 1e-11 at
@@ -146,6 +147,13 @@ class Residuals:
         self.tau = data.tau
         self.W = whitener(data.cov)
         self.shift = data.camera_shift if m else None
+        ix = model.index
+        c = data.constraints
+        self.fixed = {ix[n]: v for n, v in c.fixed if n in ix}
+        priors = [(ix[n], mu, sd) for n, mu, sd in c.priors if n in ix]
+        self.prior_index = np.array([i for i, _, _ in priors], int)
+        self.prior_mean = np.array([mu for _, mu, _ in priors], float)
+        self.prior_sd = np.array([sd for _, _, sd in priors], float)
         ex = data.exposure_s
         if ex is not None and np.any(ex > 0):
             half = ex / (2.0 * math.sqrt(3.0))
@@ -156,7 +164,19 @@ class Residuals:
     @property
     def size(self) -> int:
         """Number of whitened residuals."""
-        return 2 * self.data.n + self.modes
+        return 2 * self.data.n + self.modes + len(self.prior_index)
+
+    @property
+    def free(self) -> int:
+        """Number of parameters the fit moves (the model's, less the fixed ones)."""
+        return len(self.model.names) - len(self.fixed)
+
+    def start(self, x: np.ndarray) -> np.ndarray:
+        """``x`` with the fixed parameters set to their values."""
+        x = np.array(x, float)
+        for i, v in self.fixed.items():
+            x[i] = v
+        return x
 
     def lab(self, p: np.ndarray):
         seg = self.data.segment
@@ -189,6 +209,8 @@ class Residuals:
         parts = [W[:, 0, 0] * r0, W[:, 1, 0] * r0 + W[:, 1, 1] * r1]
         if self.modes:
             parts.append(p[-self.modes:])  # unit Gaussian prior on each camera mode
+        if len(self.prior_index):
+            parts.append((p[self.prior_index] - self.prior_mean) / self.prior_sd)
         return np.concatenate(parts)
 
     def jac(self, p: np.ndarray) -> np.ndarray:
@@ -203,6 +225,12 @@ class Residuals:
             prior = np.zeros((m, J.shape[1]))
             prior[:, -m:] = np.eye(m)
             J = np.vstack([J, prior])
+        if len(self.prior_index):
+            prior = np.zeros((len(self.prior_index), J.shape[1]))
+            prior[np.arange(len(self.prior_index)), self.prior_index] = 1.0 / self.prior_sd
+            J = np.vstack([J, prior])
+        if self.fixed:
+            J[:, list(self.fixed)] = 0.0
         return J
 
 

@@ -17,6 +17,7 @@ from scipy.interpolate import CubicSpline
 
 from ..geometry import angles_from_tip, wrap_angle
 from ..protocols import Protocol
+from .constraints import Constraints
 from .data import FitData, FitError
 from .result import QUANTITY_UNITS, Quantity, QuantityStatus, Reason, Undetermined
 from .spec import ModelSpec
@@ -202,7 +203,8 @@ def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndar
     keep = np.concatenate([[True], np.diff(t) > 0])
     th_i = CubicSpline(t[keep], th[keep])(data.t_s)
     ph_i = wrap_angle(CubicSpline(t[keep], ph[keep])(data.t_s))
-    d = replace(data, theta_rad=th_i, phi_rad=ph_i, camera_shift=None, exposure_s=None)  # instantaneous
+    # instantaneous, and free of the user's constraints: the truth is the unconstrained estimator's limit
+    d = replace(data, theta_rad=th_i, phi_rad=ph_i, camera_shift=None, exposure_s=None, constraints=Constraints())
     spec0 = replace(spec, camera_modes=0)
     sol = solve(spec0, d, dict(zip(spec0.names(), x)))
     return {k: float(f(sol.x)) for k, f in quantity_functions(spec).items()}

@@ -14,6 +14,7 @@ from enum import StrEnum
 import numpy as np
 import pandas as pd
 
+from .constraints import Constraints
 from .spec import FitTerms, ModelSpec
 
 __all__ = ["QUANTITY_UNITS", "QuantityStatus", "Undetermined", "Reason", "ErrorKind", "NoteKind", "Note", "Quantity",
@@ -96,6 +97,8 @@ class NoteKind(StrEnum):
     RECORD_TOO_SHORT = "record-too-short"
     SYSTEMATIC = "systematic"
     CAMERA_MODES = "camera-modes"
+    #: parameters held fixed or given priors by the user
+    CONSTRAINED = "constrained"
 
 
 @dataclass(frozen=True)
@@ -172,6 +175,8 @@ class FitResult:
     phase_uncertainty_rad: dict[str, float] = field(default_factory=dict)
     #: with bootstrap errors: (replicates, block length in frames)
     bootstrap: tuple[int, int] | None = None
+    #: parameters held fixed or given priors (:class:`gyrorig.fit.constraints.Constraints`)
+    constraints: Constraints = Constraints()
 
     @property
     def linear_regime(self) -> bool:
@@ -242,6 +247,7 @@ class FitResult:
             "parameter_covariance": {"names": list(self.parameter_names),
                                      "covariance": self.covariance.tolist(),
                                      "correlation": self.correlation.tolist()},
+            "constraints": {**self.constraints.as_dict(), "unused": self.constraints.unused(self.spec)},
             "wall_time_s": self.wall_time_s,
         }
 

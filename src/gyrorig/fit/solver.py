@@ -59,8 +59,13 @@ class Solution:
         return dict(zip(self.spec.names(), self.x))
 
 
-def _covariance(J: np.ndarray) -> np.ndarray:
-    return np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
+def _covariance(J: np.ndarray, fixed=()) -> np.ndarray:
+    """``(J^T J)^-1`` (pseudo-inverse); exactly zero in the rows and columns of fixed parameters."""
+    cov = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
+    idx = list(fixed)
+    cov[idx, :] = 0.0
+    cov[:, idx] = 0.0
+    return cov
 
 
 def solve(spec: ModelSpec, data: FitData, start: dict[str, float], *, near: bool = False) -> Solution:
@@ -72,18 +77,19 @@ def solve(spec: ModelSpec, data: FitData, start: dict[str, float], *, near: bool
     evaluations creeping to where a few Gauss-Newton steps go).
     """
     model = FitModel(spec)
-    x0 = model.vector(start)
     white = Residuals(model, data)
-    n_res = white.size  # the priors add a residual per camera mode
-    if n_res <= len(x0):
-        raise FitError(f"{data.n} frames are too few for a model with {len(x0)} parameters")
+    x0 = white.start(model.vector(start))
+    n_res = white.size  # the priors add a residual per camera mode and per prior
+    n_free = white.free
+    if n_res <= n_free:
+        raise FitError(f"{data.n} frames are too few for a model with {n_free} free parameters")
     if near:
         with np.errstate(over="ignore", invalid="ignore"):
             r0 = white(x0)
         if np.all(np.isfinite(r0)):
             x, r, J = _gauss_newton_polish(white, x0, r0, white.jac(x0), max_steps=60)
             if remaining_step_se(J, r) < STATIONARY_STEP_SE and np.all(np.isfinite(x)):
-                return Solution(spec, x, _covariance(J), float(r @ r), n_res - len(x0), True,
+                return Solution(spec, x, _covariance(J, white.fixed), float(r @ r), n_res - n_free, True,
                                 "Gauss-Newton from a near start")
             x0 = x
     x = x0
@@ -109,10 +115,10 @@ def solve(spec: ModelSpec, data: FitData, start: dict[str, float], *, near: bool
                    f"would move a parameter by {remaining_step_se(J, r):.3g} standard errors; the chi-square still "
                    "falls slowly): the parameters are nearly degenerate over this record")
     try:
-        cov = _covariance(J)
+        cov = _covariance(J, white.fixed)
     except np.linalg.LinAlgError:
         cov = np.full((len(x0), len(x0)), np.nan)
-    return Solution(spec, x, cov, float(np.sum(r**2)), n_res - len(x0), ok, message)
+    return Solution(spec, x, cov, float(np.sum(r**2)), n_res - n_free, ok, message)
 
 
 def remaining_step_se(J: np.ndarray, r: np.ndarray) -> float:
@@ -171,9 +177,9 @@ def conditional_amplitudes(spec: ModelSpec, data: FitData, start: dict[str, floa
     least-squares values with every other parameter held at ``start`` (one Gauss-Newton step
     in those parameters alone).  Returns the start and its chi-square."""
     model = FitModel(spec)
-    x0 = model.vector(start)
     white = Residuals(model, data)
-    cols = [model.index[n] for n in names]
+    x0 = white.start(model.vector(start))
+    cols = [model.index[n] for n in names if model.index[n] not in white.fixed]
     r = white(x0)
     J = white.jac(x0)[:, cols]
     step, *_ = np.linalg.lstsq(J, -r, rcond=None)

@@ -100,7 +100,8 @@ def statistical_covariance(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data
     if not m:
         return None
     nb = len(x) - m
-    J = Residuals(FitModel(spec), data).jac(x)[:2 * data.n, :nb]
+    J = Residuals(FitModel(spec), data).jac(x)
+    J = np.vstack([J[:2 * data.n, :nb], J[2 * data.n + m:, :nb]])  # the frames and the user's priors
     out = np.zeros_like(cov)
     out[:nb, :nb] = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
     return out
