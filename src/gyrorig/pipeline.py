@@ -21,7 +21,7 @@ import pandas as pd
 from .fit import Constraints, FitResult, FitTerms, fit_angles
 from .protocols import Protocol
 from .smooth import SmoothResult, smooth_angles
-from .theory import predict
+from .propagate import predict_with_uncertainty
 from .tracking import TrackingCamera, TrackResult, load_camera, track
 
 logger = logging.getLogger(__name__)
@@ -68,7 +68,8 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict
                    stage: Stage | None = None, constraints: Constraints | None = None) -> Fitted:
     """Smooth an angle table (its outlier marks leave frames out of the fit), predict, fit.
 
-    ``prediction`` defaults to :func:`gyrorig.theory.predict` of the protocol; ``truth`` (noiseless
+    ``prediction`` defaults to :func:`gyrorig.propagate.predict_with_uncertainty` of the protocol (the
+    predictions with error bars from its parameter uncertainties); ``truth`` (noiseless
     ``t_s, theta_rad, phi_rad``, e.g. :func:`gyrorig.tables.tip_truth`) adds true values and pulls;
     ``terms`` and ``constraints`` as in :func:`gyrorig.fit.fit_angles`; ``smooth``: an earlier result for
     these angles.
@@ -81,7 +82,7 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict
     t1 = time.perf_counter()
     say("theory predictions and the fit ...")
     if prediction is None:
-        prediction = predict(protocol)
+        prediction = predict_with_uncertainty(protocol)
     exclude = (smooth.table["status"] == "outlier").to_numpy()
     fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms,
                      constraints=constraints)

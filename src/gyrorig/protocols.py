@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Union
 
 from ._validate import ProtocolError, angle, boolean, check_keys, finite, number, vector3
+from .parameters import Uncertainty, split_uncertain
 
 __all__ = [
     "ProtocolError",
@@ -40,6 +41,8 @@ __all__ = [
     "top_protocol",
     "protocol_summary",
     "BUNDLED_PROTOCOL_DIR",
+    "Uncertainty",
+    "checked_rig",
 ]
 
 
@@ -281,6 +284,9 @@ class Protocol:
     scene: Scene
     source: str = ""
     extra: Mapping[str, Any] = field(default_factory=dict)
+    #: standard deviations (and correlations) of the parameters given as ``{ value, sd }``
+    #: (:mod:`gyrorig.parameters`); empty: every number exact
+    uncertainty: Uncertainty = field(default_factory=Uncertainty)
 
     @property
     def has_gravity(self) -> bool:
@@ -299,8 +305,11 @@ class Protocol:
 # sections read by later pipeline stages; accepted as tables, validated there
 def protocol_summary(p: Protocol) -> dict:
     """The protocol as parsed (its physics sections as plain dicts), for manifests."""
-    return {"name": p.name, "source": p.source, "description": p.description, "rig": asdict(p.rig),
-            "launch": asdict(p.launch), "pivot": asdict(p.pivot), "scene": asdict(p.scene)}
+    out = {"name": p.name, "source": p.source, "description": p.description, "rig": asdict(p.rig),
+           "launch": asdict(p.launch), "pivot": asdict(p.pivot), "scene": asdict(p.scene)}
+    if p.uncertainty:
+        out["uncertainty"] = p.uncertainty.as_dict()
+    return out
 
 
 _LATER_SECTIONS = {"camera", "markers", "measure"}
@@ -448,8 +457,9 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     ----------
     data : mapping
         Top-level tables ``protocol`` (optional: ``name``, ``description``), ``rig``,
-        ``launch``, ``scene`` (required), ``pivot`` (optional), and the sections read by
-        later stages (``camera``, ``markers``, ``measure``).
+        ``launch``, ``scene`` (required), ``pivot`` (optional), ``uncertainty`` (optional:
+        correlations of the numbers given as ``{ value, sd }``, :mod:`gyrorig.parameters`), and
+        the sections read by later stages (``camera``, ``markers``, ``measure``).
     source : str
         Where the data came from, for messages.
 
@@ -462,8 +472,9 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     ProtocolError
         Naming the offending key, its value and the allowed range.
     """
-    known = {"protocol", "rig", "launch", "pivot", "scene"} | _LATER_SECTIONS
+    known = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty"} | _LATER_SECTIONS
     unknown = sorted(set(data) - known)
+    data, uncertainty = split_uncertain(data)
     if unknown:
         raise ProtocolError(f"unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}")
     for sec in ("rig", "launch", "scene"):
@@ -479,7 +490,12 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
         raise ProtocolError("pivot acceleration given but rig.com_distance_m = 0: it would exert no torque")
     extra = {k: v for k, v in data.items() if k in _LATER_SECTIONS}
     name = str(meta.get("name", Path(source).stem if source else "protocol"))
-    return Protocol(name, str(meta.get("description", "")), rig, launch, pivot, scene, source, extra)
+    return Protocol(name, str(meta.get("description", "")), rig, launch, pivot, scene, source, extra, uncertainty)
+
+
+def checked_rig(rig: Rig) -> Rig:
+    """``rig`` validated as if read from a protocol (e.g. after changing a value): ProtocolError otherwise."""
+    return _parse_rig({k: v for k, v in asdict(rig).items() if v is not None})
 
 
 def load_protocol(path: str | Path) -> Protocol:

@@ -450,13 +450,13 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def _cmd_theory(args: argparse.Namespace) -> int:
-    from .. import theory
-
     if args.validate:
         return _cmd_validate(args)
     if not args.protocol:
         raise ValueError("give a PROTOCOL, or --validate")
-    pred = theory.predict(load_protocol(args.protocol), simulate_damping=not args.no_simulate)
+    from ..propagate import predict_with_uncertainty
+
+    pred = predict_with_uncertainty(load_protocol(args.protocol), simulate_damping=not args.no_simulate)
     if args.json:
         print_data(json.dumps(_io.json_safe(pred), indent=2))
     else:

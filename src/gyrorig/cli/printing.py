@@ -121,10 +121,17 @@ def print_fit(fit, out: Path) -> None:
         line = f"  {name}: {q.value:.7g} +- {q.standard_error:.2g} {q.units}"
         if q.camera_standard_error:
             line += f" (camera model {q.camera_standard_error:.2g} of it)"
-        if q.paper is not None and q.diff_paper_se is not None:
-            line += f"; paper {q.paper:.6g} ({q.diff_paper_se:+.1f} s.e.)"
-        if q.exact is not None and q.diff_exact_se is not None:
-            line += f"; exact {q.exact:.6g} ({q.diff_exact_se:+.1f} s.e.)"
+        for kind in ("paper", "exact"):
+            value, diff = getattr(q, kind), getattr(q, f"diff_{kind}_se")
+            if value is None or diff is None:
+                continue
+            psd, comb = getattr(q, f"{kind}_standard_error"), getattr(q, f"diff_{kind}_combined_se")
+            if psd and comb is not None:
+                line += f"; {kind} {value:.6g} +- {psd:.2g} ({comb:+.1f} combined s.e.)"
+            else:
+                line += f"; {kind} {value:.6g} ({diff:+.1f} s.e.)"
+        if q.prediction_share is not None:
+            line += f" [prediction {q.prediction_share:.0%} of the variance]"
         if q.truth is not None:
             line += f"; truth {q.truth:.7g} (pull {q.pull:+.2f})"
         print(line)
@@ -138,18 +145,27 @@ def print_prediction(pred: dict) -> None:
     for k, v in pred["flags"].items():
         print(f"  flag {k} = {v:.4g}" if isinstance(v, float) else f"  flag {k} = {v}")
     fmt = lambda x: "-" if x is None else (f"{x:.6g}" if isinstance(x, float) else str(x))  # noqa: E731
+    def pm(v: dict, kind: str) -> str:
+        sd = v.get(f"{kind}_sd")
+        return fmt(v.get(kind)) + (f" +- {sd:.2g}" if sd else "")
+
     for key, v in pred.items():
-        if key in ("protocol", "flags"):
+        if key in ("protocol", "flags", "parameter_uncertainty"):
             continue
         if key == "equilibrium_tip":
             print(f"  {key}: paper {np.round(v['paper'], 5).tolist()}, exact {np.round(v['exact'], 5).tolist()}, "
                   f"{v['angle_between_rad']:.4g} rad apart; leans towards the acceleration: "
                   f"paper {v['leans_towards_acceleration']['paper']}, exact {v['leans_towards_acceleration']['exact']}")
             continue
-        line = f"  {key}: paper {fmt(v.get('paper'))}"
+        line = f"  {key}: paper {pm(v, 'paper')}"
         if "corrected" in v:
-            line += f", corrected {fmt(v['corrected'])}"
-        line += f", exact {fmt(v.get('exact'))} ({v['exact_source']})"
+            line += f", corrected {pm(v, 'corrected')}"
+        line += f", exact {pm(v, 'exact')} ({v['exact_source']})"
+        unc = v.get("uncertainty")
+        if unc:
+            top = max(unc["by_parameter"].items(), key=lambda kv: kv[1])
+            line += (f" [+- from the rig's parameters, {unc['method']}; largest share {top[0]} "
+                     f"{top[1]:.0%}]")
         if "relative_difference" in v:
             line += f"; paper off by {v['relative_difference']:+.2%}"
         if v.get("sign_agrees") is False:

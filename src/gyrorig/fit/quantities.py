@@ -103,12 +103,20 @@ def _compare(q: Quantity, theory: dict, comparable: bool, note: str = "") -> Qua
     p = theory[q.name]
     paper, corr, exact = p.get("paper"), p.get("corrected"), p.get("exact")
     upd = dict(paper=paper, corrected=corr, exact=exact, exact_source=p.get("exact_source", ""),
-               note="; ".join(n for n in (q.note, note) if n))
+               note="; ".join(n for n in (q.note, note) if n),
+               paper_standard_error=p.get("paper_sd"), exact_standard_error=p.get("exact_sd"))
     if comparable and q.value is not None and q.standard_error:
-        if paper is not None and np.isfinite(paper):
-            upd["diff_paper_se"] = _difference(q.name, q.value, paper) / q.standard_error
-        if exact is not None and np.isfinite(exact):
-            upd["diff_exact_se"] = _difference(q.name, q.value, exact) / q.standard_error
+        se = q.standard_error
+        for kind, value in (("paper", paper), ("exact", exact)):
+            if value is None or not np.isfinite(value):
+                continue
+            diff = _difference(q.name, q.value, value)
+            upd[f"diff_{kind}_se"] = diff / se
+            psd = p.get(f"{kind}_sd")
+            if psd is not None and np.isfinite(psd):
+                upd[f"diff_{kind}_combined_se"] = diff / math.hypot(se, psd)
+                if kind == "exact":
+                    upd["prediction_share"] = psd**2 / (se**2 + psd**2)
     return replace(q, **upd)
 
 

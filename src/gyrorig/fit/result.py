@@ -142,6 +142,14 @@ class Quantity:
     camera_standard_error: float | None = None
     #: why the quantity is undetermined (None when it is determined)
     reason_kind: Undetermined | None = None
+    #: the predictions' own standard errors, from the rig's parameter uncertainties (None: exact inputs)
+    paper_standard_error: float | None = None
+    exact_standard_error: float | None = None
+    #: (fit - prediction) / sqrt(s.e.^2 + prediction s.e.^2): the pull against theory, both errors counted
+    diff_paper_combined_se: float | None = None
+    diff_exact_combined_se: float | None = None
+    #: the prediction's share of that combined variance (0: all measurement, 1: all prediction)
+    prediction_share: float | None = None
 
     @property
     def determined(self) -> bool:

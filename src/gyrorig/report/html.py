@@ -44,6 +44,17 @@ def _value_cell(q) -> str:
     return cell
 
 
+def _predicted_cell(value, sd) -> str:
+    """A prediction, with its own standard error when the rig's parameters carry uncertainties."""
+    return _fmt(value) + (f" ± {_fmt(sd, 2)}" if sd else "")
+
+
+def _combined(q, kind: str):
+    """The difference in standard errors: combined (measurement and prediction) where the prediction has one."""
+    combined = getattr(q, f"diff_{kind}_combined_se")
+    return combined if combined is not None else getattr(q, f"diff_{kind}_se")
+
+
 def _diff_cell(d) -> str:
     if d is None:
         return "–"
@@ -59,8 +70,9 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
     rows = []
     has_truth = any(q.truth is not None for q in fit.quantities.values())
     for name, q in fit.quantities.items():
-        cells = [f"<code>{name}</code>", html.escape(q.units), _value_cell(q), _fmt(q.paper), _diff_cell(q.diff_paper_se),
-                 _fmt(q.corrected), _fmt(q.exact), _diff_cell(q.diff_exact_se)]
+        cells = [f"<code>{name}</code>", html.escape(q.units), _value_cell(q),
+                 _predicted_cell(q.paper, q.paper_standard_error), _diff_cell(_combined(q, "paper")),
+                 _fmt(q.corrected), _predicted_cell(q.exact, q.exact_standard_error), _diff_cell(_combined(q, "exact"))]
         if has_truth:
             cells += [_fmt(q.truth), _diff_cell(q.pull)]
         note = q.note or (q.exact_source and f"exact: {q.exact_source}") or ""
@@ -78,6 +90,10 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
                         + (" — <b>not satisfied</b>, expect percent-level differences" if ratio < 10 else ""))
     if flags.get("small_tilt") is False:
         validity.append("launch tilt is not small: small-tilt formulas are approximate here")
+    if pred.get("parameter_uncertainty"):
+        validity.append("the rig's parameters carry standard deviations (protocol): each prediction has its own "
+                        "± and the differences count both errors, s.e. = sqrt(s.e.<sub>fit</sub>² + "
+                        "s.e.<sub>prediction</sub>²)")
     for key, v in pred.items():
         if isinstance(v, dict) and v.get("sign_agrees") is False:
             validity.append(f"<code>{key}</code>: the paper's formula has the <b>wrong sign</b> "

@@ -1,0 +1,144 @@
+"""Predictions with error bars: a protocol's parameter uncertainties carried into theory's predictions.
+
+Each uncertain parameter (:mod:`gyrorig.parameters`) is moved by one standard deviation either way
+and :func:`gyrorig.theory.predict` re-run: the central difference is the linear map, the
+asymmetry of the two moves its curvature.  The linearised covariance is ``G C G^T`` with ``C`` the
+parameters' covariance.  Where a prediction is not linear over one standard deviation of some
+parameter (a curvature above :data:`NONLINEAR_RATIO` of the slope), its standard deviation comes
+from ``draws`` samples of the parameters instead, and says so.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import replace
+
+import numpy as np
+
+from .protocols import Protocol, ProtocolError, checked_rig
+from .theory import predict
+
+__all__ = ["perturbed", "predict_with_uncertainty", "prediction_scalars", "NONLINEAR_RATIO", "PREDICTED_KINDS"]
+
+#: the predicted values carried with error bars
+PREDICTED_KINDS = ("paper", "corrected", "exact")
+#: |f(+sd) + f(-sd) - 2 f(0)| / |f(+sd) - f(-sd)| above this: the prediction is sampled, not linearised
+NONLINEAR_RATIO = 0.1
+_DAMPING = re.compile(r"pivot\.damping(?:\[(\d+)\])?\.(\w+)")
+
+
+def perturbed(protocol: Protocol, changes: dict[str, float]) -> Protocol:
+    """The protocol with the named parameters (``rig.mass_kg``, ``launch.spin_rate_rad_s``,
+    ``pivot.damping.coefficient_N_m_s`` ...) set to new values; ProtocolError for an impossible rig."""
+    rig, launch, damping = protocol.rig, protocol.launch, list(protocol.pivot.damping)
+    for name, value in changes.items():
+        section, _, key = name.partition(".")
+        if section == "rig":
+            rig = replace(rig, **{key: float(value)})
+        elif section == "launch":
+            launch = replace(launch, **{key: float(value)})
+        elif (m := _DAMPING.fullmatch(name)) and damping:
+            i = int(m.group(1) or 0)
+            damping[i] = replace(damping[i], **{m.group(2): float(value)})
+        else:
+            raise ProtocolError(f"{name}: not a parameter this protocol has")
+    return replace(protocol, rig=checked_rig(rig), launch=launch, pivot=replace(protocol.pivot, damping=tuple(damping)))
+
+
+def prediction_scalars(prediction: dict) -> dict[tuple[str, str], float]:
+    """The finite numbers of a prediction: ``(quantity, kind) -> value`` for kind in :data:`PREDICTED_KINDS`."""
+    out = {}
+    for q, entry in prediction.items():
+        if not isinstance(entry, dict) or q == "flags":
+            continue
+        for kind in PREDICTED_KINDS:
+            v = entry.get(kind)
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+                out[(q, kind)] = float(v)
+    return out
+
+
+def _vector(pred: dict, keys: list) -> np.ndarray:
+    s = prediction_scalars(pred)
+    return np.array([s.get(k, np.nan) for k in keys])
+
+
+def _moves(protocol: Protocol, name: str, x0: float, sd: float, simulate_damping: bool, keys: list):
+    """f(x0 + h), f(x0 - h) and h: h = sd, or sd / 10 when a whole sd makes the rig impossible."""
+    for h in (sd, 0.1 * sd):
+        try:
+            plus = predict(perturbed(protocol, {name: x0 + h}), simulate_damping=simulate_damping)
+            minus = predict(perturbed(protocol, {name: x0 - h}), simulate_damping=simulate_damping)
+        except ProtocolError:
+            continue
+        return _vector(plus, keys), _vector(minus, keys), h
+    raise ProtocolError(f"{name} = {x0:g} +- {sd:g}: moving it by even a tenth of its sd makes the rig impossible")
+
+
+def _sampled_sd(protocol: Protocol, names: list, x0: np.ndarray, cov: np.ndarray, keys: list, draws: int,
+                simulate_damping: bool, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """The SD of each prediction over parameter draws (impossible rigs rejected), and the draws used."""
+    rows = []
+    for x in rng.multivariate_normal(x0, cov, size=draws, method="eigh"):
+        try:
+            p = perturbed(protocol, dict(zip(names, x)))
+        except ProtocolError:
+            continue
+        rows.append(_vector(predict(p, simulate_damping=simulate_damping), keys))
+    if len(rows) < 2:
+        return np.full(len(keys), np.nan), len(rows)
+    return np.nanstd(np.array(rows), axis=0, ddof=1), len(rows)
+
+
+def predict_with_uncertainty(protocol: Protocol, *, prediction: dict | None = None, simulate_damping: bool = True,
+                             draws: int = 100, rng: np.random.Generator | None = None) -> dict:
+    """:func:`gyrorig.theory.predict`, with each predicted number's standard deviation from the protocol's
+    parameter uncertainties.
+
+    Every quantity entry gains ``<kind>_sd`` for ``paper``, ``corrected`` and ``exact`` (where it has
+    them) and ``uncertainty``: ``method`` (``linear`` or ``sampled``), ``by_parameter`` (each
+    parameter's share of the exact value's variance, correlations left out), ``nonlinearity`` (the
+    largest curvature ratio).  Without uncertain parameters the prediction is returned as is.
+    """
+    pred = prediction if prediction is not None else predict(protocol, simulate_damping=simulate_damping)
+    unc = protocol.uncertainty
+    if not unc:
+        return pred
+    pred = {k: (dict(v) if isinstance(v, dict) else v) for k, v in pred.items()}
+    idx = [i for i, s in enumerate(unc.sd) if s > 0]
+    names = [unc.names[i] for i in idx]
+    x0 = np.array([unc.values[i] for i in idx])
+    cov = unc.covariance()[np.ix_(idx, idx)]
+    keys = list(prediction_scalars(pred))
+    f0 = np.array([prediction_scalars(pred)[k] for k in keys])
+    G = np.zeros((len(keys), len(names)))
+    curvature = np.zeros((len(keys), len(names)))
+    for j, name in enumerate(names):
+        plus, minus, h = _moves(protocol, name, x0[j], math.sqrt(cov[j, j]), simulate_damping, keys)
+        G[:, j] = (plus - minus) / (2 * h)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            curvature[:, j] = np.where(np.abs(plus - minus) > 0, np.abs(plus + minus - 2 * f0) / np.abs(plus - minus),
+                                       np.where(np.abs(plus + minus - 2 * f0) > 0, np.inf, 0.0))
+    G = np.nan_to_num(G)
+    var = np.einsum("ij,jk,ik->i", G, cov, G)
+    sd = np.sqrt(np.maximum(var, 0.0))
+    nonlinear = np.max(curvature, axis=1) > NONLINEAR_RATIO
+    used = 0
+    if np.any(nonlinear) and draws > 1:
+        sampled, used = _sampled_sd(protocol, names, x0, cov, keys, draws, simulate_damping,
+                                    rng if rng is not None else np.random.default_rng(0))
+        sd = np.where(nonlinear & np.isfinite(sampled), sampled, sd)
+    for i, (q, kind) in enumerate(keys):
+        pred[q][f"{kind}_sd"] = float(sd[i])
+        if kind == "exact":
+            share = G[i] ** 2 * np.diag(cov)
+            total = float(share.sum())
+            pred[q]["uncertainty"] = {
+                "method": "sampled" if nonlinear[i] and used > 1 else "linear",
+                "draws": used if nonlinear[i] else 0,
+                "nonlinearity": float(np.max(curvature[i])),
+                "by_parameter": {n: (float(s / total) if total > 0 else 0.0) for n, s in zip(names, share)},
+            }
+    pred["parameter_uncertainty"] = unc.as_dict()
+    return pred
