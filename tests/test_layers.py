@@ -58,6 +58,23 @@ def closure(module: str) -> set[str]:
     return seen
 
 
+def test_identification_cannot_reach_the_simulator():
+    """identify fits exact models (the elliptic solution, steady precession), never the simulator that makes
+    its synthetic tables."""
+    import ast
+
+    reached = closure("gyrorig.identify")
+    forbidden = {m for m in reached if m.startswith(("gyrorig.render", "gyrorig.bench", "gyrorig.montecarlo",
+                                                     "gyrorig.pipeline", "gyrorig.validation", "gyrorig.expectation"))}
+    assert not forbidden, sorted(forbidden)
+    # the elliptic solution's module imports the simulator's state helpers; identify itself never takes simulate
+    # (nor predict, which simulates damped scenes)
+    for f in (SRC / "identify").glob("*.py"):
+        names = {a.asname or a.name for node in ast.walk(ast.parse(f.read_text()))
+                 if isinstance(node, ast.ImportFrom) for a in node.names}
+        assert not names & {"simulate", "predict"}, f
+
+
 @pytest.mark.parametrize("module", ["gyrorig.tracking", "gyrorig.calibration", "gyrorig.smooth", "gyrorig.fit"])
 def test_tracking_cannot_reach_the_truth(module):
     reached = closure(module)

@@ -26,7 +26,7 @@ import pandas as pd
 from . import _io
 from .fit import QUANTITY_UNITS, Constraints, FitResult, FitTerms
 from .pipeline import Analysis, Fitted, analyze, smooth_and_fit
-from .protocols import Protocol, load_protocol
+from .protocols import Protocol, load_protocol, protocol_summary
 from .report import plot_fit, write_report
 from .smooth import SmoothResult, smooth_angles
 from .tables import quality_counts, tip_truth
@@ -69,6 +69,7 @@ def fit_document(fit: FitResult, protocol: Protocol, prediction: dict | None, sm
                  extra: dict | None = None) -> dict:
     """The content of ``fit.json``."""
     doc = {"protocol": protocol.name, "description": protocol.description, **fit.summary(),
+           "protocol_summary": protocol_summary(protocol),
            "theory_flags": (prediction or {}).get("flags", {}), "versions": _io.versions()}
     if smooth is not None:
         doc["smoother"] = smooth.summary()

@@ -84,6 +84,14 @@ def build_parser() -> argparse.ArgumentParser:
     bv.add_argument("--out", default=None, help="also write variants.csv here")
     bv.set_defaults(func="_cmd_bench_variants")
 
+    bi = bsub.add_parser("identify", help="identification from simulated lab tables: pulls over noisy draws, exact "
+                         "models against the fast-top formulas")
+    bi.add_argument("--rigs", nargs="+", default=None, help="synthetic rigs (default: all)")
+    bi.add_argument("--draws", type=int, default=30, help="noisy draws per rig (default 30)")
+    bi.add_argument("--seed", type=int, default=0, help="seed of the draws")
+    bi.add_argument("--out", default=None, help="also write identify_pulls.csv here")
+    bi.set_defaults(func="_cmd_bench_identify")
+
     bsm = bsub.add_parser("smooth", help="compiled smoother against filterpy: speed and agreement")
     bsm.add_argument("--frames", type=int, default=100_000, help="frames for the compiled path (default 100000)")
     bsm.add_argument("--filterpy-frames", type=int, default=20_000, help="frames for filterpy (default 20000)")
@@ -180,6 +188,15 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--out", required=True, help="output directory")
     add_fit_options(an)
     an.set_defaults(func="_cmd_analyze")
+
+    idf = sub.add_parser("identify", help="a rig's parameters with covariance from its measurements: fit.json files "
+                         "and lab tables (spin-down, precession, nutation)")
+    idf.add_argument("inputs", nargs="+", help="fit.json files and CSV tables (units in the column names; the kind in "
+                     "a 'kind' column or the file name: spin_down, precession, nutation)")
+    idf.add_argument("--protocol", required=True, help="prior protocol: the known numbers (mass, g) and priors "
+                     "{ value, sd } for the rest")
+    idf.add_argument("--out", required=True, help="output directory (identified.toml, identify.json, identify.png)")
+    idf.set_defaults(func="_cmd_identify")
 
     d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track, smooth, fit, report")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")

@@ -1,0 +1,184 @@
+"""Synthetic lab tables from the simulator, and the identification benchmark (``gyrorig bench identify``).
+
+The true values of each row come from simulating the rig (never from the formulas
+``gyrorig identify`` fits): a precession period is the mean azimuth rate of a simulated top
+launched in steady precession at the row's tilt (a wrong steady-precession formula shows as
+nutation and a different mean rate); a nutation frequency is measured from the tilt maxima of a
+simulated release from rest; a spin-down curve is integrated from ``d omega/dt = -k omega - f`` by
+scipy.  Noise of the stated standard deviations is then added to the observed values and to the
+recorded conditions, and the priors are drawn about the truth with their own standard deviations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.integrate import solve_ivp
+
+from ..identify import identify_parameters, observations_from_table, read_table
+from ..identify.estimate import RIG_PARAMETERS
+from ..identify.observations import rig_with
+from ..parameters import Uncertainty
+from ..physics import simulate
+from ..protocols import Launch, Protocol, load_protocol, BUNDLED_PROTOCOL_DIR
+from ..theory import exact_steady_precession_rates
+
+__all__ = ["SyntheticRig", "simulated_precession_period", "simulated_nutation_frequency", "synthetic_tables",
+           "identify_pulls", "RIGS"]
+
+
+def simulated_precession_period(rig: Protocol, spin_rad_s: float, tilt_rad: float, added_mass_kg: float = 0.0,
+                                lever_arm_m: float = 0.0) -> float:
+    """Period of the mean azimuth motion of the rig launched in steady precession at the tilt. [s]"""
+    p = rig_with(rig, {}, added_mass_kg, lever_arm_m)
+    slow, _ = exact_steady_precession_rates(spin_rad_s, tilt_rad, inertia=p.rig.inertia_transverse_kg_m2,
+                                            inertia_axial=p.rig.inertia_axial_kg_m2, mgh=p.rig.mgh_N_m)
+    launch = Launch(tilt_rad=tilt_rad, azimuth_rad=0.0, tilt_rate_rad_s=0.0, precession_rate_rad_s=slow,
+                    spin_rate_rad_s=spin_rad_s)
+    duration = min(2 * math.pi / abs(slow), 2.0)
+    df = simulate(replace(p, launch=launch), duration_s=duration, rate_hz=2000.0, rtol=1e-11)
+    phi = np.unwrap(df.phi_rad.to_numpy())
+    rate = np.polyfit(df.t_s.to_numpy(), phi, 1)[0]
+    return 2 * math.pi / abs(rate)
+
+
+def simulated_nutation_frequency(rig: Protocol, spin_rad_s: float, tilt_rad: float, added_mass_kg: float = 0.0,
+                                 lever_arm_m: float = 0.0, periods: int = 12) -> float:
+    """Nutation frequency of the rig released from rest at the tilt, from the simulated tilt maxima. [rad/s]"""
+    p = rig_with(rig, {}, added_mass_kg, lever_arm_m)
+    guess = p.rig.inertia_axial_kg_m2 * spin_rad_s / p.rig.inertia_transverse_kg_m2
+    launch = Launch(tilt_rad=tilt_rad, azimuth_rad=0.0, tilt_rate_rad_s=0.0, precession_rate_rad_s=0.0,
+                    spin_rate_rad_s=spin_rad_s)
+    duration = (periods + 1.5) * 2 * math.pi / guess
+    rate = 400 * guess / (2 * math.pi)
+    df = simulate(replace(p, launch=launch), duration_s=duration, rate_hz=rate, rtol=1e-11)
+    th, t = df.theta_rad.to_numpy(), df.t_s.to_numpy()
+    i = np.flatnonzero((th[1:-1] > th[:-2]) & (th[1:-1] >= th[2:])) + 1
+    a, b, c = th[i - 1], th[i], th[i + 1]
+    peaks = t[i] + 0.5 * (a - c) / (a - 2 * b + c) * (t[1] - t[0])
+    return 2 * math.pi / float(np.mean(np.diff(peaks)))
+
+
+def _spin_down(t_s: np.ndarray, omega0: float, k: float, f: float) -> np.ndarray:
+    sol = solve_ivp(lambda t, w: -k * w - f, (0.0, float(t_s[-1])), [omega0], t_eval=t_s, rtol=1e-12, atol=1e-12)
+    return sol.y[0]
+
+
+@dataclass(frozen=True)
+class SyntheticRig:
+    """A rig and the experiments done on it (the truth of a synthetic identification)."""
+
+    name: str
+    protocol: Protocol
+    #: relative standard deviation of the priors on Io, I, h
+    prior_rel_sd: float = 0.2
+    precession_rows: tuple = ()     # (spin, tilt, added mass, lever arm)
+    nutation_rows: tuple = ()       # (spin, tilt, added mass, lever arm)
+    spin_down: tuple | None = None  # (omega0, k, f, duration)
+
+
+def _bundled(name: str) -> Protocol:
+    return load_protocol(BUNDLED_PROTOCOL_DIR / f"{name}.toml")
+
+
+def _rigs() -> dict[str, SyntheticRig]:
+    air = _bundled("air-cushion-heavy-top")
+    horizontal = tuple((s, math.pi / 2, m, 0.12) for s in (300.0, 400.0, 500.0) for m in (0.0, 0.02, 0.05))
+    at45 = tuple((s, math.pi / 4, m, 0.12) for s in (250.0, 400.0) for m in (0.0, 0.05))
+    nut = tuple((s, math.pi / 4, m, 0.12) for s in (300.0, 500.0) for m in (0.0, 0.05))
+    eddy = _bundled("eddy-damped-top-b2")
+    return {
+        "air-horizontal": SyntheticRig("air-horizontal", air, 0.2, horizontal, nut, (502.65, 2e-3, 0.2, 600.0)),
+        "air-45deg": SyntheticRig("air-45deg", air, 0.2, at45, nut),
+        "eddy-rig": SyntheticRig("eddy-rig", eddy, 0.2, horizontal[::2] + at45, nut[:2], (400.0, 5e-3, 0.0, 300.0)),
+    }
+
+
+RIGS = ("air-horizontal", "air-45deg", "eddy-rig")
+
+
+def _truth_rows(rig: SyntheticRig) -> dict[str, list]:
+    p = rig.protocol
+    return {"precession": [simulated_precession_period(p, *r) for r in rig.precession_rows],
+            "nutation": [simulated_nutation_frequency(p, *r) for r in rig.nutation_rows]}
+
+
+def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, truth: dict | None = None,
+                     rel_sd: float = 0.005, spin_rel_sd: float = 0.003) -> tuple[list[Path], Protocol]:
+    """Noisy tables of the rig's experiments in ``folder`` and a prior protocol (priors drawn about the
+    truth); ``truth`` (from :func:`_truth_rows`) saves re-simulating for each draw."""
+    truth = truth or _truth_rows(rig)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+
+    def noisy(v, rel):
+        return v * (1 + rel * rng.normal())
+    if rig.precession_rows:
+        rows = [{"spin_rad_s": noisy(s, spin_rel_sd), "spin_rad_s_sd": s * spin_rel_sd, "tilt_rad": th,
+                 "added_mass_g": 1e3 * m, "lever_arm_cm": 1e2 * ell,
+                 "precession_period_s": noisy(T, rel_sd), "precession_period_s_sd": T * rel_sd}
+                for (s, th, m, ell), T in zip(rig.precession_rows, truth["precession"])]
+        files.append(folder / "precession.csv")
+        pd.DataFrame(rows).to_csv(files[-1], index=False)
+    if rig.nutation_rows:
+        rows = [{"spin_rad_s": noisy(s, spin_rel_sd), "spin_rad_s_sd": s * spin_rel_sd, "tilt_rad": th,
+                 "added_mass_g": 1e3 * m, "lever_arm_cm": 1e2 * ell,
+                 "nutation_frequency_rad_s": noisy(w, rel_sd), "nutation_frequency_rad_s_sd": w * rel_sd}
+                for (s, th, m, ell), w in zip(rig.nutation_rows, truth["nutation"])]
+        files.append(folder / "nutation.csv")
+        pd.DataFrame(rows).to_csv(files[-1], index=False)
+    if rig.spin_down:
+        w0, k, f, dur = rig.spin_down
+        t = np.linspace(0.0, dur, 13)
+        w = _spin_down(t, w0, k, f)
+        sd = 0.002 * w0
+        pd.DataFrame({"t_s": t, "spin_rad_s": w + sd * rng.normal(size=len(t)), "spin_rad_s_sd": sd}).to_csv(
+            folder / "spin_down.csv", index=False)
+        files.append(folder / "spin_down.csv")
+    p = rig.protocol
+    names, values, sds = [], [], []
+    for n in RIG_PARAMETERS:
+        v = getattr(p.rig, n.split(".")[1])
+        sd = rig.prior_rel_sd * v
+        names.append(n)
+        values.append(v + sd * rng.normal())
+        sds.append(sd)
+    eye = tuple(tuple(float(i == j) for j in range(3)) for i in range(3))
+    prior = replace(p, rig=replace(p.rig, **{n.split(".")[1]: v for n, v in zip(names, values)}),
+                    uncertainty=Uncertainty(tuple(names), tuple(values), tuple(sds), eye))
+    return files, prior
+
+
+def identify_pulls(rig_name: str, draws: int, folder: Path, seed: int = 0, fast_top: bool = False) -> pd.DataFrame:
+    """``draws`` noisy tables of one rig identified: per draw and parameter, value, s.e., truth and pull."""
+    rig = _rigs()[rig_name]
+    truth_rows = _truth_rows(rig)
+    rng = np.random.default_rng(seed)
+    truth = {n: getattr(rig.protocol.rig, n.split(".")[1]) for n in RIG_PARAMETERS}
+    if rig.spin_down:
+        truth["spin_down.viscous_rate_per_s"] = rig.spin_down[1]
+        truth["spin_down.friction_rad_s2"] = rig.spin_down[2]
+    m, g = rig.protocol.rig.mass_kg, rig.protocol.rig.gravity_m_s2
+    truth_derived = {"io_over_i": truth[RIG_PARAMETERS[0]] / truth[RIG_PARAMETERS[1]],
+                     "mgh_over_io_rad2_s2": m * g * truth[RIG_PARAMETERS[2]] / truth[RIG_PARAMETERS[0]]}
+    rows = []
+    for d in range(draws):
+        files, prior = synthetic_tables(rig, folder / f"{rig_name}-{d}", rng, truth_rows)
+        obs = [o for f in files for o in observations_from_table(read_table(f), prior)]
+        ident = identify_parameters(obs, prior, fast_top=fast_top)
+        se = ident.standard_errors
+        for n, v, e in zip(ident.names, ident.values, se):
+            if n in truth:
+                rows.append({"rig": rig_name, "draw": d, "parameter": n, "value": v, "standard_error": e,
+                             "truth": truth[n], "pull": (v - truth[n]) / e, "chi2_red": ident.chi2_red,
+                             "damping_law": ident.damping_law, "fast_top": fast_top})
+        for k, (v, e) in ident.derived(prior).items():
+            if k in truth_derived:
+                rows.append({"rig": rig_name, "draw": d, "parameter": k, "value": v, "standard_error": e,
+                             "truth": truth_derived[k], "pull": (v - truth_derived[k]) / e,
+                             "chi2_red": ident.chi2_red, "damping_law": ident.damping_law, "fast_top": fast_top})
+    return pd.DataFrame(rows)

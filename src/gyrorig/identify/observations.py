@@ -1,0 +1,223 @@
+"""What each measurement says about the rig: one :class:`Observation` per table row or fit.json quantity.
+
+Each observation has its measured value ``y`` (SI) with its standard deviation, the conditions it
+was taken under (``x``: spin, added mass, lever arm, tilt, time, each with a standard deviation
+that enters as effective variance), and two models of ``y`` given the rig: the exact one and the
+fast-top formula (for showing its bias).
+
+The models, with ``M, h, I, Io`` the rig's mass, centre-of-mass distance and inertias, an added
+mass ``m`` at ``l`` along the axis (``M' = M + m``, ``M' h' = M h + m l``, ``I' = I + m l^2``) and
+``Omega`` the spin ``psi'`` (as the protocols' ``launch.spin_rate_rad_s``):
+
+* precession period: ``2 pi / phi'`` with ``phi'`` the slow root of the exact steady precession at the
+  tilt (``Mgh' = phi' (Io omega_o - I' phi' cos theta)``, ``omega_o = Omega + phi' cos theta``;
+  horizontal when no tilt is given); fast top: ``2 pi Io Omega / (M' g h')``;
+* nutation frequency: the elliptic solution's, for a release from rest at the tilt (the protocol's
+  launch tilt when none is given); fast top: ``Io Omega / I'``;
+* a video's fit.json: its mean precession rate and nutation frequency from the elliptic solution of
+  its protocol's launch; fast top: ``Mgh / (Io Omega)`` and ``Io Omega / I``;
+* spin-down: ``omega(t) = omega_0 exp(-k t) - f (1 - exp(-k t)) / k`` (``d omega / dt = -k omega - f``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..physics.exact import ExactSolutionError, exact_solution
+from ..protocols import Pivot, Protocol, ProtocolError
+from ..theory import exact_steady_precession_rates
+from .tables import IdentifyInputError, Table
+
+__all__ = ["Observation", "observations_from_table", "observations_from_fit", "rig_with", "FORMULAS",
+           "spin_down_model"]
+
+#: which formula serves each kind of observation
+FORMULAS = {
+    "precession": "exact steady precession at the finite tilt (slow root; Goldstein eq. 5.76)",
+    "nutation": "exact elliptic solution of the heavy top released from rest at the tilt",
+    "fit_precession": "exact elliptic solution's mean precession rate for the video's launch",
+    "fit_nutation": "exact elliptic solution's nutation frequency for the video's launch",
+    "spin_down": "d omega/dt = -k omega - f (viscous, plus constant friction when the data need it)",
+}
+#: the value a model returns where the rig admits no such motion (keeps the solver away)
+_IMPOSSIBLE = 1e9
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One measured number and how the rig's parameters predict it."""
+
+    kind: str
+    source: str
+    line: int
+    y: float
+    y_sd: float
+    #: the conditions (SI) and their standard deviations
+    x: dict[str, float]
+    x_sd: dict[str, float] = field(default_factory=dict)
+    #: ``model(params, x) -> y`` (exact) and the fast-top formula
+    exact: Callable | None = None
+    fast: Callable | None = None
+    #: the parameters only this observation's table has (a spin-down's initial spin)
+    table_key: str = ""
+
+    def predict(self, params: dict, x: dict | None = None, fast: bool = False) -> float:
+        f = self.fast if fast and self.fast is not None else self.exact
+        return float(f(params, x if x is not None else self.x))
+
+    def effective_sd(self, params: dict, fast: bool = False) -> float:
+        """``sqrt(sd_y^2 + sum_j (d model / d x_j sd_j)^2)``: the conditions' errors carried into y."""
+        var = self.y_sd ** 2
+        for k, s in self.x_sd.items():
+            if s > 0:
+                xp, xm = dict(self.x), dict(self.x)
+                xp[k] += 0.5 * s
+                xm[k] -= 0.5 * s
+                var += (self.predict(params, xp, fast) - self.predict(params, xm, fast)) ** 2
+        return math.sqrt(var)
+
+
+def rig_with(prior: Protocol, params: dict, added_mass_kg: float = 0.0, lever_arm_m: float = 0.0) -> Protocol:
+    """The prior protocol with the rig's parameters (``rig.*`` names) and an added point mass on the axis;
+    no damping and a fixed pivot.  Not checked for being a possible rigid body: the models are smooth
+    through that bound, so the solver can cross it on its way (:func:`~gyrorig.identify.estimate.identify_parameters`
+    checks the result)."""
+    rig = replace(prior.rig, **{k.split(".", 1)[1]: v for k, v in params.items() if k.startswith("rig.")})
+    if added_mass_kg:
+        mass = rig.mass_kg + added_mass_kg
+        rig = replace(rig, mass_kg=mass, com_distance_m=(rig.mass_kg * rig.com_distance_m
+                                                         + added_mass_kg * lever_arm_m) / mass,
+                      inertia_transverse_kg_m2=rig.inertia_transverse_kg_m2 + added_mass_kg * lever_arm_m ** 2)
+    return replace(prior, rig=rig, pivot=Pivot())
+
+
+def _mgh_inertias(prior: Protocol, params: dict, x: dict) -> tuple[float, float, float]:
+    p = rig_with(prior, params, x.get("added_mass", 0.0), x.get("lever_arm", 0.0))
+    return p.rig.mgh_N_m, p.rig.inertia_transverse_kg_m2, p.rig.inertia_axial_kg_m2
+
+
+def _guard(f):
+    def g(params, x):
+        try:
+            v = f(params, x)
+        except (ProtocolError, ExactSolutionError, ValueError, ZeroDivisionError):
+            return _IMPOSSIBLE
+        return v if math.isfinite(v) else _IMPOSSIBLE
+    return g
+
+
+def _precession(prior: Protocol):
+    def exact(params, x):
+        mgh, i_t, i_o = _mgh_inertias(prior, params, x)
+        slow, _ = exact_steady_precession_rates(x["spin"], x.get("tilt", math.pi / 2), inertia=i_t,
+                                                inertia_axial=i_o, mgh=mgh)
+        return 2 * math.pi / abs(slow)
+
+    def fast(params, x):
+        mgh, _, i_o = _mgh_inertias(prior, params, x)
+        return 2 * math.pi * i_o * x["spin"] / mgh
+    return _guard(exact), _guard(fast)
+
+
+def _released(prior: Protocol, params: dict, x: dict, launch=None):
+    p = rig_with(prior, params, x.get("added_mass", 0.0), x.get("lever_arm", 0.0))
+    launch = launch or replace(p.launch, tilt_rad=x["tilt"], spin_rate_rad_s=x["spin"], tilt_rate_rad_s=0.0,
+                               precession_rate_rad_s=0.0)
+    return exact_solution(replace(p, launch=launch))
+
+
+def _nutation(prior: Protocol):
+    def exact(params, x):
+        return _released(prior, params, x).nutation_frequency_rad_s
+
+    def fast(params, x):
+        _, i_t, i_o = _mgh_inertias(prior, params, x)
+        return i_o * x["spin"] / i_t
+    return _guard(exact), _guard(fast)
+
+
+def spin_down_model(t_s, omega0: float, k: float, f: float):
+    """``omega(t)`` for ``d omega/dt = -k omega - f`` (``k -> 0``: ``omega0 - f t``). [rad/s]"""
+    t = np.asarray(t_s, float)
+    e = np.exp(-k * t)
+    lin = -np.expm1(-k * t) / k if abs(k) > 1e-12 else t
+    return omega0 * e - f * lin
+
+
+def observations_from_table(table: Table, prior: Protocol) -> list[Observation]:
+    """The observations of one lab table."""
+    v, sd, out = table.values, table.sd, []
+    for i in range(table.n):
+        x = {k: float(a[i]) for k, a in v.items()}
+        x_sd = {k: float(a[i]) for k, a in sd.items()}
+        line = int(table.lines[i])
+        if table.kind == "spin_down":
+            key = f"spin_down.initial_spin_rad_s[{table.path}]"
+            y, y_sd = x.pop("spin"), x_sd.pop("spin")
+
+            def exact(params, xx, key=key):
+                return float(spin_down_model(xx["t"], params[key], params["spin_down.viscous_rate_per_s"],
+                                             params.get("spin_down.friction_rad_s2", 0.0)))
+            out.append(Observation("spin_down", table.path, line, y, y_sd, x, x_sd, exact, None, key))
+            continue
+        if "spin_start" in x:
+            # the logarithmic mean: exact for an exponential decay between the two readings
+            a, b = x.pop("spin_start"), x.pop("spin_end")
+            sa, sb = x_sd.pop("spin_start"), x_sd.pop("spin_end")
+            x["spin"] = (a - b) / math.log(a / b) if a != b else a
+            x_sd["spin"] = 0.5 * math.hypot(sa, sb)
+        if table.kind == "precession":
+            y, y_sd = x.pop("precession_period"), x_sd.pop("precession_period")
+            exact, fast = _precession(prior)
+        else:
+            if "nutation_frequency" in x:
+                y, y_sd = x.pop("nutation_frequency"), x_sd.pop("nutation_frequency")
+            else:
+                period, s = x.pop("nutation_period"), x_sd.pop("nutation_period")
+                y, y_sd = 2 * math.pi / period, 2 * math.pi * s / period ** 2
+            x.setdefault("tilt", prior.launch.tilt_rad)
+            x_sd.setdefault("tilt", 0.0)
+            exact, fast = _nutation(prior)
+        out.append(Observation(table.kind, table.path, line, y, y_sd, x, x_sd, exact, fast))
+    return out
+
+
+def observations_from_fit(path: str, doc: dict, prior: Protocol) -> list[Observation]:
+    """A video's fit.json: its mean precession rate and nutation frequency, for its protocol's launch."""
+    from ..protocols import Launch
+
+    summary = doc.get("protocol_summary")
+    if not isinstance(summary, dict) or "launch" not in summary:
+        raise IdentifyInputError(f"{path}: no protocol_summary with the launch (fit.json from an older gyrorig?): "
+                                 "re-run 'gyrorig fit' or 'gyrorig analyze'")
+    pivot = summary.get("pivot") or {}
+    if pivot.get("damping") or pivot.get("acceleration"):
+        raise IdentifyInputError(f"{path}: a damped or accelerated scene: its precession and nutation drift, and "
+                                 "identify models only a fixed, undamped pivot")
+    try:
+        launch = Launch(**summary["launch"])
+    except TypeError as exc:
+        raise IdentifyInputError(f"{path}: protocol_summary.launch: {exc}") from None
+    out = []
+    spin = launch.spin_rate_rad_s
+    for key, kind in (("precession_rate_rad_s", "fit_precession"), ("nutation_frequency_rad_s", "fit_nutation")):
+        q = (doc.get("quantities") or {}).get(key)
+        if not q or q.get("status") != "determined" or not q.get("standard_error"):
+            continue
+
+        def exact(params, x, key=key, launch=launch):
+            sol = _released(prior, params, x, launch)
+            return sol.mean_precession_rate_rad_s if key == "precession_rate_rad_s" else sol.nutation_frequency_rad_s
+
+        def fast(params, x, key=key):
+            mgh, i_t, i_o = _mgh_inertias(prior, params, x)
+            return mgh / (i_o * x["spin"]) if key == "precession_rate_rad_s" else i_o * x["spin"] / i_t
+        out.append(Observation(kind, path, 0, float(q["value"]), float(q["standard_error"]), {"spin": spin}, {},
+                               _guard(exact), _guard(fast)))
+    if not out:
+        raise IdentifyInputError(f"{path}: neither the precession rate nor the nutation frequency is determined")
+    return out

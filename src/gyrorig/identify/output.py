@@ -1,0 +1,161 @@
+"""``gyrorig identify`` on files: read the inputs, identify, write ``identified.toml``, ``identify.json``,
+``identify.png`` (each atomically)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .. import _io
+from ..protocols import Protocol, ProtocolError, load_protocol
+from .estimate import Identification, formulas_used, identify_parameters
+from .observations import Observation, observations_from_fit, observations_from_table
+from .tables import IdentifyInputError, read_table
+
+__all__ = ["read_observations", "identify_files", "identified_toml", "identify_document", "plot_identification"]
+
+
+def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observation]:
+    """Every observation of the inputs: lab tables (``.csv``) and fit.json files."""
+    obs: list[Observation] = []
+    for path in map(Path, inputs):
+        if path.suffix.lower() == ".json":
+            try:
+                doc = json.loads(path.read_text())
+            except FileNotFoundError:
+                raise IdentifyInputError(f"{path}: no such file") from None
+            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+                raise IdentifyInputError(f"{path}: not a fit.json ({exc})") from None
+            obs += observations_from_fit(str(path), doc, prior)
+        elif path.suffix.lower() == ".csv":
+            obs += observations_from_table(read_table(path), prior)
+        else:
+            raise IdentifyInputError(f"{path}: an input is a fit.json or a CSV table")
+    return obs
+
+
+def _toml_number(v: float) -> str:
+    return repr(float(v))
+
+
+def identified_toml(prior_text: str, ident: Identification, prior: Protocol) -> str:
+    """The prior protocol's text with each identified ``[rig]`` value as ``{ value = ..., sd = ... }`` and
+    their correlations in ``[uncertainty]`` (comments and everything else kept)."""
+    se = ident.standard_errors
+    rig = {n.split(".")[1]: (ident.values[i], se[i]) for i, n in enumerate(ident.names) if n.startswith("rig.")}
+    lines = prior_text.splitlines()
+    out, section, done = [], "", set()
+    for line in lines:
+        head = re.match(r"\s*\[+\s*([^\]]+?)\s*\]+", line)
+        if head:
+            if section == "rig":
+                out += [f"{k} = {{ value = {_toml_number(v)}, sd = {_toml_number(s)} }}   # identified"
+                        for k, (v, s) in rig.items() if k not in done]
+            section = head.group(1)
+            if section == "uncertainty":
+                section = "skip"
+                continue
+        elif section == "skip":
+            continue
+        m = re.match(r"\s*([A-Za-z0-9_]+)\s*=", line)
+        if section == "rig" and m and m.group(1) in rig:
+            k = m.group(1)
+            v, s = rig[k]
+            out.append(f"{k} = {{ value = {_toml_number(v)}, sd = {_toml_number(s)} }}   # identified")
+            done.add(k)
+            continue
+        out.append(line)
+    rig_names = [n for n in ident.names if n.startswith("rig.")]
+    corr = ident.correlation
+    pairs = [(a, b, corr[ident.names.index(a), ident.names.index(b)]) for i, a in enumerate(rig_names)
+             for b in rig_names[i + 1:]]
+    pairs = [(a, b, r) for a, b, r in pairs if np.isfinite(r) and abs(r) > 1e-6]
+    if pairs:
+        out += ["", "# correlations of the identified parameters (gyrorig identify)", "[uncertainty]",
+                "correlations = ["] + [f'  ["{a}", "{b}", {max(-0.999999, min(0.999999, r)):.6f}],'
+                                      for a, b, r in pairs] + ["]"]
+    return "\n".join(out) + "\n"
+
+
+def identify_document(ident: Identification, prior: Protocol, inputs: list[str]) -> dict:
+    """The content of ``identify.json``."""
+    se = ident.standard_errors
+    p = ident.params()
+    rows = []
+    for o, s in zip(ident.observations, ident.sd_eff):
+        pred = o.predict({**_fixed(prior), **p})
+        fast = o.predict({**_fixed(prior), **p}, fast=True) if o.fast is not None else None
+        rows.append({"source": o.source, "line": o.line, "kind": o.kind, "observed": o.y, "sd": s, "predicted": pred,
+                     "residual": o.y - pred, "normalised_residual": (o.y - pred) / s,
+                     "predicted_fast_top": fast,
+                     "fast_top_residual_sd": None if fast is None else (o.y - fast) / s,
+                     "conditions": o.x})
+    return _io.json_safe({
+        "prior": prior.source, "inputs": inputs,
+        "parameters": {n: {"value": float(v), "standard_error": float(e),
+                           "prior": ({"value": prior.uncertainty.values[prior.uncertainty.names.index(n)],
+                                      "sd": prior.uncertainty.sd_of(n)} if n in ident.prior_names else None)}
+                       for n, v, e in zip(ident.names, ident.values, se)},
+        "derived": {k: {"value": v, "standard_error": e} for k, (v, e) in ident.derived(prior).items()},
+        "correlation": {"names": list(ident.names), "matrix": ident.correlation.tolist()},
+        "chi2": ident.chi2, "dof": ident.dof, "chi2_red": ident.chi2_red,
+        "formulas": formulas_used(ident), "damping_law": ident.damping_law or None,
+        "friction_chi2_gain": ident.friction_chi2_gain, "sd_from_scatter": list(ident.sd_from_scatter),
+        "notes": list(ident.notes), "rows": rows,
+    })
+
+
+def _fixed(prior: Protocol) -> dict:
+    return {f"rig.{k}": getattr(prior.rig, k) for k in ("inertia_axial_kg_m2", "inertia_transverse_kg_m2",
+                                                          "com_distance_m")}
+
+
+def plot_identification(ident: Identification, prior: Protocol):
+    """Observed against predicted, one panel per kind (normalised residuals beneath the diagonal)."""
+    from matplotlib.figure import Figure
+
+    kinds = sorted({o.kind for o in ident.observations})
+    fig = Figure(figsize=(4.2 * len(kinds), 4.0), layout="constrained")
+    axes = fig.subplots(1, len(kinds), squeeze=False)[0]
+    p = {**_fixed(prior), **ident.params()}
+    for ax, kind in zip(axes, kinds):
+        sel = [(o, s) for o, s in zip(ident.observations, ident.sd_eff) if o.kind == kind]
+        y = np.array([o.y for o, _ in sel])
+        s = np.array([s for _, s in sel])
+        pred = np.array([o.predict(p) for o, _ in sel])
+        ax.errorbar(pred, y, yerr=s, fmt="o", ms=4, label="exact model")
+        if sel[0][0].fast is not None:
+            fast = np.array([o.predict(p, fast=True) for o, _ in sel])
+            ax.plot(fast, y, "x", color="C3", label="fast-top formula")
+        lo, hi = float(min(y.min(), pred.min())), float(max(y.max(), pred.max()))
+        ax.plot([lo, hi], [lo, hi], "k-", lw=0.8)
+        ax.set_xlabel("predicted (SI)")
+        ax.set_ylabel("observed (SI)")
+        ax.set_title(kind.replace("_", " "))
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{prior.name}: identified rig, chi2_red {ident.chi2_red:.3g}")
+    return fig
+
+
+def identify_files(inputs: list[str | Path], prior_path: str | Path, out: str | Path) -> Identification:
+    """``gyrorig identify``: read, identify, write the three files into ``out``."""
+    prior = load_protocol(prior_path)
+    if not (prior.rig.gravity_m_s2 and prior.rig.mass_kg):
+        raise ProtocolError(f"{prior_path}: identify needs rig.mass_kg and rig.gravity_m_s2 (the known numbers)")
+    obs = read_observations(inputs, prior)
+    ident = identify_parameters(obs, prior)
+    if not all(math.isfinite(v) for v in ident.standard_errors):
+        raise IdentifyInputError("the inputs do not determine every parameter (infinite standard error)")
+    out = Path(out)
+    text = identified_toml(Path(prior_path).read_text(), ident, prior)
+    with _io.atomic_path(out / "identified.toml") as tmp:
+        Path(tmp).write_text(text)
+    _io.write_json(identify_document(ident, prior, [str(i) for i in inputs]), out / "identify.json")
+    fig = plot_identification(ident, prior)
+    with _io.atomic_path(out / "identify.png") as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    return ident
