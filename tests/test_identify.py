@@ -221,3 +221,50 @@ def test_video_route_identifies_io_over_i_and_mgh_over_io(tmp_path):
                       ("mgh_over_io_rad2_s2", rig.mgh_N_m / rig.inertia_axial_kg_m2)):
         v, se = derived[key]
         assert abs(v - true) < 3 * se, (key, v, true, se)
+
+
+def test_a_videos_spin_is_a_parameter_where_the_prior_gives_it_an_sd(tmp_path):
+    """fit.json files whose videos' spins are not measured: with launch.spin_rate_rad_s uncertain in the prior,
+    each video's spin is fitted about its protocol's value, and its error widens the ratios' errors."""
+    from dataclasses import replace
+
+    from gyrorig.identify import identify_parameters, observations_from_fit
+    from gyrorig.parameters import Uncertainty
+    from gyrorig.physics.exact import exact_solution
+    from gyrorig.protocols import protocol_summary
+
+    base = load_protocol(AIR)
+    names = ("rig.inertia_axial_kg_m2", "rig.inertia_transverse_kg_m2", "rig.com_distance_m")
+    vals = tuple(getattr(base.rig, n.split(".")[1]) for n in names)
+    eye3 = tuple(tuple(float(i == j) for j in range(3)) for i in range(3))
+    docs = []
+    for spin in (300.0, 400.0, 500.0):
+        p = replace(base, launch=replace(base.launch, spin_rate_rad_s=spin))
+        sol = exact_solution(p)
+        # noiseless values of the true rig (its elliptic solution), stated to 1e-4
+        q = {"precession_rate_rad_s": sol.mean_precession_rate_rad_s, "nutation_frequency_rad_s":
+             sol.nutation_frequency_rad_s}
+        docs.append({"protocol_summary": protocol_summary(p), "quantities": {
+            k: {"value": v, "standard_error": 1e-4 * abs(v), "status": "determined"} for k, v in q.items()}})
+    widths = {}
+    for spin_sd in (0.0, 5.0):
+        if spin_sd:
+            u = Uncertainty(names + ("launch.spin_rate_rad_s",), vals + (base.launch.spin_rate_rad_s,),
+                            tuple(0.1 * v for v in vals) + (spin_sd,),
+                            tuple(tuple(float(i == j) for j in range(4)) for i in range(4)))
+        else:
+            u = Uncertainty(names, vals, tuple(0.1 * v for v in vals), eye3)
+        prior = replace(base, uncertainty=u)
+        obs = [o for k, d in enumerate(docs) for o in observations_from_fit(f"v{k}", d, prior)]
+        ident = identify_parameters(obs, prior)
+        assert sum(n.startswith("spin[") for n in ident.names) == (3 if spin_sd else 0)
+        widths[spin_sd] = ident.derived(prior)["io_over_i"][1]
+        v, se = ident.derived(prior)["io_over_i"]
+        assert abs(v - vals[0] / vals[1]) < 3 * se
+        for k, spin in enumerate((300.0, 400.0, 500.0)):
+            if spin_sd:
+                i = ident.names.index(f"spin[v{k}]")
+                assert abs(ident.values[i] - spin) < 3 * ident.standard_errors[i]
+                assert ident.standard_errors[i] < spin_sd  # the two rates of a video tell its spin too
+    # more freedom never narrows a least-squares error
+    assert widths[5.0] >= widths[0.0] * (1 - 1e-3)

@@ -135,3 +135,21 @@ def test_fit_counts_the_prediction_error(tmp_path):
     assert q.prediction_share > 0.99  # 0.6 rad/s from the rig against ~1e-3 from 2 s of record
     assert abs(q.diff_exact_combined_se) < 3
     assert q.as_dict()["exact_standard_error"] == q.exact_standard_error
+
+
+def test_plan_says_which_parameter_limits_the_comparison_with_theory(tmp_path):
+    """With Io known to 1 % and a camera good to 1e-6, every prediction's own error dwarfs the measurement's:
+    the plan names the parameter with the largest share of each (Io here: the three uncertain inputs' shares
+    follow from the closed form of the fast top, Io's relative sd being the largest)."""
+    from gyrorig.plan import plan_experiment
+
+    p = load_protocol(_with_uncertainty(tmp_path))
+    plan = plan_experiment(p, duration_s=4.0, draws=0)
+    limits = {item["quantity"]: item for item in plan["prediction_limits"]}
+    assert {"precession_rate_rad_s", "nutation_frequency_rad_s"} <= set(limits)
+    for name, item in limits.items():
+        q = plan["quantities"][name]
+        assert item["prediction_standard_error"] == q["prediction_standard_error"] > q["expected_standard_error"]
+        assert item["parameter"] == "rig.inertia_axial_kg_m2"
+        assert 0.5 < item["share"] <= 1.0
+    assert not plan_experiment(load_protocol(AIR), duration_s=4.0, draws=0)["prediction_limits"]

@@ -42,6 +42,7 @@ from .expectation import ExpectedRecord, expected_record, plan_fit_terms, projec
 from .fit import FitError, FitResult, fit_angles, linear_response
 from .geometry import wrap_angle
 from .protocols import Protocol, parse_protocol
+from .propagate import predict_with_uncertainty
 from .theory import predict
 
 logger = logging.getLogger(__name__)
@@ -206,7 +207,8 @@ def _expected_errors(fit: FitResult, T: float, nut: float | None) -> tuple[dict,
         entry = {"units": q.units, "resolvable": q.determined, "reason": q.reason,
                  "reason_kind": None if q.reason_kind is None else str(q.reason_kind), "reliable": True,
                  "predicted_paper": q.paper, "predicted_exact": q.exact, "simulated": q.value,
-                 "expected_standard_error": q.standard_error}
+                 "expected_standard_error": q.standard_error,
+                 "prediction_standard_error": q.exact_standard_error}
         if q.determined and q.value:
             rel = q.standard_error / abs(q.value)
             entry["expected_relative_error"] = rel
@@ -316,7 +318,8 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         raise ValueError(f"--draws {draws}: the number of noisy records must be >= 0")
     draw_seed = int((rng if rng is not None else np.random.default_rng(0)).integers(2**62))
     start = time.perf_counter()
-    pred = prediction if prediction is not None else predict(protocol, simulate_damping=simulate_damping)
+    pred = prediction if prediction is not None else predict_with_uncertainty(protocol,
+                                                                              simulate_damping=simulate_damping)
     out: dict = {"protocol": protocol.name, "prediction": pred, "recommendations": []}
     rec = out["recommendations"]
     if "camera" not in protocol.extra:
@@ -367,9 +370,42 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         out["recording"]["linear_regime"] = None  # not assessed: the model does not describe the record
     else:
         _reliability(protocol, ex, fit, T, pred, draws, draw_seed, out, rec, progress)
+    out["prediction_limits"] = _parameter_advice(quantities, pred)
+    rec.extend(item["text"] for item in out["prediction_limits"])
     out["damping"] = _damping_assessment(protocol, pred)
     rec.extend(_damping_advice(protocol, pred))
     out["wall_time_s"] = time.perf_counter() - start
+    return out
+
+
+#: the measurement that pins each rig parameter down best (for the advice)
+PARAMETER_MEASUREMENTS = {
+    "rig.inertia_axial_kg_m2": "precession periods with added masses on the axis (their slope fixes Io)",
+    "rig.inertia_transverse_kg_m2": "nutation frequencies at several spins (Io Omega / I, with Io known)",
+    "rig.com_distance_m": "precession periods without added mass (Mgh / Io)",
+    "rig.mass_kg": "a balance",
+    "launch.spin_rate_rad_s": "the spin at release (stroboscope or tachometer), or spin-down tables",
+    "launch.tilt_rad": "the launch tilt (the video's first frames)",
+}
+
+
+def _parameter_advice(quantities: dict, pred: dict) -> list[dict]:
+    """Where a prediction's own error exceeds the expected measurement error: which parameter limits it,
+    and the measurement that would shrink it most (the largest share of its variance)."""
+    out = []
+    for name, q in quantities.items():
+        psd, se = q.get("prediction_standard_error"), q.get("expected_standard_error")
+        key = "mean_precession_rate_rad_s" if name == "precession_rate_rad_s" else name
+        unc = (pred.get(key) or {}).get("uncertainty") if isinstance(pred.get(key), dict) else None
+        if not psd or not se or not unc or psd <= se:
+            continue
+        param, share = max(unc["by_parameter"].items(), key=lambda kv: kv[1])
+        how = PARAMETER_MEASUREMENTS.get(param, "a direct measurement of it")
+        out.append({"quantity": name, "prediction_standard_error": psd, "expected_standard_error": se,
+                    "parameter": param, "share": share, "measurement": how,
+                    "text": f"{name}: theory's prediction is uncertain by {psd:.2g} ({psd / se:.3g} x the expected "
+                            f"measurement error), {share:.0%} of it from {param}: the comparison with theory is "
+                            f"limited by the rig, not the camera; measure {param} better: {how} (gyrorig identify)"})
     return out
 
 

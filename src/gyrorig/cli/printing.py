@@ -83,6 +83,8 @@ def print_plan(plan: dict) -> None:
             pe = q.get("paper_vs_exact_in_se")
             print(f"    {name}: {q['simulated']:.6g} +- {q['expected_standard_error']:.2g} {q['units']}"
                   + (f" (paper {q['predicted_paper']:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else "")
+                  + (f"; theory itself +- {q['prediction_standard_error']:.2g} from the rig's parameters"
+                     if q.get("prediction_standard_error") else "")
                   + ("" if q.get("reliable", True) else "  [not reliable at this length]"))
         mf = rec.get("model_misfit")
         if mf:

@@ -47,6 +47,7 @@ class Identification:
     damping_law: str = ""
     friction_chi2_gain: float | None = None
     fast_top: bool = False
+    #: parameters with priors: the rig's (from the prior protocol) and each video's spin
     prior_names: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
 
@@ -111,6 +112,8 @@ def _start(obs: list[Observation], prior: Protocol, names: list[str]) -> np.ndar
     for n in names:
         if n.startswith("rig."):
             x0.append(getattr(prior.rig, n.split(".")[1]))
+        elif n.startswith("spin["):
+            x0.append(next(o.table_prior[0] for o in obs if o.table_key == n))
         elif n.startswith("spin_down.initial_spin_rad_s"):
             rows = sorted((o for o in obs if o.table_key == n), key=lambda o: o.x["t"])
             x0.append(rows[0].y)
@@ -145,10 +148,16 @@ def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool
         p = params(x)
         return np.array([math.hypot(o.effective_sd(p, fast), sd_scatter.get(o.kind, 0.0)) for o in obs])
 
+    spin_priors = {n: next(o.table_prior for o in obs if o.table_key == n) for n in names if n.startswith("spin[")}
+    sidx = [names.index(n) for n in spin_priors]
+    s_mean = np.array([m for m, _ in spin_priors.values()])
+    s_sd = np.array([sd for _, sd in spin_priors.values()])
+
     def residuals(x):
         p = params(x)
         r = np.array([(o.y - o.predict(p, fast=fast)) for o in obs]) / sd_eff
-        return np.concatenate([r, Linv @ (x[ridx] - mean)]) if rig_free else r
+        parts = [r, Linv @ (x[ridx] - mean)] if rig_free else [r]
+        return np.concatenate(parts + [(x[sidx] - s_mean) / s_sd])
 
     x = x0
     for _ in range(3):  # the effective variances depend on the parameters: re-weight and re-solve
@@ -157,8 +166,8 @@ def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool
             bad = obs[int(np.argmin(sd_eff))]
             raise IdentifyInputError(f"{bad.source}, line {bad.line}: no standard deviation for this {bad.kind} "
                                      "row (give a _sd column)")
-        res = least_squares(residuals, x, x_scale="jac", method="trf", jac="3-point", xtol=1e-12, ftol=1e-12,
-                            gtol=1e-12, max_nfev=200 * (len(x) + 1))
+        res = least_squares(residuals, x, x_scale="jac", method="trf", jac="3-point", xtol=1e-10, ftol=1e-10,
+                            gtol=1e-10, max_nfev=50 * (len(x) + 1))
         x = res.x
     J = res.jac
     cov = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
@@ -172,8 +181,9 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
         raise IdentifyInputError("no observations")
     spin_tables = sorted({o.table_key for o in obs if o.kind == "spin_down"})
     rig_names = _free_rig(prior)
-    base = rig_names + ([*spin_tables, "spin_down.viscous_rate_per_s"] if spin_tables else [])
-    n_res = len(obs) + len(rig_names)
+    video_spins = sorted({o.table_key for o in obs if o.table_prior is not None})
+    base = rig_names + video_spins + ([*spin_tables, "spin_down.viscous_rate_per_s"] if spin_tables else [])
+    n_res = len(obs) + len(rig_names) + len(video_spins)
     if n_res <= len(base) + (1 if spin_tables else 0):
         raise IdentifyInputError(f"{len(obs)} observation(s) and {len(rig_names)} prior(s) are too few for "
                                  f"{len(base) + (1 if spin_tables else 0)} parameters: "
@@ -213,7 +223,7 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
         notes.append("no standard deviations given for " + ", ".join(sorted(no_sd)) + ": taken from the scatter of "
                      "those rows about the fit (their errors are then not checked by the chi-square)")
     return Identification(tuple(names), x, cov, chi2, n_res - len(names), tuple(obs), sd_eff,
-                          tuple(sorted(no_sd)), law, gain, fast_top, tuple(rig_names), tuple(notes))
+                          tuple(sorted(no_sd)), law, gain, fast_top, tuple(rig_names + video_spins), tuple(notes))
 
 
 def formulas_used(ident: Identification) -> dict[str, str]:

@@ -62,8 +62,10 @@ class Observation:
     #: ``model(params, x) -> y`` (exact) and the fast-top formula
     exact: Callable | None = None
     fast: Callable | None = None
-    #: the parameters only this observation's table has (a spin-down's initial spin)
+    #: the parameter only this observation's table or video has (a spin-down's initial spin, a video's spin)
     table_key: str = ""
+    #: that parameter's prior (mean, sd) where it has one (a video's spin, not measured directly)
+    table_prior: tuple[float, float] | None = None
 
     def predict(self, params: dict, x: dict | None = None, fast: bool = False) -> float:
         f = self.fast if fast and self.fast is not None else self.exact
@@ -204,20 +206,28 @@ def observations_from_fit(path: str, doc: dict, prior: Protocol) -> list[Observa
         raise IdentifyInputError(f"{path}: protocol_summary.launch: {exc}") from None
     out = []
     spin = launch.spin_rate_rad_s
+    # a video does not measure the spin: where the prior gives launch.spin_rate_rad_s an sd, each video's spin is
+    # a parameter with that relative sd about its own protocol's value
+    u = prior.uncertainty
+    rel = u.sd_of("launch.spin_rate_rad_s") / abs(prior.launch.spin_rate_rad_s) if prior.launch.spin_rate_rad_s else 0
+    spin_key, spin_prior = (f"spin[{path}]", (spin, rel * abs(spin))) if rel > 0 else ("", None)
     for key, kind in (("precession_rate_rad_s", "fit_precession"), ("nutation_frequency_rad_s", "fit_nutation")):
         q = (doc.get("quantities") or {}).get(key)
         if not q or q.get("status") != "determined" or not q.get("standard_error"):
             continue
 
-        def exact(params, x, key=key, launch=launch):
+        def exact(params, x, key=key, launch=launch, spin_key=spin_key):
+            if spin_key:
+                launch = replace(launch, spin_rate_rad_s=params[spin_key])
             sol = _released(prior, params, x, launch)
             return sol.mean_precession_rate_rad_s if key == "precession_rate_rad_s" else sol.nutation_frequency_rad_s
 
-        def fast(params, x, key=key):
+        def fast(params, x, key=key, spin_key=spin_key):
             mgh, i_t, i_o = _mgh_inertias(prior, params, x)
-            return mgh / (i_o * x["spin"]) if key == "precession_rate_rad_s" else i_o * x["spin"] / i_t
+            w = params[spin_key] if spin_key else x["spin"]
+            return mgh / (i_o * w) if key == "precession_rate_rad_s" else i_o * w / i_t
         out.append(Observation(kind, path, 0, float(q["value"]), float(q["standard_error"]), {"spin": spin}, {},
-                               _guard(exact), _guard(fast)))
+                               _guard(exact), _guard(fast), spin_key, spin_prior))
     if not out:
         raise IdentifyInputError(f"{path}: neither the precession rate nor the nutation frequency is determined")
     return out

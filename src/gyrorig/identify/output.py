@@ -96,9 +96,7 @@ def identify_document(ident: Identification, prior: Protocol, inputs: list[str])
                      "conditions": o.x})
     return _io.json_safe({
         "prior": prior.source, "inputs": inputs,
-        "parameters": {n: {"value": float(v), "standard_error": float(e),
-                           "prior": ({"value": prior.uncertainty.values[prior.uncertainty.names.index(n)],
-                                      "sd": prior.uncertainty.sd_of(n)} if n in ident.prior_names else None)}
+        "parameters": {n: {"value": float(v), "standard_error": float(e), "prior": _prior_of(n, ident, prior)}
                        for n, v, e in zip(ident.names, ident.values, se)},
         "derived": {k: {"value": v, "standard_error": e} for k, (v, e) in ident.derived(prior).items()},
         "correlation": {"names": list(ident.names), "matrix": ident.correlation.tolist()},
@@ -107,6 +105,17 @@ def identify_document(ident: Identification, prior: Protocol, inputs: list[str])
         "friction_chi2_gain": ident.friction_chi2_gain, "sd_from_scatter": list(ident.sd_from_scatter),
         "notes": list(ident.notes), "rows": rows,
     })
+
+
+def _prior_of(name: str, ident: Identification, prior: Protocol) -> dict | None:
+    """A parameter's prior ``{value, sd}`` (None: flat)."""
+    if name not in ident.prior_names:
+        return None
+    u = prior.uncertainty
+    if name in u.names:
+        return {"value": u.values[u.names.index(name)], "sd": u.sd_of(name)}
+    mean, sd = next(o.table_prior for o in ident.observations if o.table_key == name)
+    return {"value": mean, "sd": sd}
 
 
 def _fixed(prior: Protocol) -> dict:
