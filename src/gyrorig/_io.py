@@ -15,7 +15,66 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["atomic_path", "write_csv", "write_json", "json_safe", "versions"]
+__all__ = ["atomic_path", "output_folder", "OutputExistsError", "write_csv", "write_json", "json_safe", "versions"]
+
+#: text files whose contents may name their folder (rewritten from the temporary folder's name to the final one)
+_TEXT_SUFFIXES = {".json", ".csv", ".html", ".md", ".toml", ".txt"}
+
+
+class OutputExistsError(ValueError):
+    """The output folder (or file) exists and holds something: refused without ``--overwrite`` (bad input)."""
+
+
+def _claim(final: Path, overwrite: bool) -> None:
+    if final.is_symlink() or (final.exists() and not final.is_dir()):
+        if final.is_dir() or not overwrite:
+            raise OutputExistsError(f"{final}: exists and is not a folder; give another --out (or --overwrite to "
+                                    "replace it)")
+    elif final.is_dir() and any(final.iterdir()) and not overwrite:
+        raise OutputExistsError(f"{final}: the output folder exists and is not empty; give a new --out, or "
+                                "--overwrite to replace it whole")
+
+
+@contextmanager
+def output_folder(final: str | Path, overwrite: bool = False, keep: tuple[str | Path, ...] = ()) -> Iterator[Path]:
+    """Yield a fresh temporary folder beside ``final``; on success it replaces ``final`` whole.
+
+    An existing non-empty ``final`` is refused (:class:`OutputExistsError`) unless ``overwrite``; a
+    path in ``keep`` (the command's inputs) inside ``final`` is refused even then.  The temporary
+    name is unique to the process and the call, so concurrent runs never share it.  Text files
+    naming the temporary folder are rewritten to name ``final``.  On any error (Ctrl-C included)
+    the temporary folder is removed and ``final`` is left as it was.
+    """
+    import secrets
+    import shutil
+
+    final = Path(final).absolute()
+    _claim(final, overwrite)
+    for k in keep:
+        kp = Path(k).absolute()
+        if kp == final or final in kp.parents:
+            raise OutputExistsError(f"{final}: the output folder holds an input ({k}); give another --out")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = final.parent / f".{final.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
+    tmp.mkdir()
+    try:
+        yield tmp
+        for f in tmp.rglob("*"):
+            if f.suffix.lower() in _TEXT_SUFFIXES and f.is_file():
+                text = f.read_text(errors="surrogateescape")
+                if str(tmp) in text:
+                    f.write_text(text.replace(str(tmp), str(final)), errors="surrogateescape")
+        _claim(final, overwrite)  # another run may have filled it meanwhile: the same rule at the end
+        trash = None
+        if final.exists() or final.is_symlink():
+            trash = final.parent / f".{final.name}.old-{os.getpid()}-{secrets.token_hex(4)}"
+            os.replace(final, trash)
+        os.replace(tmp, final)
+        if trash is not None:
+            shutil.rmtree(trash) if trash.is_dir() and not trash.is_symlink() else trash.unlink()
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 @contextmanager

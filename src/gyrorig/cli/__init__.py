@@ -3,7 +3,8 @@
 Exit codes: 0 success; 2 bad input (protocol, arguments, a file that cannot be read or
 written); 3 a computation failed (integration error, lost quaternion norm, or an unexpected
 error: one line, the traceback only with ``--debug``); 130 interrupted (Ctrl-C).  Nothing is written under a final file
-name unless the whole computation succeeded.
+name unless the whole computation succeeded: ``--out`` is written as a temporary folder and renamed into place
+(an existing non-empty one is refused unless ``--overwrite``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import contextlib
 import io
 import logging
 import sys
+from pathlib import Path
 from collections.abc import Sequence
 
 from .parser import build_parser
@@ -46,6 +48,49 @@ def _announce_compiling() -> None:
         _announce_compiling.registered = True
 
 
+class _Renaming(io.TextIOBase):
+    """A text stream that names the final output folder where the command wrote its temporary one."""
+
+    def __init__(self, stream, tmp: str, final: str):
+        self.stream, self.tmp, self.final = stream, tmp, final
+
+    def write(self, text: str) -> int:
+        return self.stream.write(text.replace(self.tmp, self.final))
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def isatty(self) -> bool:
+        return self.stream.isatty()
+
+
+@contextlib.contextmanager
+def _output(args):
+    """The command writes into a fresh temporary folder beside ``--out``, renamed into place when complete
+    (``--overwrite``: replacing an existing one whole); a single output file (``calibrate``) is refused
+    when it exists, unless ``--overwrite``."""
+    from .. import _io
+
+    out = getattr(args, "out", None)
+    if out is None or not hasattr(args, "overwrite"):
+        yield
+        return
+    if getattr(args, "out_is_file", False):
+        if Path(out).exists() and not args.overwrite:
+            raise _io.OutputExistsError(f"{out}: exists; give another --out, or --overwrite to replace it")
+        yield
+        return
+    inputs = [v for k, v in vars(args).items() if k != "out" and isinstance(v, str) and v and Path(v).exists()]
+    inputs += [x for k, v in vars(args).items() if isinstance(v, list) for x in v
+               if isinstance(x, str) and Path(x).exists()]
+    with _io.output_folder(out, args.overwrite, keep=tuple(inputs)) as tmp:
+        final = str(Path(out).absolute())
+        args.out = str(tmp)
+        with contextlib.redirect_stdout(_Renaming(sys.stdout, str(tmp), final)), \
+                contextlib.redirect_stderr(_Renaming(sys.stderr, str(tmp), final)):
+            yield
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     parser = build_parser()
@@ -65,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _announce_compiling()
     quiet = contextlib.redirect_stdout(io.StringIO()) if args.quiet else contextlib.nullcontext()
     try:
-        with quiet:
+        with quiet, _output(args):
             return int(getattr(commands, args.func)(args))
     except (ProtocolError, ExactSolutionError, ValueError) as exc:  # includes tracking's BadInputError
         print(f"gyrorig: error: {exc}", file=sys.stderr)

@@ -203,4 +203,19 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--duration", type=float, default=10.0, help="simulated time [s] (default 10)")
     d.add_argument("--video-duration", type=float, default=3.0, help="length of the rendered video [s] (default 3)")
     d.set_defaults(func="_cmd_demo")
+    cal.set_defaults(out_is_file=True)
+    _add_overwrite(sub)
     return p
+
+
+def _add_overwrite(sub) -> None:
+    """``--overwrite`` on every command that writes an ``--out``: without it an existing non-empty output is refused."""
+    for parser in sub.choices.values():
+        dests = {a.dest for a in parser._actions}
+        if "out" in dests and "overwrite" not in dests:
+            parser.add_argument("--overwrite", action="store_true",
+                                help="replace an existing --out whole (without it an existing non-empty output is "
+                                     "refused)")
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                _add_overwrite(action)

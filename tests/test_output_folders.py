@@ -1,0 +1,95 @@
+"""Output folders (issue 23): a command writes into a fresh temporary folder beside --out and renames it into
+place only when complete; an existing non-empty --out is refused (exit 2) unless --overwrite, which replaces it
+whole; a failed or interrupted run leaves the earlier output as it was; concurrent runs never share a name."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from gyrorig import _io
+from gyrorig.cli import commands, main
+
+from conftest import PROTOCOL_DIR
+
+AIR = str(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+
+
+def _tree(folder):
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+def _no_leftovers(parent):
+    return not [p for p in parent.iterdir() if ".partial-" in p.name or ".old-" in p.name]
+
+
+def test_a_second_render_into_one_folder_is_refused_and_overwrite_replaces_it_whole(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["render", AIR, "--out", str(out), "--duration", "0.1", "--calibration-views", "2"]) == 0
+    first = _tree(out)
+    truth = (out / "truth.csv").read_bytes()
+    capsys.readouterr()
+    assert main(["render", AIR, "--out", str(out), "--duration", "0.2", "--codec", "mp4"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert _tree(out) == first and (out / "truth.csv").read_bytes() == truth
+    assert main(["render", AIR, "--out", str(out), "--duration", "0.1", "--codec", "mp4", "--calibration-views", "0",
+                 "--overwrite"]) == 0
+    after = _tree(out)
+    assert "video.mp4" in after and "video.mkv" not in after  # nothing of the first run is left
+    assert not any(p.startswith("calibration") for p in after)
+    assert _no_leftovers(tmp_path)
+    # files that name their folder name the final one, never the temporary one
+    for f in out.rglob("*"):
+        if f.suffix in (".json", ".csv"):
+            assert ".partial-" not in f.read_text()
+
+
+def test_an_interrupted_or_failed_run_leaves_the_earlier_output(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "sim"
+    assert main(["simulate", AIR, "--out", str(out), "--duration", "0.1"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def half_then(exc):
+        def run(args):
+            (_io.Path(args.out) / "trajectory.csv").write_text("half written")
+            raise exc
+        return run
+
+    for exc, code in ((KeyboardInterrupt(), 130), (RuntimeError("boom"), 3), (ValueError("bad"), 2)):
+        monkeypatch.setattr(commands, "_cmd_simulate", half_then(exc))
+        assert main(["simulate", AIR, "--out", str(out), "--duration", "0.1", "--overwrite"]) == code
+        assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+        assert _no_leftovers(tmp_path)
+        assert "Traceback" not in capsys.readouterr().err
+
+
+def test_an_output_holding_an_input_is_refused_even_with_overwrite(tmp_path):
+    out = tmp_path / "sim"
+    assert main(["simulate", AIR, "--out", str(out), "--duration", "0.1"]) == 0
+    angles = out / "trajectory.csv"
+    assert main(["smooth", str(angles), "--out", str(out), "--overwrite"]) == 2
+    assert angles.exists()
+
+
+def test_concurrent_runs_get_their_own_temporary_folders_and_the_rule_holds_at_the_end(tmp_path):
+    final = tmp_path / "out"
+    with pytest.raises(_io.OutputExistsError):
+        with _io.output_folder(final) as a:          # run A starts
+            with _io.output_folder(final) as b:      # run B starts, into the same --out
+                assert a != b and a.parent == b.parent == tmp_path
+                (a / "x.txt").write_text("a")
+                (b / "x.txt").write_text("b")
+            # B finished first: the folder is B's; A, finishing without --overwrite, is refused
+    assert (final / "x.txt").read_text() == "b"
+    with _io.output_folder(final, overwrite=True) as c:
+        (c / "y.txt").write_text("c")
+    assert sorted(p.name for p in final.iterdir()) == ["y.txt"]  # replaced whole
+    assert _no_leftovers(tmp_path)
+
+
+def test_calibrate_refuses_an_existing_camera_file(tmp_path):
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps({"keep": True}))
+    assert main(["calibrate", str(tmp_path), "--board", "9x6", "--square-mm", "20", "--out", str(cam)]) == 2
+    assert json.loads(cam.read_text()) == {"keep": True}
