@@ -205,9 +205,11 @@ def test_bad_inputs_fail_clearly_and_write_nothing(tmp_path, capsys):
         track_video(tmp_path / "v" / "video.mkv", load_camera(tmp_path / "big.json"), p, tmp_path / "o2")
     code = main(["track", str(junk), "--camera", str(tmp_path / "v" / "camera.json"),
                  "--protocol", str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out", str(tmp_path / "o3")])
-    assert code == 3 and "tracking failed" in capsys.readouterr().err
+    # a file that is not a video is bad input (issue 23: it was exit 3, "tracking failed")
+    assert code == 2 and len(capsys.readouterr().err.strip().splitlines()) == 1
     for o in ("o1", "o2", "o3"):
         assert not (tmp_path / o / "angles.csv").exists()
+    assert not (tmp_path / "o3").exists()
 
 
 def test_pose_from_fiducials_when_the_camera_file_has_none(tmp_path):

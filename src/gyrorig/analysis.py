@@ -154,15 +154,25 @@ def _batch_jobs(source: Path, camera, protocol: Protocol | None) -> list[tuple[P
         if not jobs:
             raise ValueError(f"no videos ({', '.join(VIDEO_SUFFIXES)}) in {source}")
         return jobs
-    man = pd.read_csv(source)
+    try:
+        man = pd.read_csv(source, dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise ValueError(f"manifest {source}: not a readable CSV table ({exc})") from None
+    man.columns = [str(c).strip() for c in man.columns]
     if "video" not in man.columns or ("protocol" not in man.columns and protocol is None):
-        raise ValueError(f"manifest {source} needs columns video, protocol[, camera]")
-    for _, row in man.iterrows():
-        cam = row["camera"] if "camera" in man.columns and isinstance(row["camera"], str) else camera
+        raise ValueError(f"manifest {source} needs columns video, protocol[, camera]; has {', '.join(man.columns)}")
+    if man.empty:
+        raise ValueError(f"manifest {source}: no rows (one row per video: video, protocol[, camera])")
+    for i, row in man.iterrows():
+        line = int(i) + 2
+        for col in ("video", "protocol"):
+            if col in man.columns and not row[col].strip():
+                raise ValueError(f"manifest {source}, line {line}: the {col} cell is empty")
+        cam = row["camera"].strip() if "camera" in man.columns and row["camera"].strip() else camera
         if cam is None:
-            raise ValueError(f"manifest row for {row['video']} has no camera and no --camera was given")
-        prot = source.parent / row["protocol"] if "protocol" in man.columns else protocol
-        jobs.append((source.parent / row["video"], source.parent / cam if isinstance(cam, str) else cam, prot))
+            raise ValueError(f"manifest {source}, line {line}: no camera for {row['video']} and no --camera given")
+        prot = source.parent / row["protocol"].strip() if "protocol" in man.columns else protocol
+        jobs.append((source.parent / row["video"].strip(), source.parent / cam if isinstance(cam, str) else cam, prot))
     return jobs
 
 
@@ -197,7 +207,7 @@ def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | N
                 row[f"{name}_se"] = q.standard_error
                 row[f"{name}_camera_se"] = q.camera_standard_error
         except Exception as exc:  # one bad video must not stop the batch; the summary says why
-            logger.exception("analysis of %s failed", video)
+            logger.debug("analysis of %s failed", video, exc_info=True)  # the summary and progress line say why
             row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
         rows.append(row)
         if progress_line:

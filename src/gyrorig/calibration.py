@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["CalibrationError", "CalibrationResult", "calibrate_camera", "intrinsics_covariance", "MIN_VIEWS",
+__all__ = ["CalibrationError", "CalibrationInputError", "CalibrationResult", "calibrate_camera", "intrinsics_covariance", "MIN_VIEWS",
            "MAX_RMS_PX", "INTRINSIC_PARAMETERS"]
 
 MIN_VIEWS = 6
@@ -24,6 +24,10 @@ _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"}
 
 class CalibrationError(ValueError):
     """The images do not give a usable calibration; the message says why."""
+
+
+class CalibrationInputError(CalibrationError):
+    """The input is not a set of calibration images (none in the folder, mixed sizes): bad input."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +70,7 @@ def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: 
     images = sorted(p for p in Path(images_dir).iterdir() if p.suffix.lower() in _IMAGE_SUFFIXES) \
         if Path(images_dir).is_dir() else []
     if not images:
-        raise CalibrationError(f"no images (.png, .jpg, .tif, .bmp) in {images_dir}")
+        raise CalibrationInputError(f"no images (.png, .jpg, .tif, .bmp) in {images_dir}")
     obj = np.zeros((rows * cols, 3), np.float32)
     obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square_m
     objpoints, imgpoints, names, not_found = [], [], [], []
@@ -81,7 +85,7 @@ def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: 
         if size is None:
             size = (img.shape[1], img.shape[0])
         elif size != (img.shape[1], img.shape[0]):
-            raise CalibrationError(f"{path.name} is {img.shape[1]} x {img.shape[0]}, the others {size[0]} x {size[1]}")
+            raise CalibrationInputError(f"{path}: {img.shape[1]} x {img.shape[0]}, the others {size[0]} x {size[1]}")
         loaded.append((path, img))
     # the corner detector takes seconds per large image to give up on a board of the wrong size; the
     # sector-based detector says so in a fraction of a second: when it finds the board in no image,

@@ -176,6 +176,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from ..render import render_video
 
     protocol = load_protocol(args.protocol)
+    if args.duration is not None:
+        number("", "--duration", args.duration, lo=0.0, lo_open=True, hi=1e5)
+    number("", "--calibration-views", args.calibration_views, lo=0, hi=1000)
     out = Path(args.out)
     summary = render_video(protocol, out, seed=args.seed, codec=args.codec, duration_s=args.duration,
                            calibration_views=args.calibration_views, progress=progress_printer("render"))
@@ -197,7 +200,7 @@ def _cmd_bench_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..calibration import CalibrationError, calibrate_camera
+    from ..calibration import CalibrationError, CalibrationInputError, calibrate_camera
 
     try:
         cols, rows = (int(v) for v in args.board.lower().split("x"))
@@ -205,6 +208,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise ValueError(f"--board {args.board!r}: expected COLSxROWS inner corners, e.g. 9x6") from None
     try:
         result = calibrate_camera(args.images, cols=cols, rows=rows, square_m=args.square_mm / 1000.0)
+    except CalibrationInputError:
+        raise  # bad input: exit 2
     except CalibrationError as exc:
         print(f"gyrorig: calibration refused: {exc}", file=sys.stderr)
         return EXIT_FAILED

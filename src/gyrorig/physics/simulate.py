@@ -259,6 +259,10 @@ def _segments(protocol: Protocol, t_end: float) -> list[float]:
     return sorted(set(bounds))
 
 
+#: the most rows a simulation writes (a trajectory of 1e8 rows is already 10 GB of CSV)
+MAX_OUTPUT_ROWS = 1e8
+
+
 def output_times(protocol: Protocol, duration_s: float | None, rate_hz: float | None,
                  t_eval_s: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """The output times of :func:`simulate`: ``t_eval_s``, or a grid at ``rate_hz`` up to ``duration_s``
@@ -274,6 +278,9 @@ def output_times(protocol: Protocol, duration_s: float | None, rate_hz: float | 
         raise ValueError(f"duration_s = {t_end!r}: must be a finite number > 0")
     if not (rate > 0.0 and math.isfinite(rate)):
         raise ValueError(f"rate_hz = {rate!r}: must be a finite number > 0")
+    if t_end * rate > MAX_OUTPUT_ROWS:
+        raise ValueError(f"duration_s * rate_hz = {t_end:g} s * {rate:g} Hz = {t_end * rate:.3g} rows: at most "
+                         f"{MAX_OUTPUT_ROWS:.0e} (a shorter run or a lower rate)")
     n = int(math.floor(t_end * rate + 1e-9)) + 1
     t_eval = np.arange(n) / rate
     if t_eval[-1] < t_end * (1 - 1e-12):

@@ -155,8 +155,9 @@ def _check_camera_values(path: Path, d: dict) -> None:
         _scalar(path, "sensor.gain_e_per_adu", sensor["gain_e_per_adu"], 0.0, lo_open=True, hi=1e6)
     if "read_noise_e" in sensor:
         _scalar(path, "sensor.read_noise_e", sensor["read_noise_e"], 0.0, hi=1e6)
-    if "bit_depth" in sensor and (not isinstance(sensor["bit_depth"], int) or not 1 <= sensor["bit_depth"] <= 16):
-        raise CameraFileError(f"{path}: sensor.bit_depth = {sensor['bit_depth']!r}: allowed integers 1 to 16")
+    bits = sensor.get("bit_depth", 8)
+    if isinstance(bits, bool) or not isinstance(bits, int) or not 8 <= bits <= 16:
+        raise CameraFileError(f"{path}: sensor.bit_depth = {bits!r}: allowed integers 8 to 16")
     if "gamma" in sensor:
         _scalar(path, "sensor.gamma", sensor["gamma"], 0.1, hi=10.0)
 

@@ -78,7 +78,9 @@ class VideoFile:
     def open(self) -> Frames:
         cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         if not cap.isOpened():
-            raise TrackingError(f"cannot open video {self.path}")
+            why = "no such file" if not self.path.exists() else "empty file" if self.path.stat().st_size == 0 else \
+                "not a video OpenCV's FFmpeg can decode"
+            raise BadInputError(f"cannot open video {self.path}: {why}")
         # unconverted frames: 16-bit FFV1 stays 16-bit, a YUV codec gives its luma plane (OpenCV warns
         # about that on every frame; its warnings are silenced while the file is read)
         level = cv2.utils.logging.getLogLevel()

@@ -315,7 +315,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         if not math.isfinite(camera.fps):
             camera = replace(camera, fps=frames.fps)
         if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
-            raise TrackingError(f"camera file says {camera.width_px} x {camera.height_px}, the video is "
+            raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                                 f"{frames.width_px} x {frames.height_px}")
         lossy = frames.lossy
         if lossy and camera.sensor_known:  # the codec changed the pixel values: the noise model does not hold
