@@ -165,3 +165,25 @@ def test_the_one_time_compile_is_announced_once(tmp_path):
     assert [r.returncode for r in runs] == [0, 0]
     assert len(runs[0].stderr.strip().splitlines()) == 1
     assert runs[1].stderr == ""
+
+
+def test_sleeping_and_non_spinning_tops_in_theory(tmp_path, capsys):
+    """Issue 23: at tilt 0 theory flagged 'WRONG SIGN' against exact values that are 0 (a sleeping top neither
+    nutates nor precesses); at spin 0 theory and plan crashed (ZeroDivisionError, exit 3)."""
+    from gyrorig.protocols import load_protocol
+    from gyrorig.theory import predict
+
+    text = (PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
+    tilt0 = tmp_path / "tilt0.toml"
+    tilt0.write_text(text.replace("tilt_deg = 45.0", "tilt_deg = 0.0"))
+    pred = predict(load_protocol(tilt0), simulate_damping=False)
+    for key in ("nutation_frequency_rad_s", "mean_precession_rate_rad_s"):
+        assert pred[key]["exact"] == 0.0
+        assert "sign_agrees" not in pred[key]
+    assert pred["precession_rate_slow_rad_s"]["sign_agrees"] is False  # the paper's real sign error stays flagged
+    spin0 = tmp_path / "spin0.toml"
+    spin0.write_text(text.replace("spin_rate_rad_s = 502.65", "spin_rate_rad_s = 0.0"))
+    capsys.readouterr()
+    assert main(["theory", str(spin0), "--no-simulate"]) == 2
+    assert main(["plan", str(spin0), "--draws", "0", "--duration", "1"]) == 2
+    assert "Traceback" not in capsys.readouterr().err

@@ -26,7 +26,7 @@ import pandas as pd
 from scipy.optimize import brentq
 
 from .physics import exact_solution, simulate
-from .protocols import Pivot, Protocol
+from .protocols import Pivot, Protocol, ProtocolError
 
 __all__ = [
     "paper_heavy_precession_rates",
@@ -347,7 +347,8 @@ def _entry(paper: float | list[float] | None, exact: float | list[float], *, sou
         # no relative difference against a reference that is zero at the paper's scale
         if abs(exact) > 1e-6 * abs(paper):
             out["relative_difference"] = (paper - exact) / abs(exact)
-        out["sign_agrees"] = bool(np.sign(paper) == np.sign(round(exact, 15)))
+            # a sign is compared only where the exact value has one (a sleeping top's exact nutation is 0)
+            out["sign_agrees"] = bool(np.sign(paper) == np.sign(exact))
     if note:
         out["note"] = note
     return out
@@ -427,6 +428,9 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
     rig, lau = protocol.rig, protocol.launch
     i_t, i_o = rig.inertia_transverse_kg_m2, rig.inertia_axial_kg_m2
     spin, tilt = lau.spin_rate_rad_s, lau.tilt_rad
+    if spin == 0.0 and protocol.has_gravity:
+        raise ProtocolError("launch.spin_rate_rad_s = 0: the paper's formulas are for a spinning top (a heavy "
+                            "top without spin is a pendulum); allowed: any non-zero spin (simulate still runs it)")
     acc = protocol.pivot.acceleration
     a_vec = np.zeros(3) if acc is None else np.asarray(acc.acceleration_m_s2[0], dtype=float)
     g = rig.gravity_m_s2 or 0.0
