@@ -124,3 +124,19 @@ def test_ctrl_c_while_tracking_exits_130_and_leaves_nothing(tmp_path):
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1].startswith("gyrorig:") and "Traceback" not in err
     assert not out.exists() and _no_leftovers(tmp_path)
+
+
+def test_a_board_that_cannot_fit_the_view_is_refused_not_looped_on(tmp_path):
+    """Issue 23: render with a narrow field of view never finished (the calibration board was placed at
+    random until it fitted, which it never did).  Now a bounded search and a clear refusal, exit 2."""
+    text = (PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
+    narrow = tmp_path / "narrow.toml"
+    narrow.write_text(text.replace("focal_length_mm = 10.2", "focal_length_mm = 100.0")
+                      .replace("position_m = [0.0, 0.0, 0.75]", "position_m = [0.0, 0.0, 3.5]"))
+    from gyrorig.camera import camera_setup
+    from gyrorig.protocols import load_protocol
+    from gyrorig.render.board import render_calibration_images
+
+    cam = camera_setup(load_protocol(narrow)).camera
+    with pytest.raises(ValueError):
+        render_calibration_images(cam, tmp_path / "cal", n_views=2)

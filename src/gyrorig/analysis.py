@@ -45,7 +45,11 @@ def load_truth(path: str | Path, marker: str = "tip") -> pd.DataFrame:
     """Tip angles from a renderer's ``truth.csv`` (:func:`gyrorig.tables.tip_truth`)."""
     try:
         return tip_truth(pd.read_csv(path), marker)
-    except ValueError as exc:
+    except FileNotFoundError:
+        raise ValueError(f"--truth {path}: no such file") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"--truth {path}: not UTF-8 text (a truth.csv is expected)") from None
+    except ValueError as exc:  # includes pandas' parser errors
         raise ValueError(f"{path}: {exc}") from exc
 
 
@@ -54,6 +58,8 @@ def _read_angles(path: str | Path) -> pd.DataFrame:
         return pd.read_csv(path)
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
         raise ValueError(f"cannot read angle table {path}: {exc}") from exc
+    except UnicodeDecodeError:
+        raise ValueError(f"cannot read angle table {path}: not UTF-8 text (a CSV table is expected)") from None
 
 
 def smooth_file(angles_csv: str | Path, out: str | Path) -> SmoothResult:

@@ -10,7 +10,10 @@ import numpy as np
 from .. import _io
 from ..camera import Camera
 
-__all__ = ["render_calibration_images"]
+__all__ = ["render_calibration_images", "MAX_TRIES_PER_VIEW"]
+
+#: random board poses tried per view before the field of view is declared too narrow for the board
+MAX_TRIES_PER_VIEW = 500
 
 
 def render_calibration_images(cam: Camera, out_dir: str | Path, *, seed: int = 0, n_views: int = 12,
@@ -40,7 +43,14 @@ def render_calibration_images(cam: Camera, out_dir: str | Path, *, seed: int = 0
     white_e = 0.6 * s.full_well_e
     dark_e = 0.08 * s.full_well_e
     poses = []
+    tries = 0
     while len(poses) < n_views:
+        tries += 1
+        if tries > MAX_TRIES_PER_VIEW * n_views:
+            raise ValueError(f"calibration views: a {cols + 1} x {rows + 1} board of {square_m * 1e3:g} mm squares "
+                             f"fits in the {w} x {h} image at the pivot's distance in {len(poses)} of {tries - 1} "
+                             "random poses: the field of view is too narrow for it (render with "
+                             "--calibration-views 0, and calibrate this lens with a smaller board)")
         angles = np.radians(rng.uniform(-35, 35, 2))
         rot_board = cv2.Rodrigues(np.array([angles[0], angles[1], rng.uniform(-np.pi, np.pi)]))[0]
         # board centre: ahead of the camera near the pivot's depth, within the central field
