@@ -125,3 +125,23 @@ def test_cli_fit_with_fix_and_prior(tmp_path, heavy):
     bad = tmp_path / "bad"
     assert main(["fit", str(csv), "--protocol", proto, "--out", str(bad), "--fix", "no_such_rad=1"]) == 2
     assert not bad.exists()
+
+
+def test_a_fit_that_finds_no_minimum_is_a_failed_computation_not_bad_input(tmp_path, monkeypatch, heavy):
+    """Issue 23: a non-converging fit exited 2 (bad input); it is a failed computation: exit 3."""
+    from gyrorig.fit import FitConvergenceError, selection
+
+    def no_minimum(*args, **kwargs):
+        raise FitConvergenceError("the fit did not converge: test")
+
+    monkeypatch.setattr(selection, "fit_model", no_minimum)
+    import gyrorig.fit.fitting as fitting
+
+    monkeypatch.setattr(fitting, "fit_model", no_minimum)
+    _, angles, *_ = heavy
+    csv = tmp_path / "angles.csv"
+    angles.to_csv(csv, index=False)
+    out = tmp_path / "fit"
+    assert main(["fit", str(csv), "--protocol", str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out",
+                 str(out)]) == 3
+    assert not out.exists()

@@ -121,8 +121,9 @@ def _main(argv: Sequence[str] | None) -> int:
         with quiet, _output(args):
             return int(getattr(commands, args.func)(args))
     except (ProtocolError, ExactSolutionError, ValueError) as exc:  # includes tracking's BadInputError
-        print(f"gyrorig: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        code = getattr(exc, "exit_code", EXIT_BAD_INPUT)  # a ValueError that is a failed computation says so
+        print(f"gyrorig: {'error' if code == EXIT_BAD_INPUT else 'failed'}: {exc}", file=sys.stderr)
+        return code
     except TrackingError as exc:
         print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
         return EXIT_FAILED

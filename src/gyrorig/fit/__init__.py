@@ -25,7 +25,7 @@ a number.
 """
 
 from .constraints import Constraints, constrainable_names
-from .data import FIT_REQUIRED, FitData, FitError, fit_data_from_angles
+from .data import FIT_REQUIRED, FitConvergenceError, FitData, FitError, fit_data_from_angles
 from .fitting import TERM_CHOICES, fit_angles, linear_response
 from .model import FitModel, Residuals, SceneModel, model_for_scene
 from .result import (NONLINEAR_PHASE_RAD, QUANTITY_UNITS, ErrorKind, FitResult, Note, NoteKind, Quantity,
@@ -37,7 +37,7 @@ from .spec import FitTerms, ModelSpec
 from .terms import MAX_HARMONICS, OPTIONAL_TERMS
 from .uncertainty import phase_uncertainty
 
-__all__ = ["Constraints", "constrainable_names", "FitError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "FitModel", "Residuals",
+__all__ = ["Constraints", "constrainable_names", "FitError", "FitConvergenceError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "FitModel", "Residuals",
            "SceneModel", "Solution", "Selector", "model_for_scene", "fit_data_from_angles", "fit_angles", "fit_model",
            "solve", "plan_terms", "phase_uncertainty", "left_out_noncentrality", "linear_response", "score_term",
            "trial_term", "ErrorKind", "Note", "NoteKind", "QuantityStatus", "Undetermined", "OPTIONAL_TERMS",

@@ -12,7 +12,7 @@ from ..smooth import measurement_covariance
 from ..tables import camera_mode_columns, camera_mode_count, missing_columns
 from .constraints import Constraints
 
-__all__ = ["FitError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
+__all__ = ["FitError", "FitConvergenceError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
 
 #: columns the fit needs of an angle table (``theta_phi_corr``, ``frame``, ``exposure_s`` and the camera
 #: modes are used when present)
@@ -21,6 +21,12 @@ FIT_REQUIRED = ("t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad
 
 class FitError(ValueError):
     """The angles cannot be fitted (missing columns, too few frames for the model, no data)."""
+
+
+class FitConvergenceError(FitError):
+    """The least squares found no minimum: a failed computation (the command line exits 3), not bad input."""
+
+    exit_code = 3
 
 
 @dataclass(frozen=True)

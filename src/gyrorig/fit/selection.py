@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2, ncx2
 
-from .data import FitData, FitError
+from .data import FitConvergenceError, FitData, FitError
 from .model import FitModel, Residuals, SceneModel
 from .result import NONLINEAR_PHASE_RAD, Note, NoteKind, Reason, Undetermined
 from .solver import (Solution, conditional_amplitudes, dominant_frequency, linear_harmonics, linear_start, mean_axis,
@@ -221,7 +221,7 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                           "a gap are not counted, and the precession rate comes from within the segments"))
     base = solve(spec0, data, linear_start(spec0, data, mean_axis(data) if spec0.fit_axis else None))
     if not base.ok and not (scene.nutation_expected and np.all(np.isfinite(base.x))):
-        raise FitError(f"the fit did not converge: {base.message}")
+        raise FitConvergenceError(f"the fit did not converge: {base.message}")
     # without the nutation the slow model may find no clean minimum over a short record (the residual is
     # the nutation itself): it is only the start of the full model, which must converge
     best = base
@@ -236,7 +236,7 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
     if not best.ok:
-        raise FitError(f"the fit did not converge: {best.message}")
+        raise FitConvergenceError(f"the fit did not converge: {best.message}")
     return best, notes, undetermined
 
 
