@@ -117,19 +117,15 @@ def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, 
 
     def noisy(v, rel):
         return v * (1 + rel * rng.normal())
-    if rig.precession_rows:
+    for kind, rows_in, column in (("precession", rig.precession_rows, "precession_period_s"),
+                                  ("nutation", rig.nutation_rows, "nutation_frequency_rad_s")):
+        if not rows_in:
+            continue
         rows = [{"spin_rad_s": noisy(s, spin_rel_sd), "spin_rad_s_sd": s * spin_rel_sd, "tilt_rad": th,
-                 "added_mass_g": 1e3 * m, "lever_arm_cm": 1e2 * ell,
-                 "precession_period_s": noisy(T, rel_sd), "precession_period_s_sd": T * rel_sd}
-                for (s, th, m, ell), T in zip(rig.precession_rows, truth["precession"])]
-        files.append(folder / "precession.csv")
-        pd.DataFrame(rows).to_csv(files[-1], index=False)
-    if rig.nutation_rows:
-        rows = [{"spin_rad_s": noisy(s, spin_rel_sd), "spin_rad_s_sd": s * spin_rel_sd, "tilt_rad": th,
-                 "added_mass_g": 1e3 * m, "lever_arm_cm": 1e2 * ell,
-                 "nutation_frequency_rad_s": noisy(w, rel_sd), "nutation_frequency_rad_s_sd": w * rel_sd}
-                for (s, th, m, ell), w in zip(rig.nutation_rows, truth["nutation"])]
-        files.append(folder / "nutation.csv")
+                 "added_mass_g": 1e3 * m, "lever_arm_cm": 1e2 * ell, column: noisy(y, rel_sd),
+                 f"{column}_sd": y * rel_sd}
+                for (s, th, m, ell), y in zip(rows_in, truth[kind])]
+        files.append(folder / f"{kind}.csv")
         pd.DataFrame(rows).to_csv(files[-1], index=False)
     if rig.spin_down:
         w0, k, f, dur = rig.spin_down
