@@ -102,3 +102,33 @@ def test_track_exits_2_on_a_bad_image_folder(rendered, tmp_path, capsys, kind):
                  str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out", str(tmp_path / "t"), "--tip-only"])
     assert code == 2 and not (tmp_path / "t").exists()
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_frame_interval_statistics_and_the_warnings():
+    """Issue 19: the tracker reports the measured frame intervals and says when they disagree with
+    camera.json (another rate, or a variable frame rate as phone video has); dropped frames are counted."""
+    import numpy as np
+
+    from gyrorig.tracking.tracker import frame_interval_stats
+
+    t = np.arange(200) / 200.0
+    good = frame_interval_stats(np.delete(t, [50, 51, 120]), 200.0)
+    assert good["agrees_with_camera"] and good["dropped_frames"] == 3
+    assert good["median_interval_s"] == pytest.approx(0.005)
+    other = frame_interval_stats(t, 210.0)
+    assert not other["agrees_with_camera"] and other["measured_fps"] == pytest.approx(200.0)
+    rng = np.random.default_rng(0)
+    vfr = np.cumsum(0.005 * (1 + 0.2 * rng.uniform(-1, 1, 200)))
+    jittery = frame_interval_stats(vfr, 200.0)
+    assert not jittery["agrees_with_camera"] and jittery["jitter_rel"] > 0.05
+
+
+def test_container_rounding_is_not_a_variable_rate():
+    """240 fps stored to 1 ms (Matroska) alternates 4 and 5 ms intervals: on camera.json's grid, no warning."""
+    import numpy as np
+
+    from gyrorig.tracking.tracker import frame_interval_stats
+
+    t = np.round(np.arange(480) / 240.0, 3)
+    stats = frame_interval_stats(t, 240.0)
+    assert stats["agrees_with_camera"] and stats["jitter_rel"] > 0.05

@@ -251,6 +251,11 @@ def _cmd_track(args: argparse.Namespace) -> int:
               f"{check['factor_se']:.2g} ({check['coordinates']} coordinates), "
               f"{'applied' if check['applied'] else 'not applied'}: {check['reason']}; "
               f"{check['outliers']} outlier frame(s)")
+    ft = summary.get("frame_times") or {}
+    if ft:
+        print(f"frame times: median interval {ft['median_interval_s'] * 1e3:.4g} ms ({ft['measured_fps']:.5g} fps; "
+              f"camera.json {ft['camera_fps']:g}), jitter {ft['jitter_rel']:.2%}, {ft['dropped_frames']} dropped"
+              + ("" if ft["agrees_with_camera"] else f"  ** {ft['warning']} **"))
     print(f"{n} frames, tip tracked in {summary['tracked_fraction']:.1%}; "
           f"{n / (summary['track_s'] + summary['decode_s']):.0f} frames/s -> {summary['angles']}, {summary['markers']}")
     if args.overlay:

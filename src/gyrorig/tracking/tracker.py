@@ -22,6 +22,8 @@ tables' columns are in :mod:`gyrorig.tables`.
 
 from __future__ import annotations
 
+import logging
+
 import math
 import time
 from collections.abc import Callable
@@ -46,9 +48,10 @@ from .scatter import SigmaCheck, check_sigmas
 from .sources import as_source
 from .spot import SpotFit
 
-__all__ = ["TrackResult", "track", "track_video", "tip_marker"]
+__all__ = ["TrackResult", "track", "track_video", "tip_marker", "frame_interval_stats"]
 
 Progress = Callable[[int, int], None]
+logger = logging.getLogger(__name__)
 
 #: a container time within this many frame intervals of a frame's nominal time is that frame's (rounded)
 TIME_SNAP_FRAMES = 0.3
@@ -87,6 +90,8 @@ class TrackResult:
     camera_sigma_rad: list[float] = field(default_factory=lambda: [math.nan, math.nan])
     #: the per-frame errors checked against the tip's scatter about its path (:mod:`gyrorig.tracking.scatter`)
     sigma_check: SigmaCheck | None = None
+    #: the measured frame intervals against camera.json's fps (:func:`frame_interval_stats`)
+    frame_times: dict = field(default_factory=dict)
 
     @property
     def camera_modes(self) -> int:
@@ -98,7 +103,8 @@ class TrackResult:
                 "track_s": self.track_s, "pose": self.pose, "camera_modes": self.camera_modes,
                 "camera_sigma_rad": self.camera_sigma_rad, "rvec": self.camera.rvec.tolist(),
                 "tvec": self.camera.tvec.tolist(),
-                "sigma_check": self.sigma_check.as_dict() if self.sigma_check is not None else None}
+                "sigma_check": self.sigma_check.as_dict() if self.sigma_check is not None else None,
+                "frame_times": self.frame_times}
 
 
 def tip_marker(protocol: Protocol) -> Marker:
@@ -329,6 +335,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         last_index = -1
         k = 0
         t_decode = t_track = 0.0  # t_decode: time spent waiting for decoded frames
+        raw_times: list[float] = []
         it = iter(frames)
         while True:
             t0 = time.perf_counter()
@@ -339,6 +346,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
                 break
             frame, t_frame = item
             t_frame = t_frame if math.isfinite(t_frame) else k / camera.fps
+            raw_times.append(t_frame)
             index = int(round(t_frame * camera.fps))
             if index <= last_index:
                 raise BadInputError(
@@ -374,8 +382,56 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2], pose_info)
     if progress:
         progress(k, k)
+    times = frame_interval_stats(np.asarray(raw_times), camera.fps)
+    if not times.get("agrees_with_camera", True):
+        logger.warning("%s: %s", source, times["warning"])
     return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
-                       pose_info, camera_sigma, check)
+                       pose_info, camera_sigma, check, times)
+
+
+#: the median frame interval may differ from 1 / camera.json's fps by this fraction before a warning
+FPS_TOLERANCE = 0.005
+#: intervals scattering by more than this fraction of the interval (SD, dropped frames left out): a variable rate
+VARIABLE_RATE_JITTER = 0.05
+
+
+def frame_interval_stats(t_s: np.ndarray, fps: float) -> dict:
+    """The measured frame intervals (the container's own times) against camera.json's ``fps``.
+
+    ``median_interval_s``, ``min_interval_s``, ``max_interval_s``, ``jitter_rel`` (SD of the intervals
+    without the dropped-frame gaps, over the median), ``dropped_frames`` (gaps of 1.5 intervals or more,
+    counted in frames), ``measured_fps`` (1 / median), ``agrees_with_camera`` and a ``warning`` when not:
+    a median off by more than :data:`FPS_TOLERANCE` or a variable frame rate (jitter above
+    :data:`VARIABLE_RATE_JITTER`, phone video); the frames keep their own times either way.
+    """
+    dt = np.diff(np.asarray(t_s, float))
+    if len(dt) < 2 or not np.all(np.isfinite(dt)):
+        return {}
+    med = float(np.median(dt))
+    gaps = dt >= 1.5 * med
+    regular = dt[~gaps]
+    jitter = float(np.std(regular) / med) if len(regular) > 1 and med > 0 else 0.0
+    out = {"median_interval_s": med, "min_interval_s": float(dt.min()), "max_interval_s": float(dt.max()),
+           "jitter_rel": jitter, "dropped_frames": int(np.sum(np.round(dt[gaps] / med) - 1)),
+           "measured_fps": 1.0 / med if med > 0 else math.inf, "camera_fps": fps}
+    t = np.asarray(t_s, float)
+    off = t - np.round(t * fps) / fps
+    out["max_offset_from_grid_frames"] = float(np.max(np.abs(off)) * fps)
+    problems = []
+    if out["max_offset_from_grid_frames"] <= TIME_SNAP_FRAMES:
+        # every frame within a rounding of camera.json's grid (Matroska stores ms: 240 fps alternates 4 and 5 ms)
+        out["agrees_with_camera"] = True
+        return out
+    if med > 0 and abs(med * fps - 1.0) > FPS_TOLERANCE:
+        problems.append(f"the frames are {med * 1e3:.4g} ms apart (median), {1.0 / med:.5g} fps, but camera.json "
+                        f"says {fps:g} fps")
+    if jitter > VARIABLE_RATE_JITTER:
+        problems.append(f"the frame intervals scatter by {jitter:.1%} of the interval (a variable frame rate): each "
+                        "frame keeps its own time")
+    out["agrees_with_camera"] = not problems
+    if problems:
+        out["warning"] = "; ".join(problems)
+    return out
 
 
 def track_video(video, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,
