@@ -56,7 +56,10 @@ def test_an_interrupted_or_failed_run_leaves_the_earlier_output(tmp_path, monkey
             raise exc
         return run
 
-    for exc, code in ((KeyboardInterrupt(), 130), (RuntimeError("boom"), 3), (ValueError("bad"), 2)):
+    # Ctrl-C inside compiled (numba) code comes back as a SystemError caused by the KeyboardInterrupt
+    in_kernel = SystemError("CPUDispatcher(...) returned a result with an exception set")
+    in_kernel.__cause__ = KeyboardInterrupt()
+    for exc, code in ((KeyboardInterrupt(), 130), (in_kernel, 130), (RuntimeError("boom"), 3), (ValueError("bad"), 2)):
         monkeypatch.setattr(commands, "_cmd_simulate", half_then(exc))
         assert main(["simulate", AIR, "--out", str(out), "--duration", "0.1", "--overwrite"]) == code
         assert {p.name: p.read_bytes() for p in out.iterdir()} == before

@@ -153,7 +153,7 @@ def test_calibration_recovers_the_rendered_camera(tmp_path, capsys):
 
     cam = camera_setup(p).camera
     render_calibration_images(cam, tmp_path / "cal", seed=4, n_views=10)
-    res = calibrate_camera(tmp_path / "cal", cols=9, rows=6, square_m=0.02)
+    res = calibrate_camera(tmp_path / "cal", cols=9, rows=6, square_m=0.02, lens_model="k1k2")
     assert res.rms_px < 0.2
     assert res.camera_matrix[0, 0] == pytest.approx(cam.camera_matrix[0, 0], rel=5e-3)
     assert res.camera_matrix[1, 1] == pytest.approx(cam.camera_matrix[1, 1], rel=5e-3)
@@ -334,3 +334,31 @@ def test_a_sleeping_top_has_honest_errors_at_the_pole(tmp_path):
     fit = fit_angles(pd.read_csv(tmp_path / "t" / "angles.csv"), p, prediction=predict(p, simulate_damping=False))
     q = fit.quantities["precession_rate_rad_s"]
     assert q.status == "undetermined" and q.reason_kind == "azimuth-undefined"
+
+
+@pytest.mark.parametrize("distortion, expected", [([0.0, 0.0, 0.0, 0.0, 0.0], "k1k2"),
+                                                  ([-0.35, 0.25, 0.0, 0.0, -0.35], "k1k2k3")])
+def test_the_views_choose_the_lens_model(tmp_path, distortion, expected):
+    """Issue 19: calibrate frees k3 only when the held-out views say it helps: not for a lens without
+    distortion (it would fit noise), yes for a strongly barrel-distorted one; the choice, the held-out errors
+    and a covariance over the chosen intrinsics go into camera.json, which tracking reads."""
+    from gyrorig.camera import camera_setup
+    from gyrorig.render import render_calibration_images
+    from gyrorig.tracking import load_camera
+
+    d = scene(focal_length_mm=4.0, distortion=distortion)  # a wide lens: 77 degrees across
+    cam = camera_setup(parse_protocol(d)).camera
+    # boards spread over 70 % of the field: k3 shows only towards the corners
+    render_calibration_images(cam, tmp_path / "cal", seed=4, n_views=12, spread=0.7)
+    res = calibrate_camera(tmp_path / "cal", cols=9, rows=6, square_m=0.02)
+    assert res.lens_model == expected
+    assert set(res.held_out_rms_px) == {"k1k2", "k1k2k3"}
+    n = 9 if expected == "k1k2k3" else 8
+    assert res.intrinsics_covariance.shape == (n, n)
+    if expected == "k1k2k3":
+        assert res.held_out_rms_px["k1k2k3"] < res.held_out_rms_px["k1k2"]
+        k3, se = res.dist_coeffs[4], float(np.sqrt(res.intrinsics_covariance[8, 8]))
+        assert abs(k3 - distortion[4]) < 4 * se
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps(res.to_json()))
+    assert load_camera(path, require_pose=False).intrinsics_parameters == tuple(res.intrinsics_parameters)

@@ -91,6 +91,17 @@ def _output(args):
             yield
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is in the exception's chain (its cause or context)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     try:
@@ -139,6 +150,9 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"gyrorig: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # noqa: BLE001 - the last net: one line, never a traceback (unless --debug)
+        if _interrupted(exc):  # Ctrl-C inside compiled code comes back as a SystemError around it
+            print("gyrorig: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
         if args.debug:
             raise
         print(f"gyrorig: failed: {type(exc).__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)

@@ -207,7 +207,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     except ValueError:
         raise ValueError(f"--board {args.board!r}: expected COLSxROWS inner corners, e.g. 9x6") from None
     try:
-        result = calibrate_camera(args.images, cols=cols, rows=rows, square_m=args.square_mm / 1000.0)
+        result = calibrate_camera(args.images, cols=cols, rows=rows, square_m=args.square_mm / 1000.0,
+                                  lens_model=args.lens_model)
     except CalibrationInputError:
         raise  # bad input: exit 2
     except CalibrationError as exc:
@@ -218,6 +219,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     if result.not_found:
         print(f"  board not found in: {', '.join(result.not_found)}")
     k = result.camera_matrix
+    if result.held_out_rms_px:
+        print("lens model chosen by the views: " + result.lens_model + " (held-out reprojection RMS: "
+              + ", ".join(f"{m} {e:.4f} px" for m, e in result.held_out_rms_px.items()) + ")")
     print(f"RMS reprojection error {result.rms_px:.3f} px; fx {k[0, 0]:.2f}, fy {k[1, 1]:.2f}, "
           f"cx {k[0, 2]:.2f}, cy {k[1, 2]:.2f}, dist {np.round(result.dist_coeffs, 5).tolist()}")
     _io.write_json(result.to_json(), args.out)

@@ -154,6 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6")
     cal.add_argument("--square-mm", type=float, required=True, help="square size [mm]")
     cal.add_argument("--out", required=True, help="camera.json to write")
+    cal.add_argument("--lens-model", default="auto", choices=["auto", "k1k2", "k1k2k3"],
+                     help="distortion model: k3 held at 0, k3 free, or 'auto' (default): the views choose by "
+                          "leave-one-view-out reprojection error")
     cal.set_defaults(func="_cmd_calibrate")
 
     k = sub.add_parser("track", help="track the markers: video -> angles.csv, markers.csv")

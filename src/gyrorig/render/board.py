@@ -17,12 +17,13 @@ MAX_TRIES_PER_VIEW = 500
 
 
 def render_calibration_images(cam: Camera, out_dir: str | Path, *, seed: int = 0, n_views: int = 12,
-                              cols: int = 9, rows: int = 6, square_m: float = 0.02) -> dict:
+                              cols: int = 9, rows: int = 6, square_m: float = 0.02, spread: float | None = None) -> dict:
     """Checkerboard images through the same camera at varied poses, for ``gyrorig calibrate``.
 
     ``cols x rows`` inner corners (OpenCV's pattern size), squares of ``square_m``; boards
-    near the pivot, tilted up to 35 deg.  Writes ``view_NN.png`` and ``board.json`` (the
-    board and the true pose of each view, for tests).
+    near the pivot, tilted up to 35 deg, their centres within the central field (``spread``: within
+    that fraction of the whole field instead, to reach the corners where a wide lens's k3 shows).
+    Writes ``view_NN.png`` and ``board.json`` (the board and the true pose of each view, for tests).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -54,8 +55,13 @@ def render_calibration_images(cam: Camera, out_dir: str | Path, *, seed: int = 0
         angles = np.radians(rng.uniform(-35, 35, 2))
         rot_board = cv2.Rodrigues(np.array([angles[0], angles[1], rng.uniform(-np.pi, np.pi)]))[0]
         # board centre: ahead of the camera near the pivot's depth, within the central field
-        centre = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), 1.0]) * \
-            dist_to_pivot * rng.uniform(0.8, 1.05)
+        if spread is None:
+            centre = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), 1.0]) * \
+                dist_to_pivot * rng.uniform(0.8, 1.05)
+        else:  # anywhere in that fraction of the field (normalised image coordinates of the corners)
+            half = np.abs(np.asarray(norm).reshape(h, w, 2)[[0, -1]][:, [0, -1]]).reshape(-1, 2).min(axis=0)
+            centre = np.array([rng.uniform(-1, 1) * spread * half[0], rng.uniform(-1, 1) * spread * half[1], 1.0]) \
+                * dist_to_pivot * rng.uniform(0.8, 1.05)
         rmat = rot_board  # board -> camera
         size = np.array([(cols + 1) * square_m, (rows + 1) * square_m])
         origin = centre - rmat @ np.array([size[0] / 2, size[1] / 2, 0.0])
