@@ -116,7 +116,7 @@ def test_version_and_a_light_command_line():
 
 
 @pytest.mark.parametrize("case", ["protocol-is-a-folder", "seeds-0", "plan-duration-0", "demo-video-duration-0",
-                                  "out-is-a-file"])
+                                  "out-is-a-file", "board-0x0", "square-mm-0"])
 def test_bad_invocations_exit_2_with_one_line(tmp_path, capsys, case):
     """Issue 23: each of these printed a traceback (exit 1) or a message naming neither the option nor the
     file; now exit 2 and one line, no traceback."""
@@ -128,6 +128,10 @@ def test_bad_invocations_exit_2_with_one_line(tmp_path, capsys, case):
         "plan-duration-0": ["plan", AIR, "--duration", "0"],
         "demo-video-duration-0": ["demo", "--video-duration", "0", "--out", str(tmp_path / "d")],
         "out-is-a-file": ["simulate", AIR, "--out", str(blocker / "sub"), "--duration", "0.1"],
+        "board-0x0": ["calibrate", str(tmp_path), "--board", "0x0", "--square-mm", "20", "--out",
+                      str(tmp_path / "c.json")],
+        "square-mm-0": ["calibrate", str(tmp_path), "--board", "9x6", "--square-mm", "0", "--out",
+                        str(tmp_path / "c.json")],
     }[case]
     assert main(argv) == 2
     err = capsys.readouterr().err

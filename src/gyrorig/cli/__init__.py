@@ -155,5 +155,6 @@ def _main(argv: Sequence[str] | None) -> int:
             return EXIT_INTERRUPTED
         if args.debug:
             raise
-        print(f"gyrorig: failed: {type(exc).__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
+        one_line = " ".join(str(exc).split())  # OpenCV's messages span lines
+        print(f"gyrorig: failed: {type(exc).__name__}: {one_line} (run with --debug for the traceback)", file=sys.stderr)
         return EXIT_FAILED

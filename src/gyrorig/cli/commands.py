@@ -206,6 +206,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         cols, rows = (int(v) for v in args.board.lower().split("x"))
     except ValueError:
         raise ValueError(f"--board {args.board!r}: expected COLSxROWS inner corners, e.g. 9x6") from None
+    if not (3 <= cols <= 200 and 3 <= rows <= 200):
+        raise ValueError(f"--board {args.board!r}: inner corners per side must be 3 to 200 (OpenCV's detector "
+                         "needs more than 2)")
+    number("", "--square-mm", args.square_mm, lo=0.0, lo_open=True, hi=1e4)
     try:
         result = calibrate_camera(args.images, cols=cols, rows=rows, square_m=args.square_mm / 1000.0,
                                   lens_model=args.lens_model)
