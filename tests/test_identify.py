@@ -163,10 +163,11 @@ def test_fewer_observations_than_parameters_is_refused(tmp_path):
     path = tmp_path / "nutation.csv"
     path.write_text("spin_rad_s,nutation_frequency_rad_s,nutation_frequency_rad_s_sd\n400,47.0,0.1\n")
     prior = tmp_path / "prior.toml"
-    # three free rig parameters with priors plus one row is enough residuals; none of the priors: not
+    # one row and one prior (Io) are two residuals for one parameter: enough
     prior.write_text(AIR.read_text().replace("inertia_axial_kg_m2 = 4.725e-4",
                                              "inertia_axial_kg_m2 = { value = 5.0e-4, sd = 1.0e-4 }"))
     assert main(["identify", str(path), "--protocol", str(prior), "--out", str(tmp_path / "o")]) == 0
+    # three spin-down rows for three parameters (initial spin, viscous rate, friction), no prior: too few
     spin = tmp_path / "spin_down.csv"
     spin.write_text("t_s,spin_rad_s\n0,500\n100,400\n200,330\n")
     assert main(["identify", str(spin), "--protocol", str(AIR), "--out", str(tmp_path / "p")]) == 2

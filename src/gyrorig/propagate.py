@@ -111,7 +111,7 @@ def predict_with_uncertainty(protocol: Protocol, *, prediction: dict | None = No
     x0 = np.array([unc.values[i] for i in idx])
     cov = unc.covariance()[np.ix_(idx, idx)]
     keys = list(prediction_scalars(pred))
-    f0 = np.array([prediction_scalars(pred)[k] for k in keys])
+    f0 = _vector(pred, keys)
     G = np.zeros((len(keys), len(names)))
     curvature = np.zeros((len(keys), len(names)))
     for j, name in enumerate(names):

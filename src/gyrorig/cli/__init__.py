@@ -13,8 +13,8 @@ import contextlib
 import io
 import logging
 import sys
-from pathlib import Path
 from collections.abc import Sequence
+from pathlib import Path
 
 from .parser import build_parser
 
@@ -106,7 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     try:
         return _main(argv)
-    except KeyboardInterrupt:  # while the heavy modules load, before the command's own handler
+    except KeyboardInterrupt:  # anywhere: while the modules load, in a command, or inside compiled code
         print("gyrorig: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
 
@@ -141,9 +141,6 @@ def _main(argv: Sequence[str] | None) -> int:
     except SimulationError as exc:
         print(f"gyrorig: simulation failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
-    except KeyboardInterrupt:
-        print("gyrorig: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
     except OSError as exc:  # a file or folder that cannot be written or read
         if args.debug:
             raise
@@ -151,8 +148,7 @@ def _main(argv: Sequence[str] | None) -> int:
         return EXIT_BAD_INPUT
     except Exception as exc:  # noqa: BLE001 - the last net: one line, never a traceback (unless --debug)
         if _interrupted(exc):  # Ctrl-C inside compiled code comes back as a SystemError around it
-            print("gyrorig: interrupted", file=sys.stderr)
-            return EXIT_INTERRUPTED
+            raise KeyboardInterrupt from None
         if args.debug:
             raise
         one_line = " ".join(str(exc).split())  # OpenCV's messages span lines

@@ -26,7 +26,7 @@ def constrainable_names() -> list[str]:
     """Every parameter a fit model can have (the azimuth offsets as ``azimuth_offset_<k>_rad``), camera modes excepted."""
     full = ModelSpec(fit_axis=True, damped=True, harmonics=MAX_HARMONICS, segments=1,
                      **{flag: True for flag in OPTIONAL_TERMS})
-    return [n for n in full.names()]
+    return full.names()
 
 
 def _check_name(name: str, option: str) -> str:

@@ -23,11 +23,16 @@ from ..protocols import Protocol, ProtocolError, checked_rig
 from .observations import FORMULAS, Observation
 from .tables import IdentifyInputError
 
-__all__ = ["Identification", "identify_parameters", "RIG_PARAMETERS", "FRICTION_P_VALUE"]
+__all__ = ["Identification", "identify_parameters", "prior_rig_values", "RIG_PARAMETERS", "FRICTION_P_VALUE"]
 
 RIG_PARAMETERS = ("rig.inertia_axial_kg_m2", "rig.inertia_transverse_kg_m2", "rig.com_distance_m")
 #: the constant friction is kept when dropping it raises the chi-square by more than this quantile's value
 FRICTION_P_VALUE = 0.01
+
+
+def prior_rig_values(prior: Protocol) -> dict[str, float]:
+    """The prior's values of :data:`RIG_PARAMETERS`, by name."""
+    return {n: getattr(prior.rig, n.split(".")[1]) for n in RIG_PARAMETERS}
 
 
 @dataclass(frozen=True)
@@ -80,7 +85,7 @@ class Identification:
                "mgh_over_io_rad2_s2": lambda p: m * g * p["rig.com_distance_m"] / p["rig.inertia_axial_kg_m2"]}
         if "spin_down.viscous_rate_per_s" in self.names:
             fns["axial_drag_N_m_s"] = lambda p: p["spin_down.viscous_rate_per_s"] * p["rig.inertia_axial_kg_m2"]
-        base = {**{k: getattr(prior.rig, k.split(".")[1]) for k in RIG_PARAMETERS}, **self.params()}
+        base = {**prior_rig_values(prior), **self.params()}
         out = {}
         for k, f in fns.items():
             v = f(base)
@@ -132,7 +137,7 @@ def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool
     rig_free = [n for n in names if n.startswith("rig.")]
     mean, Linv = _prior_whitener(prior, rig_free) if rig_free else (np.zeros(0), np.zeros((0, 0)))
     ridx = [names.index(n) for n in rig_free]
-    fixed = {n: getattr(prior.rig, n.split(".")[1]) for n in RIG_PARAMETERS if n not in names}
+    fixed = {n: v for n, v in prior_rig_values(prior).items() if n not in names}
     if x0 is None:
         x0 = _start(obs, prior, names)
         if not fast:
@@ -201,7 +206,7 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
             x, cov, chi2, sd_eff = _solve(obs, prior, names, fast_top, scatter)
             if not no_sd:
                 break
-            p = {**{n: getattr(prior.rig, n.split(".")[1]) for n in RIG_PARAMETERS}, **dict(zip(names, x))}
+            p = {**prior_rig_values(prior), **dict(zip(names, x))}
             for kind in no_sd:
                 rows = [o for o in obs if o.kind == kind]
                 resid = np.array([o.y - o.predict(p, fast=fast_top) for o in rows])

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..physics.exact import ExactSolutionError, exact_solution
-from ..protocols import Pivot, Protocol, ProtocolError
+from ..protocols import Launch, Pivot, Protocol, ProtocolError
 from ..theory import exact_steady_precession_rates
 from .tables import IdentifyInputError, Table
 
@@ -190,8 +190,6 @@ def observations_from_table(table: Table, prior: Protocol) -> list[Observation]:
 
 def observations_from_fit(path: str, doc: dict, prior: Protocol) -> list[Observation]:
     """A video's fit.json: its mean precession rate and nutation frequency, for its protocol's launch."""
-    from ..protocols import Launch
-
     summary = doc.get("protocol_summary")
     if not isinstance(summary, dict) or "launch" not in summary:
         raise IdentifyInputError(f"{path}: no protocol_summary with the launch (fit.json from an older gyrorig?): "

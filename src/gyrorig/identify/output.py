@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import _io
 from ..protocols import Protocol, ProtocolError, load_protocol
-from .estimate import Identification, formulas_used, identify_parameters
+from .estimate import Identification, formulas_used, identify_parameters, prior_rig_values
 from .observations import Observation, observations_from_fit, observations_from_table
 from .tables import IdentifyInputError, read_table
 
@@ -87,8 +87,8 @@ def identify_document(ident: Identification, prior: Protocol, inputs: list[str])
     p = ident.params()
     rows = []
     for o, s in zip(ident.observations, ident.sd_eff):
-        pred = o.predict({**_fixed(prior), **p})
-        fast = o.predict({**_fixed(prior), **p}, fast=True) if o.fast is not None else None
+        pred = o.predict({**prior_rig_values(prior), **p})
+        fast = o.predict({**prior_rig_values(prior), **p}, fast=True) if o.fast is not None else None
         rows.append({"source": o.source, "line": o.line, "kind": o.kind, "observed": o.y, "sd": s, "predicted": pred,
                      "residual": o.y - pred, "normalised_residual": (o.y - pred) / s,
                      "predicted_fast_top": fast,
@@ -118,11 +118,6 @@ def _prior_of(name: str, ident: Identification, prior: Protocol) -> dict | None:
     return {"value": mean, "sd": sd}
 
 
-def _fixed(prior: Protocol) -> dict:
-    return {f"rig.{k}": getattr(prior.rig, k) for k in ("inertia_axial_kg_m2", "inertia_transverse_kg_m2",
-                                                          "com_distance_m")}
-
-
 def plot_identification(ident: Identification, prior: Protocol):
     """Observed against predicted, one panel per kind (normalised residuals beneath the diagonal)."""
     from matplotlib.figure import Figure
@@ -130,7 +125,7 @@ def plot_identification(ident: Identification, prior: Protocol):
     kinds = sorted({o.kind for o in ident.observations})
     fig = Figure(figsize=(4.2 * len(kinds), 4.0), layout="constrained")
     axes = fig.subplots(1, len(kinds), squeeze=False)[0]
-    p = {**_fixed(prior), **ident.params()}
+    p = {**prior_rig_values(prior), **ident.params()}
     for ax, kind in zip(axes, kinds):
         sel = [(o, s) for o, s in zip(ident.observations, ident.sd_eff) if o.kind == kind]
         y = np.array([o.y for o, _ in sel])
