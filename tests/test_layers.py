@@ -75,7 +75,8 @@ def test_identification_cannot_reach_the_simulator():
         assert not names & {"simulate", "predict"}, f
 
 
-@pytest.mark.parametrize("module", ["gyrorig.tracking", "gyrorig.calibration", "gyrorig.smooth", "gyrorig.fit"])
+@pytest.mark.parametrize("module", ["gyrorig.tracking", "gyrorig.calibration", "gyrorig.board_pose", "gyrorig.smooth",
+                                    "gyrorig.fit"])
 def test_tracking_cannot_reach_the_truth(module):
     reached = closure(module)
     forbidden = {m for m in reached if m.startswith(("gyrorig.physics", "gyrorig.render", "gyrorig.theory",

@@ -12,8 +12,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["CalibrationError", "CalibrationInputError", "LENS_MODELS", "choose_lens_model", "CalibrationResult", "calibrate_camera", "intrinsics_covariance", "MIN_VIEWS",
-           "MAX_RMS_PX", "INTRINSIC_PARAMETERS"]
+__all__ = ["CalibrationError", "CalibrationInputError", "LENS_MODELS", "choose_lens_model", "CalibrationResult",
+           "calibrate_camera", "intrinsics_covariance", "find_board_corners", "read_gray", "MIN_VIEWS", "MAX_RMS_PX",
+           "INTRINSIC_PARAMETERS"]
 
 MIN_VIEWS = 6
 MAX_RMS_PX = 1.0
@@ -66,7 +67,7 @@ class CalibrationResult:
                     "intrinsics_covariance": self.intrinsics_covariance.tolist()})}
 
 
-def _gray(path: Path) -> np.ndarray | None:
+def read_gray(path: Path) -> np.ndarray | None:
     """An image as 8-bit grey (None when it cannot be read)."""
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
@@ -76,6 +77,15 @@ def _gray(path: Path) -> np.ndarray | None:
     if img.dtype != np.uint8:
         img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
     return img
+
+
+def find_board_corners(gray: np.ndarray, cols: int, rows: int) -> np.ndarray | None:
+    """The board's ``cols x rows`` inner corners to sub-pixel precision (OpenCV's order), or None."""
+    ok, corners = cv2.findChessboardCorners(gray, (cols, rows))
+    if not ok:
+        return None
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+    return cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
 
 
 def _held_out_errors(objpoints, imgpoints, size, flags: int) -> np.ndarray:
@@ -123,10 +133,9 @@ def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: 
     obj[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square_m
     objpoints, imgpoints, names, not_found = [], [], [], []
     size = None
-    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
     loaded = []
     for path in images:
-        img = _gray(path)
+        img = read_gray(path)
         if img is None:
             not_found.append(path.name)
             continue
@@ -142,11 +151,10 @@ def calibrate_camera(images_dir: str | Path, *, cols: int, rows: int, square_m: 
         not_found += [path.name for path, _ in loaded]
         loaded = []
     for path, img in loaded:
-        ok, corners = cv2.findChessboardCorners(img, (cols, rows))
-        if not ok:
+        corners = find_board_corners(img, cols, rows)
+        if corners is None:
             not_found.append(path.name)
             continue
-        corners = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), crit)
         objpoints.append(obj)
         imgpoints.append(corners)
         names.append(path.name)

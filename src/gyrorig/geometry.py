@@ -13,7 +13,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["tip_from_angles", "angles_from_tip", "wrap_angle", "axis_rotation", "ray_sphere_distances"]
+__all__ = ["tip_from_angles", "angles_from_tip", "wrap_angle", "axis_rotation", "ray_sphere_distances",
+           "board_lab_rotation"]
 
 
 def tip_from_angles(theta_rad: ArrayLike, phi_rad: ArrayLike) -> NDArray[np.float64]:
@@ -75,3 +76,11 @@ def ray_sphere_distances(origin: ArrayLike, direction: ArrayLike, radius: float
     with np.errstate(invalid="ignore"):
         root = np.sqrt(np.where(disc >= 0, disc, np.nan))
     return -b - root, -b + root
+
+
+def board_lab_rotation(yaw_rad: float) -> np.ndarray:
+    """Board -> lab rotation of a board lying face up (its printed side towards +z): the board's x axis (along
+    its ``cols`` corners) at azimuth ``yaw_rad`` from lab x, its z axis (OpenCV's, away from a viewer of the
+    printed side) pointing down, its y axis = z x x."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import io
 import logging
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -111,9 +112,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
 
 
+#: options whose value is a comma-separated list of numbers (argparse takes "-80,50,-50" for an option)
+_NUMBER_LIST_OPTIONS = ("--board-origin-mm",)
+_NUMBER_LIST = re.compile(r"^-[0-9.]+(,[-+0-9.eE]+)*$")
+
+
+def _join_number_lists(argv: list[str]) -> list[str]:
+    """``--board-origin-mm -80,50,-50`` as ``--board-origin-mm=-80,50,-50``."""
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1] in _NUMBER_LIST_OPTIONS and _NUMBER_LIST.match(token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_number_lists(list(sys.argv[1:] if argv is None else argv)))
     level = logging.INFO if args.verbose else logging.ERROR if args.quiet else logging.WARNING
     logging.basicConfig(level=level, format="%(levelname)s %(message)s")
     # the physics and the commands are imported only now: --help and --version stay fast

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -19,7 +18,8 @@ from ..physics.exact import ExactSolutionError
 from ..physics.simulate import output_times
 from .._validate import number
 from ..protocols import load_protocol, protocol_summary
-from . import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
+from . import EXIT_FAILED, EXIT_OK
+from .camera_commands import _cmd_calibrate, _cmd_pose  # noqa: F401 (dispatched by name)
 from .printing import print_data, print_fit, print_plan, print_prediction, progress_printer
 
 
@@ -196,41 +196,6 @@ def _cmd_bench_render(args: argparse.Namespace) -> int:
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if args.out:
         _io.write_csv(table, Path(args.out) / "render.csv")
-    return EXIT_OK
-
-
-def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..calibration import CalibrationError, CalibrationInputError, calibrate_camera
-
-    try:
-        cols, rows = (int(v) for v in args.board.lower().split("x"))
-    except ValueError:
-        raise ValueError(f"--board {args.board!r}: expected COLSxROWS inner corners, e.g. 9x6") from None
-    if not (3 <= cols <= 200 and 3 <= rows <= 200):
-        raise ValueError(f"--board {args.board!r}: inner corners per side must be 3 to 200 (OpenCV's detector "
-                         "needs more than 2)")
-    number("", "--square-mm", args.square_mm, lo=0.0, lo_open=True, hi=1e4)
-    try:
-        result = calibrate_camera(args.images, cols=cols, rows=rows, square_m=args.square_mm / 1000.0,
-                                  lens_model=args.lens_model)
-    except CalibrationInputError:
-        raise  # bad input: exit 2
-    except CalibrationError as exc:
-        print(f"gyrorig: calibration refused: {exc}", file=sys.stderr)
-        return EXIT_FAILED
-    for name, err in result.per_image_rms_px.items():
-        print(f"  {name}: {err:.3f} px")
-    if result.not_found:
-        print(f"  board not found in: {', '.join(result.not_found)}")
-    k = result.camera_matrix
-    if result.held_out_rms_px:
-        print("lens model chosen by the views: " + result.lens_model + " (held-out reprojection RMS: "
-              + ", ".join(f"{m} {e:.4f} px" for m, e in result.held_out_rms_px.items()) + ")")
-    print(f"RMS reprojection error {result.rms_px:.3f} px; fx {k[0, 0]:.2f}, fy {k[1, 1]:.2f}, "
-          f"cx {k[0, 2]:.2f}, cy {k[1, 2]:.2f}, dist {np.round(result.dist_coeffs, 5).tolist()}")
-    _io.write_json(result.to_json(), args.out)
-    print(f"wrote {args.out}, with the intrinsics' covariance (tracking propagates it into the error bars). It has no "
-          "pose: `gyrorig track` finds it from the protocol's lab fiducials, or add rvec, tvec relative to the pivot")
     return EXIT_OK
 
 

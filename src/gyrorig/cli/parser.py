@@ -25,6 +25,21 @@ def add_fit_options(parser: argparse.ArgumentParser) -> None:
                         "measurement of it, combined with the record; repeatable")
 
 
+def add_board_placement_options(parser: argparse.ArgumentParser) -> None:
+    """Where a board lying face up is, relative to the pivot, and how well that is known."""
+    g = parser.add_argument_group("board at a known place (the pose)")
+    g.add_argument("--board-origin-mm", default=None, metavar="X,Y,Z",
+                   help="where the board's first inner corner is, in the pivot frame (z up) [mm]: the inner corner "
+                        "of a dark corner square on the side whose two corner squares are both dark, the one on the "
+                        "left when you look along the board's long side (its x axis) from that side")
+    g.add_argument("--board-yaw-deg", type=float, default=0.0,
+                   help="azimuth of the board's x axis from lab x, counter-clockwise seen from above [deg]")
+    g.add_argument("--origin-sd-mm", type=float, default=0.0, help="uncertainty of each origin coordinate [mm]")
+    g.add_argument("--yaw-sd-deg", type=float, default=0.0, help="uncertainty of the yaw [deg]")
+    g.add_argument("--tilt-sd-deg", type=float, default=0.0,
+                   help="how far from level the board may lie, about each horizontal axis [deg]")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for documentation and tests)."""
     p = argparse.ArgumentParser(prog="gyrorig", description="experiment design and data fitting for air-bearing gyroscope rigs")
@@ -157,7 +172,21 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--lens-model", default="auto", choices=["auto", "k1k2", "k1k2k3"],
                      help="distortion model: k3 held at 0, k3 free, or 'auto' (default): the views choose by "
                           "leave-one-view-out reprojection error")
+    cal.add_argument("--pose-image", default=None,
+                     help="also the pose: one image of the same board lying face up at --board-origin-mm (not one of "
+                          "the calibration views)")
+    add_board_placement_options(cal)
     cal.set_defaults(func="_cmd_calibrate")
+
+    po = sub.add_parser("pose", help="the camera's pose relative to the pivot, into a copy of camera.json: from one "
+                        "image of a checkerboard lying at a known place")
+    po.add_argument("--camera", required=True, help="camera.json with the intrinsics (from 'gyrorig calibrate')")
+    po.add_argument("--board-image", required=True, help="the image of the board lying face up at --board-origin-mm")
+    po.add_argument("--board", required=True, help="inner corners COLSxROWS, one odd and one even (e.g. 9x6)")
+    po.add_argument("--square-mm", type=float, required=True, help="square size [mm]")
+    add_board_placement_options(po)
+    po.add_argument("--out", required=True, help="camera.json to write (the input's keys, with the pose)")
+    po.set_defaults(func="_cmd_pose", out_is_file=True)
 
     k = sub.add_parser("track", help="track the markers: video -> angles.csv, markers.csv")
     k.add_argument("video", help="any video OpenCV can decode, or a folder of PNG/TIFF images in name order "

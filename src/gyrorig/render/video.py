@@ -14,9 +14,10 @@ import pandas as pd
 
 from .. import _io
 from ..camera import Camera, CameraSetup, camera_setup
+from ..geometry import board_lab_rotation
 from ..physics.rotations import unwrapped_angles_from_tip
 from ..protocols import Protocol, ProtocolError
-from .board import render_calibration_images
+from .board import render_calibration_images, render_pose_board
 from .draw import draw_disc, draw_sphere
 from .paths import MarkerPaths, marker_paths, marker_samples
 from .sensor import BackgroundTables, expose, response_table
@@ -173,5 +174,23 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
     _io.write_json(cam.to_json(), out / "camera.json")
     calib = render_calibration_images(cam, out / "calibration", seed=seed, n_views=calibration_views) \
         if calibration_views else None
+    pose_board = _pose_board(cam, out / "pose_board", seed) if calibration_views else None
     return {"video": str(out / name), "frames": n_frames, "simulate_s": t_sim, "render_s": t_render,
-            "encode_s": t_encode, "calibration": calib}
+            "encode_s": t_encode, "calibration": calib, "pose_board": pose_board}
+
+
+#: the pose board's place in the renders: 9 x 6 inner corners of 20 mm, centred under the pivot, this far
+#: below it, its x axis at this azimuth
+POSE_BOARD_HEIGHT_M = -0.05
+POSE_BOARD_YAW_RAD = math.radians(20.0)
+
+
+def _pose_board(cam, out: Path, seed: int) -> dict | None:
+    """A board lying at a known place (``pose_board/board.png``, ``placement.json``); None when it is not
+    wholly in view."""
+    a = board_lab_rotation(POSE_BOARD_YAW_RAD)
+    origin = -a @ np.array([4 * 0.02, 2.5 * 0.02, 0.0]) + np.array([0.0, 0.0, POSE_BOARD_HEIGHT_M])
+    try:
+        return render_pose_board(cam, out, origin_m=origin, yaw_rad=POSE_BOARD_YAW_RAD, seed=seed)
+    except ValueError:
+        return None

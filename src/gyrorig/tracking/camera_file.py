@@ -50,6 +50,9 @@ class TrackingCamera:
     pose_covariance: np.ndarray | None = None
     #: the sensor's response exponent (recorded = max (linear / max)^(1 / gamma)); 1: linear
     gamma: float = 1.0
+    #: the points the pose was solved from (``object_points_m`` in the lab, ``image_points_px``): moving the
+    #: intrinsics then re-solves the pose from them (None: the pose is held)
+    pose_points: dict | None = None
 
     @property
     def has_pose(self) -> bool:
@@ -196,6 +199,7 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         cov_p = np.asarray(d["pose_covariance"], dtype=float)
         if cov_p.shape != (6, 6):
             raise CameraFileError(f"{path}: pose_covariance must be 6 x 6 over (rvec, tvec), not {cov_p.shape}")
+    points = _pose_points(path, d["pose_points"]) if "pose_points" in d else None
     for key, c in (("intrinsics_covariance", cov_i), ("pose_covariance", cov_p)):
         if c is not None and (not np.all(np.isfinite(c)) or np.linalg.eigvalsh(0.5 * (c + c.T)).min()
                               < -1e-9 * max(np.abs(c).max(), 1e-300)):
@@ -207,4 +211,21 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
         d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
         float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1,
-        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)))
+        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)), points)
+
+
+def _pose_points(path: Path, value) -> dict:
+    """``pose_points``: ``object_points_m`` (n x 3, lab) and ``image_points_px`` (n x 2), n >= 4."""
+    if not isinstance(value, dict) or set(value) != {"object_points_m", "image_points_px"}:
+        raise CameraFileError(f"{path}: pose_points must be an object with object_points_m and image_points_px")
+    try:
+        obj = np.asarray(value["object_points_m"], dtype=float)
+        img = np.asarray(value["image_points_px"], dtype=float)
+    except (TypeError, ValueError):
+        raise CameraFileError(f"{path}: pose_points must hold numbers") from None
+    if obj.ndim != 2 or obj.shape[1] != 3 or img.shape != (len(obj), 2) or len(obj) < 4:
+        raise CameraFileError(f"{path}: pose_points: object_points_m must be n x 3 and image_points_px n x 2 with "
+                              f"n >= 4 (got {obj.shape} and {img.shape})")
+    if not (np.all(np.isfinite(obj)) and np.all(np.isfinite(img))):
+        raise CameraFileError(f"{path}: pose_points must be finite (no NaN or inf)")
+    return {"object_points_m": obj.tolist(), "image_points_px": img.tolist()}

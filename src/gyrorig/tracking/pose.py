@@ -133,14 +133,14 @@ def estimate_pose(video, camera: TrackingCamera, protocol: Protocol, *, span_s: 
         raise TrackingError(f"{source}: no assignment of the {len(spots)} static spots to the fiducials "
                             f"fits (best reprojection error {rms}, limit {max_rms_px} px)")
     rms, rvec, tvec, matched, obj, img, covs = best
-    pose_cov = _pose_covariance(obj, img, covs, camera, rvec, tvec)
+    pose_cov = pose_covariance_from_points(obj, img, covs, camera, rvec, tvec)
     posed = replace(camera, rvec=rvec, tvec=tvec, pose_covariance=pose_cov)
     return posed, {"fiducials_matched": matched, "pose_rms_px": rms, "static_spots": len(spots),
                    "object_points_m": obj.tolist(), "image_points_px": img.tolist(),
                    "pose_sigma": np.sqrt(np.diag(pose_cov)).tolist()}
 
 
-def _pose_covariance(obj, img, covs, camera: TrackingCamera, rvec, tvec) -> np.ndarray:
+def pose_covariance_from_points(obj, img, covs, camera: TrackingCamera, rvec, tvec) -> np.ndarray:
     """Covariance of (rvec, tvec) from the fiducials' localisation errors (intrinsics held fixed).
 
     Weighted by each fiducial's covariance from the spot fit on the median image, and

@@ -379,7 +379,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     if not angles.theta_rad.notna().any():
         raise TrackingError(f"{source}: the tip marker was never found in {k} frames")
     check = _check_and_scale(angles, markers, rows, _sensor_doubts(camera, lossy, follower), tip.name)
-    camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2], pose_info)
+    camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
+                                     pose_info or camera.pose_points)
     if progress:
         progress(k, k)
     times = frame_interval_stats(np.asarray(raw_times), camera.fps)

@@ -1,0 +1,122 @@
+"""The camera's commands: ``gyrorig calibrate`` (intrinsics, and the pose from a board at a known place) and
+``gyrorig pose``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .. import _io
+from .._validate import number
+from . import EXIT_FAILED, EXIT_OK
+
+
+def _board_size(args: argparse.Namespace) -> tuple[int, int, float]:
+    """--board COLSxROWS and --square-mm, checked: (cols, rows, square_m)."""
+    try:
+        cols, rows = (int(v) for v in args.board.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--board {args.board!r}: expected COLSxROWS inner corners, e.g. 9x6") from None
+    if not (3 <= cols <= 200 and 3 <= rows <= 200):
+        raise ValueError(f"--board {args.board!r}: inner corners per side must be 3 to 200 (OpenCV's detector "
+                         "needs more than 2)")
+    number("", "--square-mm", args.square_mm, lo=0.0, lo_open=True, hi=1e4)
+    return cols, rows, args.square_mm / 1000.0
+
+
+def _board_placement(args: argparse.Namespace):
+    """--board-origin-mm and the placement's uncertainties, checked (None without --board-origin-mm)."""
+    from ..board_pose import BoardPlacement
+
+    if args.board_origin_mm is None:
+        return None
+    try:
+        origin = [float(v) for v in args.board_origin_mm.split(",")]
+    except ValueError:
+        origin = []
+    if len(origin) != 3:
+        raise ValueError(f"--board-origin-mm {args.board_origin_mm!r}: expected X,Y,Z in mm, e.g. -80,50,-50")
+    for axis, v in zip("XYZ", origin):
+        number("", f"--board-origin-mm {axis}", v, lo=-1e5, hi=1e5)
+    number("", "--board-yaw-deg", args.board_yaw_deg, lo=-360.0, hi=360.0)
+    number("", "--origin-sd-mm", args.origin_sd_mm, lo=0.0, hi=1e3)
+    number("", "--yaw-sd-deg", args.yaw_sd_deg, lo=0.0, hi=90.0)
+    number("", "--tilt-sd-deg", args.tilt_sd_deg, lo=0.0, hi=45.0)
+    return BoardPlacement(tuple(v / 1000.0 for v in origin), np.radians(args.board_yaw_deg),
+                          args.origin_sd_mm / 1000.0, np.radians(args.yaw_sd_deg), np.radians(args.tilt_sd_deg))
+
+
+def _print_board_pose(pose, image: str) -> None:
+    src = pose.camera_fields(image)["pose_source"]
+    stated = "" if pose.placement.sd.any() else (" (the placement taken as exact: give --origin-sd-mm, --yaw-sd-deg, "
+                                                "--tilt-sd-deg for its uncertainty)")
+    print(f"pose from the board in {image}: corners fit with {pose.rms_px:.3f} px RMS; rotation sd "
+          f"{np.degrees(np.linalg.norm(src['sigma_rvec_rad'])):.3g} deg, position sd "
+          f"{np.linalg.norm(src['sigma_tvec_m']) * 1e3:.3g} mm; the placement's share of the variance "
+          f"{src['placement_share_of_variance']:.0%}{stated}")
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..board_pose import check_board_asymmetric, pose_from_board
+    from ..calibration import CalibrationError, CalibrationInputError, calibrate_camera
+
+    cols, rows, square_m = _board_size(args)
+    placement = _board_placement(args)
+    if (placement is None) != (args.pose_image is None):
+        raise ValueError("--pose-image and --board-origin-mm go together (the image of the board lying at that place)")
+    if placement is not None:
+        check_board_asymmetric(cols, rows)
+    try:
+        result = calibrate_camera(args.images, cols=cols, rows=rows, square_m=square_m, lens_model=args.lens_model)
+    except CalibrationInputError:
+        raise  # bad input: exit 2
+    except CalibrationError as exc:
+        print(f"gyrorig: calibration refused: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    for name, err in result.per_image_rms_px.items():
+        print(f"  {name}: {err:.3f} px")
+    if result.not_found:
+        print(f"  board not found in: {', '.join(result.not_found)}")
+    k = result.camera_matrix
+    if result.held_out_rms_px:
+        print("lens model chosen by the views: " + result.lens_model + " (held-out reprojection RMS: "
+              + ", ".join(f"{m} {e:.4f} px" for m, e in result.held_out_rms_px.items()) + ")")
+    print(f"RMS reprojection error {result.rms_px:.3f} px; fx {k[0, 0]:.2f}, fy {k[1, 1]:.2f}, "
+          f"cx {k[0, 2]:.2f}, cy {k[1, 2]:.2f}, dist {np.round(result.dist_coeffs, 5).tolist()}")
+    out = result.to_json()
+    if placement is not None:
+        pose = pose_from_board(args.pose_image, result.camera_matrix, result.dist_coeffs, cols=cols, rows=rows,
+                               square_m=square_m, placement=placement)
+        out.update(pose.camera_fields(str(args.pose_image)))
+        _print_board_pose(pose, args.pose_image)
+    _io.write_json(out, args.out)
+    if placement is None:
+        print(f"wrote {args.out}, with the intrinsics' covariance (tracking propagates it into the error bars). It "
+              "has no pose: `gyrorig track` finds it from the protocol's lab fiducials; or give --pose-image (or "
+              "run `gyrorig pose`) with a board lying at a known place")
+    else:
+        print(f"wrote {args.out}, with the intrinsics' and the pose's covariance (tracking propagates both)")
+    return EXIT_OK
+
+
+def _cmd_pose(args: argparse.Namespace) -> int:
+    from ..board_pose import pose_from_board
+    from ..tracking import load_camera
+
+    cols, rows, square_m = _board_size(args)
+    placement = _board_placement(args)
+    if placement is None:
+        raise ValueError("--board-origin-mm is required: where the board's first inner corner lies, in the pivot frame")
+    cam = load_camera(args.camera, require_pose=False)
+    pose = pose_from_board(args.board_image, cam.camera_matrix, cam.dist_coeffs, cols=cols, rows=rows,
+                           square_m=square_m, placement=placement)
+    out = json.loads(Path(args.camera).read_text(encoding="utf-8"))
+    out.update(pose.camera_fields(str(args.board_image)))
+    _io.write_json(out, args.out)
+    _print_board_pose(pose, args.board_image)
+    print(f"wrote {args.out}")
+    return EXIT_OK

@@ -1,0 +1,220 @@
+"""The camera pose from the rig's own motion (``gyrorig pose --video``): no fiducials, no board.
+
+The tip moves on a sphere of known radius ``L`` about the pivot.  Its image track alone does not
+fix the pose (any pivot whose sphere every ray meets explains each frame), so the pose is fitted
+jointly with a model of the motion, in pixels:
+
+    tip(t) = L (sin theta sin phi, -sin theta cos phi, cos theta)   (the paper's x-convention)
+    theta(t) = theta_0 [+ theta_1 t]                 + sum_k c_k cos(k w t) + s_k sin(k w t)
+    phi(t)   = Omega t [+ Omega_1 t^2]               + sum_k d_k cos(k w t) + e_k sin(k w t)
+
+with ``t`` from the first tracked frame, ``w`` the nutation frequency and ``K`` harmonics.  What
+this assumes, and what it fixes:
+
+- **the vertical** is the axis about which the slow motion is a steady precession: true for a
+  top on a fixed pivot without damping (``theta``'s slow part constant).  With damping the slow
+  tilt may drift (the ``theta_1``, ``Omega_1`` terms, on by default for a damped scene) and the
+  vertical is less well fixed; an accelerated pivot tilts the apparent vertical by the
+  acceleration's angle (not modelled: refused).
+- **the depth scale** comes from the nutation: the tip's nodding moves it along the sphere's
+  meridian, whose direction in the image depends on the distance; a pure precession (no
+  nutation) leaves the scale free, and the covariance says so (it grows without bound).
+- **the azimuth origin** is free: ``phi``'s slow part is 0 at the first tracked frame (the fit
+  has no constant in ``phi``).  A lab mark can move it afterwards (``azimuth_offset_rad``).
+
+The pose's covariance is the joint fit's (pixels weighted by their tracked covariance), scaled by
+the reduced chi-square when above 1, marginalised over the motion parameters.  The starting
+pose (the protocol's nominal camera placement) only picks the solution; a tip track from it
+gives the pixels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.signal import lombscargle
+
+from ..geometry import angles_from_tip
+from ..protocols import Protocol
+from .camera_file import TrackingCamera
+from .errors import TrackingError
+from .rays import tips_from_pixels
+
+__all__ = ["MotionPose", "pose_from_motion", "fit_pose_to_track", "MIN_FRAMES"]
+
+#: tracked frames needed (the joint fit has about 25 parameters)
+MIN_FRAMES = 100
+#: nutation harmonics in the motion model
+HARMONICS = 3
+
+
+@dataclass(frozen=True)
+class MotionPose:
+    """The pose found from the motion, with the fit that found it."""
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    covariance: np.ndarray
+    chi2_red: float
+    frames: int
+    nutation_frequency_rad_s: float
+    slow_terms: bool
+    #: sd of the depth scale relative to the pivot's distance (the weakest direction; large: no nutation)
+    depth_scale_sd_rel: float
+
+    def camera_fields(self, video: str) -> dict:
+        """The keys this pose adds to ``camera.json``."""
+        sd = np.sqrt(np.diag(self.covariance))
+        return {"rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(), "pose_covariance": self.covariance.tolist(),
+                "pose_source": {
+                    "method": "the tip's motion", "video": video, "frames": self.frames, "chi2_red": self.chi2_red,
+                    "sigma_rvec_rad": sd[:3].tolist(), "sigma_tvec_m": sd[3:].tolist(),
+                    "depth_scale_sd_rel": self.depth_scale_sd_rel,
+                    "nutation_frequency_rad_s": self.nutation_frequency_rad_s,
+                    "azimuth_origin": "phi's slow (precession) part is 0 at the first tracked frame",
+                    "assumes": "a fixed pivot; the slow motion a precession about the vertical at a steady rate "
+                               + ("with tilt and rate drifting linearly (damped scene)" if self.slow_terms
+                                  else "and a constant slow tilt (undamped scene)")}}
+        # (no pose_points: moving the intrinsics holds this pose)
+
+
+class _Model:
+    """Pixels of the tip for the pose and motion parameters (see the module's notes)."""
+
+    def __init__(self, t_s: np.ndarray, camera: TrackingCamera, length_m: float, slow_terms: bool, harmonics: int):
+        self.t = t_s - t_s[0]
+        self.cam = camera
+        self.length_m = length_m
+        self.slow = slow_terms
+        self.k = harmonics
+
+    def split(self, p: np.ndarray):
+        rvec, tvec = p[:3], p[3:6]
+        n_slow = 2 if self.slow else 1
+        i = 6
+        th_slow = p[i:i + n_slow]
+        i += n_slow
+        ph_slow = p[i:i + n_slow]
+        i += n_slow
+        w = p[i]
+        i += 1
+        th_h = p[i:i + 2 * self.k]
+        ph_h = p[i + 2 * self.k:i + 4 * self.k]
+        return rvec, tvec, th_slow, ph_slow, w, th_h, ph_h
+
+    def angles(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        _, _, th_slow, ph_slow, w, th_h, ph_h = self.split(p)
+        t = self.t
+        theta = th_slow[0] + (th_slow[1] * t if self.slow else 0.0)
+        phi = ph_slow[0] * t + (ph_slow[1] * t * t if self.slow else 0.0)
+        for k in range(self.k):
+            c, s = np.cos((k + 1) * w * t), np.sin((k + 1) * w * t)
+            theta = theta + th_h[2 * k] * c + th_h[2 * k + 1] * s
+            phi = phi + ph_h[2 * k] * c + ph_h[2 * k + 1] * s
+        return theta, phi
+
+    def pixels(self, p: np.ndarray) -> np.ndarray:
+        theta, phi = self.angles(p)
+        st = np.sin(theta)
+        tip = self.length_m * np.column_stack([st * np.sin(phi), -st * np.cos(phi), np.cos(theta)])
+        return cv2.projectPoints(tip, p[:3], p[3:6], self.cam.camera_matrix, self.cam.dist_coeffs)[0].reshape(-1, 2)
+
+
+def nutation_frequency(t_s: np.ndarray, xy_px: np.ndarray) -> float:
+    """The strongest oscillation of the tip's image acceleration [rad/s]: the nutation (differentiating
+    twice weighs each frequency by its square, so the slow precession's large arc drops out).  Frames may
+    be missing: the Lomb-Scargle periodogram takes uneven sampling."""
+    tt = t_s - t_s[0]
+    ws = 2 * np.pi * np.linspace(2.0 / tt[-1], 0.5 / np.median(np.diff(tt)), 4000)
+    power = np.zeros(len(ws))
+    for j in range(2):
+        acc = np.gradient(np.gradient(xy_px[:, j], tt), tt)
+        power += lombscargle(tt, acc - acc.mean(), ws)
+    return float(ws[np.argmax(power)])
+
+
+def _start_motion(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w: float, slow: bool, harmonics: int):
+    """Motion parameters fitted linearly to angles from the starting pose, at nutation frequency ``w``."""
+    tt = t - t[0]
+    phi = np.unwrap(phi) - phi[0]
+    n = len(tt)
+    cols_t = [np.ones(n)] + ([tt] if slow else [])
+    cols_p = [tt] + ([tt * tt] if slow else [])
+    harm = []
+    for k in range(harmonics):
+        harm += [np.cos((k + 1) * w * tt), np.sin((k + 1) * w * tt)]
+    a_t = np.linalg.lstsq(np.column_stack(cols_t + harm), theta, rcond=None)[0]
+    # phi's constant is taken out by the gauge (0 at the first frame): fit it, then drop it
+    a_p = np.linalg.lstsq(np.column_stack([np.ones(n)] + cols_p + harm), phi, rcond=None)[0]
+    n_slow = len(cols_t)
+    return np.concatenate([a_t[:n_slow], a_p[1:1 + n_slow], [w], a_t[n_slow:], a_p[1 + n_slow:]]), float(a_p[0])
+
+
+def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, start: TrackingCamera,
+                      length_m: float, *, slow_terms: bool = False, harmonics: int = HARMONICS) -> MotionPose:
+    """The pose fitted jointly with the motion model to the tip's pixels (see the module's notes).
+
+    ``sigma_px``: (n, 2) per-frame standard deviations of x and y.  ``start`` holds the intrinsics and
+    a starting pose.  Raises :class:`TrackingError` when fewer than :data:`MIN_FRAMES` frames are given,
+    the rays from the starting pose miss the tip's sphere, or the fit does not converge."""
+    t = np.asarray(t_s, float)
+    xy = np.asarray(xy_px, float).reshape(-1, 2)
+    sig = np.asarray(sigma_px, float).reshape(-1, 2)
+    good = np.all(np.isfinite(xy), axis=1) & np.all(sig > 0, axis=1) & np.isfinite(t)
+    t, xy, sig = t[good], xy[good], sig[good]
+    if len(t) < MIN_FRAMES:
+        raise TrackingError(f"the tip was tracked in {len(t)} frames; the pose from the motion needs {MIN_FRAMES}")
+    theta, phi = angles_from_tip(tips_from_pixels(xy, start, length_m))
+    hit = np.isfinite(theta)
+    if hit.mean() < 0.5:
+        raise TrackingError("from the starting pose (the protocol's camera placement) most of the tip's rays miss its "
+                            "sphere: give a closer starting placement")
+    motion, phi0 = _start_motion(t[hit], theta[hit], phi[hit], nutation_frequency(t, xy), slow_terms, harmonics)
+    # the gauge: turn the starting pose about the vertical so that phi's slow part starts at 0
+    rot = cv2.Rodrigues(start.rvec)[0] @ _rot_z(phi0)
+    p0 = np.concatenate([cv2.Rodrigues(rot)[0].ravel(), start.tvec, motion])
+    model = _Model(t, start, length_m, slow_terms, harmonics)
+
+    def resid(p):
+        return ((model.pixels(p) - xy) / sig).ravel()
+
+    sol = least_squares(resid, p0, method="lm", x_scale="jac", max_nfev=4000)
+    if not sol.success or not np.all(np.isfinite(sol.x)):
+        raise TrackingError(f"the pose from the motion did not converge ({sol.message})")
+    dof = max(2 * len(t) - len(sol.x), 1)
+    chi2_red = float(sol.fun @ sol.fun) / dof
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac, hermitian=True) * max(1.0, chi2_red)
+    cov_pose = 0.5 * (cov[:6, :6] + cov[:6, :6].T)
+    dist = float(np.linalg.norm(sol.x[3:6]))
+    depth_sd = float(np.sqrt(sol.x[3:6] @ cov_pose[3:, 3:] @ sol.x[3:6])) / dist / dist
+    return MotionPose(sol.x[:3].copy(), sol.x[3:6].copy(), cov_pose, chi2_red, len(t),
+                      float(abs(model.split(sol.x)[4])), slow_terms, depth_sd)
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progress=None) -> tuple[MotionPose, dict]:
+    """Track the tip with the starting pose, then fit the pose to its pixels (:func:`fit_pose_to_track`).
+
+    ``start``: the camera's intrinsics with a rough pose (the protocol's nominal placement).  Refuses an
+    accelerated pivot (its apparent vertical is not the lab's).  Returns the pose and the tracking summary."""
+    from .tracker import track, tip_marker
+
+    if protocol.pivot.acceleration is not None:
+        raise TrackingError("the pose from the motion assumes a fixed pivot; this protocol accelerates it (the apparent "
+                            "vertical tilts with the acceleration): use a board at a known place or lab fiducials")
+    result = track(video, start, protocol, progress=progress, frame_dots=False)
+    tip = tip_marker(protocol)
+    m = result.markers
+    rows = m[(m.marker == tip.name) & m.frame.isin(result.angles.frame[result.angles.theta_rad.notna()])]
+    pose = fit_pose_to_track(rows.t_s.to_numpy(), rows[["x_px", "y_px"]].to_numpy(), rows[["sigma_x_px", "sigma_y_px"]].to_numpy(),
+                             replace(result.camera, pose_covariance=None), float(tip.position_m[2]),
+                             slow_terms=protocol.is_damped)
+    return pose, result.summary()

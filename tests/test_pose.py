@@ -1,0 +1,172 @@
+"""The camera pose without fiducials: from a board lying at a known place (issue 19).
+
+Footage without lab fiducials and a camera file without a pose: the calibration's own board
+images give the intrinsics, one more image of the board lying face up under the pivot gives the
+pose.  Checked against the renderer's true pose and, through the whole chain, against the
+simulator's angles and quantities.
+"""
+
+import json
+import math
+import re
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from gyrorig.board_pose import BoardPlacement, pose_from_board, same_rotation_near
+from gyrorig.calibration import CalibrationInputError
+from gyrorig.camera import camera_setup, with_image_size
+from gyrorig.cli import main
+from gyrorig.geometry import board_lab_rotation
+from gyrorig.protocols import load_protocol
+from gyrorig.render import render_video
+from gyrorig.render.board import render_pose_board
+from gyrorig.tables import camera_mode_columns
+from gyrorig.tracking import load_camera, track
+
+from conftest import PROTOCOL_DIR
+
+SMALL = {"width_px = 1440": "width_px = 640", "height_px = 1080": "height_px = 480",
+         "pixel_size_um = 3.45": f"pixel_size_um = {3.45 * 2.25}"}
+
+
+def _no_fiducials(tmp_path, name: str = "air-cushion-heavy-top"):
+    """The bundled protocol at 640 x 480 without its lab fiducials, written beside the test's files."""
+    text = (PROTOCOL_DIR / f"{name}.toml").read_text()
+    for a, b in SMALL.items():
+        text = text.replace(a, b)
+    text = re.sub(r"\[markers\.fiducial_\d+\]\n(?:(?!\[).*\n)*", "", text)
+    path = tmp_path / "protocol.toml"
+    path.write_text(text)
+    return path
+
+
+def _rotation_error_rad(rvec, rvec_true) -> float:
+    return float(np.linalg.norm(cv2.Rodrigues(cv2.Rodrigues(np.asarray(rvec))[0]
+                                              @ cv2.Rodrigues(np.asarray(rvec_true))[0].T)[0]))
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 20.0, 115.0, -150.0])
+def test_the_board_gives_the_pose_and_its_origin_corner_whatever_its_yaw(tmp_path, yaw_deg):
+    """Four yaws: each of OpenCV's corner orders comes up; the dark corner and the printed side pick the
+    board's own.  A wrong order would be off by about a quarter or half turn, not by milliradians."""
+    cam = camera_setup(with_image_size(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), 640, 480)).camera
+    yaw = math.radians(yaw_deg)
+    origin = -board_lab_rotation(yaw) @ np.array([0.08, 0.05, 0.0]) + np.array([0.01, -0.02, -0.05])
+    render_pose_board(cam, tmp_path, origin_m=origin, yaw_rad=yaw, seed=3)
+    pose = pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=9, rows=6,
+                           square_m=0.02, placement=BoardPlacement(tuple(origin), yaw))
+    sd = np.sqrt(np.diag(pose.covariance))
+    # the corners' localisation is the only error: within 4 sd (the pose's error is one draw per component)
+    assert _rotation_error_rad(pose.rvec, cam.rvec) < 4 * np.linalg.norm(sd[:3])
+    assert np.all(np.abs(pose.tvec - cam.tvec) < 4 * sd[3:])
+    assert pose.rms_px < 0.3
+    # a placement known to 1 mm and 0.5 deg: that dominates the pose's variance
+    loose = pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=9, rows=6, square_m=0.02,
+                            placement=BoardPlacement(tuple(origin), yaw, 1e-3, math.radians(0.5), math.radians(0.5)))
+    assert np.trace(loose.placement_covariance) > 0.9 * np.trace(loose.covariance)
+    assert np.trace(loose.covariance) > 10 * np.trace(pose.covariance)
+
+
+def test_a_point_symmetric_board_or_a_wrong_one_is_refused(tmp_path):
+    cam = camera_setup(with_image_size(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), 640, 480)).camera
+    origin = (-0.08, 0.05, -0.05)
+    render_pose_board(cam, tmp_path, origin_m=origin, seed=1)
+    with pytest.raises(CalibrationInputError):  # 9 x 7 squares: the same turned half round
+        pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=8, rows=6, square_m=0.02,
+                        placement=BoardPlacement(origin))
+    with pytest.raises(CalibrationInputError):  # not the board in the image
+        pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=7, rows=4, square_m=0.02,
+                        placement=BoardPlacement(origin))
+    intrinsics = {k: v for k, v in cam.to_json().items() if k not in ("rvec", "tvec")}
+    (tmp_path / "cam.json").write_text(json.dumps(intrinsics))
+    args = ["pose", "--camera", str(tmp_path / "cam.json"), "--board", "9x6", "--square-mm", "20",
+            "--board-origin-mm", "-80,50,-50", "--origin-sd-mm", "0.5"]
+    assert main([*args, "--board-image", str(tmp_path / "board.png"), "--out", str(tmp_path / "posed.json")]) == 0
+    posed = load_camera(tmp_path / "posed.json")
+    sd = np.sqrt(np.diag(posed.pose_covariance))
+    assert _rotation_error_rad(posed.rvec, cam.rvec) < 4 * np.linalg.norm(sd[:3])
+    assert np.all(np.abs(posed.tvec - cam.tvec) < 4 * sd[3:])
+    assert len(posed.pose_points["object_points_m"]) == 54
+    (tmp_path / "junk.png").write_bytes(b"not an image")
+    assert main([*args, "--board-image", str(tmp_path / "junk.png"), "--out", str(tmp_path / "c.json")]) == 2
+    assert main([*args[:-4], "--board-image", str(tmp_path / "board.png"), "--out", str(tmp_path / "c.json")]) == 2
+    assert not (tmp_path / "c.json").exists()
+
+
+def test_the_rotation_vector_nearest_a_reference_is_the_same_rotation():
+    r = np.array([0.0, 0.0, math.pi - 1e-3])
+    other = same_rotation_near(r, -r)
+    assert np.allclose(cv2.Rodrigues(other)[0], cv2.Rodrigues(r)[0], atol=1e-12)
+    assert np.linalg.norm(other + r) < 3e-3
+
+
+def _analyze_with_board_pose(tmp_path, seed: int, capsys):
+    proto = _no_fiducials(tmp_path)
+    p = load_protocol(proto)
+    summary = render_video(p, tmp_path / "v", seed=seed, duration_s=2.0, calibration_views=10)
+    place = json.loads((tmp_path / "v" / "pose_board" / "placement.json").read_text())
+    assert summary["pose_board"] is not None
+    assert main(["calibrate", str(tmp_path / "v" / "calibration"), "--board", "9x6", "--square-mm", "20",
+                 "--pose-image", str(tmp_path / "v" / "pose_board" / "board.png"),
+                 "--board-origin-mm", ",".join(f"{v:.6f}" for v in place["origin_mm"]),
+                 "--board-yaw-deg", f"{place['yaw_deg']:.9f}", "--out", str(tmp_path / "cal.json")]) == 0
+    cal = json.loads((tmp_path / "cal.json").read_text())
+    rendered_cam = json.loads((tmp_path / "v" / "camera.json").read_text())
+    for k in ("fps", "exposure_s", "psf_sigma_px", "sensor"):
+        cal[k] = rendered_cam[k]
+    (tmp_path / "cal.json").write_text(json.dumps(cal))
+    assert load_camera(tmp_path / "cal.json").pose_points is not None
+    capsys.readouterr()
+    assert main(["analyze", str(tmp_path / "v" / "video.mkv"), "--camera", str(tmp_path / "cal.json"),
+                 "--protocol", str(proto), "--out", str(tmp_path / "an"), "--truth",
+                 str(tmp_path / "v" / "truth.csv")]) == 0
+    angles = pd.read_csv(tmp_path / "an" / "track" / "angles.csv")
+    truth = pd.read_csv(tmp_path / "v" / "truth.csv")
+    truth = truth[truth.marker == "tip"].set_index("frame")
+    fit = json.loads((tmp_path / "an" / "fit.json").read_text())
+    return angles, truth, fit, rendered_cam, cal, proto
+
+
+def _theta_within_3_sigma(angles: pd.DataFrame, truth: pd.DataFrame) -> float:
+    """Fraction of the frames with a theta whose value is within 3 of its stated sigma (localisation and camera model)."""
+    ok = angles[angles.theta_rad.notna()].set_index("frame")  # every frame that claims a theta
+    var = ok.theta_sigma_rad ** 2
+    k = 1
+    while camera_mode_columns(k)[0] in ok:
+        var = var + ok[camera_mode_columns(k)[0]] ** 2
+        k += 1
+    err = ok.theta_rad - truth.theta_rad.reindex(ok.index)
+    assert k > 1 and len(ok) > 300
+    return float(np.mean(np.abs(err) < 3 * np.sqrt(var)))
+
+
+@pytest.mark.parametrize("seed", [5, pytest.param(6, marks=pytest.mark.slow), pytest.param(7, marks=pytest.mark.slow)])
+def test_footage_without_fiducials_is_measured_with_the_pose_from_a_board(tmp_path, capsys, seed):
+    """Issue 19's done-when: theta within 3 sigma in >= 95 % of frames; precession rate, nutation
+    frequency and amplitude with pulls within 3, the camera model's share reported."""
+    angles, truth, fit, rendered_cam, cal, proto = _analyze_with_board_pose(tmp_path, seed, capsys)
+    assert _rotation_error_rad(cal["rvec"], rendered_cam["rvec"]) < 3e-3
+    assert np.linalg.norm(np.subtract(cal["tvec"], rendered_cam["tvec"])) < 3e-3  # m
+    assert _theta_within_3_sigma(angles, truth) >= 0.95
+    for k in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
+        q = fit["quantities"][k]
+        assert abs(q["pull"]) < 3, (k, q["pull"])
+        assert q["camera_standard_error"] > 0, k
+    if seed == 5:
+        # the check can fail: the board stated 3 degrees off in yaw and 5 mm off in height (its placement
+        # claimed exact) tilts the pose; most frames' theta then leaves its 3-sigma band
+        place = json.loads((tmp_path / "v" / "pose_board" / "placement.json").read_text())
+        wrong = BoardPlacement(tuple(np.array(place["origin_mm"]) / 1e3 + [0.0, 0.0, 0.005]),
+                               math.radians(place["yaw_deg"] + 3.0))
+        cam = load_camera(tmp_path / "cal.json")
+        pose = pose_from_board(tmp_path / "v" / "pose_board" / "board.png", cam.camera_matrix, cam.dist_coeffs,
+                               cols=9, rows=6, square_m=0.02, placement=wrong)
+        moved = replace(cam, rvec=pose.rvec, tvec=pose.tvec, pose_covariance=pose.covariance,
+                        pose_points={"object_points_m": pose.object_points_m.tolist(),
+                                     "image_points_px": pose.image_points_px.tolist()})
+        off = track(tmp_path / "v" / "video.mkv", moved, load_protocol(proto), frame_dots=False).angles
+        assert _theta_within_3_sigma(off, truth) < 0.5
