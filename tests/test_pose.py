@@ -131,7 +131,7 @@ def _analyze_with_board_pose(tmp_path, seed: int, capsys):
     return angles, truth, fit, rendered_cam, cal, proto
 
 
-def _theta_within_3_sigma(angles: pd.DataFrame, truth: pd.DataFrame) -> float:
+def _theta_within_3_sigma(angles: pd.DataFrame, truth: pd.DataFrame, min_frames: int = 300) -> float:
     """Fraction of the frames with a theta whose value is within 3 of its stated sigma (localisation and camera model)."""
     ok = angles[angles.theta_rad.notna()].set_index("frame")  # every frame that claims a theta
     var = ok.theta_sigma_rad ** 2
@@ -140,7 +140,7 @@ def _theta_within_3_sigma(angles: pd.DataFrame, truth: pd.DataFrame) -> float:
         var = var + ok[camera_mode_columns(k)[0]] ** 2
         k += 1
     err = ok.theta_rad - truth.theta_rad.reindex(ok.index)
-    assert k > 1 and len(ok) > 300
+    assert k > 1 and len(ok) > min_frames
     return float(np.mean(np.abs(err) < 3 * np.sqrt(var)))
 
 
@@ -170,3 +170,77 @@ def test_footage_without_fiducials_is_measured_with_the_pose_from_a_board(tmp_pa
                                      "image_points_px": pose.image_points_px.tolist()})
         off = track(tmp_path / "v" / "video.mkv", moved, load_protocol(proto), frame_dots=False).angles
         assert _theta_within_3_sigma(off, truth) < 0.5
+
+
+def _oblique(tmp_path, camera_position: str, up: str = "[0.0, 0.0, 1.0]"):
+    """The fiducial-free protocol with the camera elsewhere (the first found position_m replaced)."""
+    path = _no_fiducials(tmp_path)
+    text = path.read_text().replace("position_m = [0.0, 0.0, 0.75]", f"position_m = {camera_position}")
+    out = tmp_path / f"protocol_{len(list(tmp_path.glob('protocol_*')))}.toml"
+    out.write_text(text.replace("up_hint = [0.0, 1.0, 0.0]", f"up_hint = {up}"))
+    return out
+
+
+def _pose_from_motion_and_analyze(tmp_path, seed: int, capsys):
+    proto = _oblique(tmp_path, "[0.0, -0.2, 0.75]")
+    # the user's nominal placement, a few cm and degrees off the real one: only the starting point
+    rough = _oblique(tmp_path, "[0.03, -0.23, 0.78]")
+    render_video(load_protocol(proto), tmp_path / "v", seed=seed, duration_s=2.0, calibration_views=0)
+    true_cam = json.loads((tmp_path / "v" / "camera.json").read_text())
+    nopose = {k: v for k, v in true_cam.items() if k not in ("rvec", "tvec")}
+    (tmp_path / "nopose.json").write_text(json.dumps(nopose))
+    assert main(["pose", "--camera", str(tmp_path / "nopose.json"), "--video", str(tmp_path / "v" / "video.mkv"),
+                 "--protocol", str(rough), "--out", str(tmp_path / "posed.json")]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(tmp_path / "v" / "video.mkv"), "--camera", str(tmp_path / "posed.json"),
+                 "--protocol", str(proto), "--out", str(tmp_path / "an"), "--truth",
+                 str(tmp_path / "v" / "truth.csv")]) == 0
+    angles = pd.read_csv(tmp_path / "an" / "track" / "angles.csv")
+    truth = pd.read_csv(tmp_path / "v" / "truth.csv")
+    truth = truth[truth.marker == "tip"].set_index("frame")
+    fit = json.loads((tmp_path / "an" / "fit.json").read_text())
+    return angles, truth, fit, true_cam, json.loads((tmp_path / "posed.json").read_text())
+
+
+def _pivot_depth_error(posed: dict, true_cam: dict) -> tuple[float, float]:
+    """The found camera's distance from the pivot minus the true one, and its sd [m]."""
+    tv = np.array(posed["tvec"])
+    cov = np.array(posed["pose_covariance"])[3:, 3:]
+    u = tv / np.linalg.norm(tv)
+    return float(np.linalg.norm(tv) - np.linalg.norm(true_cam["tvec"])), float(np.sqrt(u @ cov @ u))
+
+
+@pytest.mark.parametrize("seed", [5, pytest.param(6, marks=pytest.mark.slow), pytest.param(7, marks=pytest.mark.slow)])
+def test_footage_without_fiducials_is_measured_with_the_pose_from_the_motion(tmp_path, capsys, seed):
+    """Issue 19's done-when for the pose from the tip's own motion (an oblique camera: the nutation's nod
+    is seen, which fixes the distance): theta within 3 sigma in >= 95 % of frames, pulls within 3."""
+    angles, truth, fit, true_cam, posed = _pose_from_motion_and_analyze(tmp_path, seed, capsys)
+    err, sd = _pivot_depth_error(posed, true_cam)
+    assert abs(err) < 4 * sd and sd < 0.01 * np.linalg.norm(true_cam["tvec"])
+    assert posed["pose_source"]["frames"] > 250
+    # the vertical as the camera sees it (the azimuth origin is free, the vertical is not)
+    up_true = cv2.Rodrigues(np.array(true_cam["rvec"]))[0][:, 2]
+    up = cv2.Rodrigues(np.array(posed["rvec"]))[0][:, 2]
+    sd_rot = np.linalg.norm(np.sqrt(np.diag(np.array(posed["pose_covariance"]))[:3]))
+    assert math.acos(min(1.0, up @ up_true)) < 4 * sd_rot
+    assert _theta_within_3_sigma(angles, truth, min_frames=250) >= 0.95
+    for k in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
+        q = fit["quantities"][k]
+        assert abs(q["pull"]) < 3, (k, q["pull"])
+        assert q["camera_standard_error"] > 0, k
+
+
+def test_a_camera_looking_down_the_vertical_is_refused_the_pose_from_the_motion(tmp_path, capsys):
+    """Straight above the pivot the nutation's nod runs along the line of sight: the motion barely fixes the
+    camera's distance (3.5 % sd, and the linearised sd is then 4 times too small): refused (exit 3), nothing
+    written."""
+    proto = _no_fiducials(tmp_path)
+    rough = _oblique(tmp_path, "[0.02, -0.02, 0.78]", up="[0.0, 1.0, 0.0]")
+    render_video(load_protocol(proto), tmp_path / "v", seed=5, duration_s=2.0, calibration_views=0)
+    true_cam = json.loads((tmp_path / "v" / "camera.json").read_text())
+    (tmp_path / "nopose.json").write_text(json.dumps({k: v for k, v in true_cam.items() if k not in ("rvec", "tvec")}))
+    assert main(["pose", "--camera", str(tmp_path / "nopose.json"), "--video", str(tmp_path / "v" / "video.mkv"),
+                 "--protocol", str(rough), "--out", str(tmp_path / "posed.json")]) == 3
+    assert not (tmp_path / "posed.json").exists()
+    # neither a board nor a video: bad input
+    assert main(["pose", "--camera", str(tmp_path / "nopose.json"), "--out", str(tmp_path / "x.json")]) == 2

@@ -24,6 +24,8 @@ def _board_size(args: argparse.Namespace) -> tuple[int, int, float]:
     if not (3 <= cols <= 200 and 3 <= rows <= 200):
         raise ValueError(f"--board {args.board!r}: inner corners per side must be 3 to 200 (OpenCV's detector "
                          "needs more than 2)")
+    if args.square_mm is None:
+        raise ValueError("--square-mm is required with a board: the size of its squares [mm]")
     number("", "--square-mm", args.square_mm, lo=0.0, lo_open=True, hi=1e4)
     return cols, rows, args.square_mm / 1000.0
 
@@ -104,19 +106,54 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_pose(args: argparse.Namespace) -> int:
-    from ..board_pose import pose_from_board
     from ..tracking import load_camera
 
-    cols, rows, square_m = _board_size(args)
-    placement = _board_placement(args)
-    if placement is None:
-        raise ValueError("--board-origin-mm is required: where the board's first inner corner lies, in the pivot frame")
+    if (args.board_image is None) == (args.video is None):
+        raise ValueError("give one of --board-image (a board lying at a known place) and --video (the rig's motion)")
     cam = load_camera(args.camera, require_pose=False)
-    pose = pose_from_board(args.board_image, cam.camera_matrix, cam.dist_coeffs, cols=cols, rows=rows,
-                           square_m=square_m, placement=placement)
     out = json.loads(Path(args.camera).read_text(encoding="utf-8"))
-    out.update(pose.camera_fields(str(args.board_image)))
+    out = {k: v for k, v in out.items() if k not in ("pose_points", "pose_source", "pose_covariance")}
+    if args.video is not None:
+        out.update(_pose_from_motion(args, cam))
+    else:
+        from ..board_pose import pose_from_board
+
+        cols, rows, square_m = _board_size(args)
+        placement = _board_placement(args)
+        if placement is None:
+            raise ValueError("--board-origin-mm is required with --board-image: where the board's first inner corner "
+                             "lies, in the pivot frame")
+        pose = pose_from_board(args.board_image, cam.camera_matrix, cam.dist_coeffs, cols=cols, rows=rows,
+                               square_m=square_m, placement=placement)
+        out.update(pose.camera_fields(str(args.board_image)))
+        _print_board_pose(pose, args.board_image)
     _io.write_json(out, args.out)
-    _print_board_pose(pose, args.board_image)
     print(f"wrote {args.out}")
     return EXIT_OK
+
+
+def _pose_from_motion(args: argparse.Namespace, cam) -> dict:
+    """``gyrorig pose --video``: the rough pose from the protocol's camera placement, then the fit."""
+    from dataclasses import replace
+
+    from ..camera import camera_setup
+    from ..protocols import load_protocol
+    from ..tracking.motion_pose import pose_from_motion
+    from .printing import progress_printer
+
+    if args.protocol is None:
+        raise ValueError("--protocol is required with --video (the tip's marker, and its [camera] placement as the "
+                         "rough starting pose)")
+    protocol = load_protocol(args.protocol)
+    if "camera" not in protocol.extra:
+        raise ValueError(f"{args.protocol}: no [camera] section; its position_m and look_at_m give the rough pose the "
+                         "fit starts from")
+    rough = camera_setup(protocol).camera
+    pose, _ = pose_from_motion(args.video, replace(cam, rvec=rough.rvec, tvec=rough.tvec), protocol,
+                               progress=progress_printer("pose"))
+    sd = np.sqrt(np.diag(pose.covariance))
+    print(f"pose from the tip's motion in {args.video}: {pose.frames} frames, chi2_red {pose.chi2_red:.3g}, nutation "
+          f"{pose.nutation_frequency_rad_s:.5g} rad/s; rotation sd {np.degrees(np.linalg.norm(sd[:3])):.3g} deg, "
+          f"position sd {np.linalg.norm(sd[3:]) * 1e3:.3g} mm, depth scale sd {pose.depth_scale_sd_rel:.2%}")
+    print("azimuth origin: phi's slow (precession) part is 0 at the first tracked frame")
+    return pose.camera_fields(str(args.video))

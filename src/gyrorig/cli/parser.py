@@ -179,11 +179,16 @@ def build_parser() -> argparse.ArgumentParser:
     cal.set_defaults(func="_cmd_calibrate")
 
     po = sub.add_parser("pose", help="the camera's pose relative to the pivot, into a copy of camera.json: from one "
-                        "image of a checkerboard lying at a known place")
+                        "image of a checkerboard lying at a known place, or from the tip's motion in a video")
     po.add_argument("--camera", required=True, help="camera.json with the intrinsics (from 'gyrorig calibrate')")
-    po.add_argument("--board-image", required=True, help="the image of the board lying face up at --board-origin-mm")
-    po.add_argument("--board", required=True, help="inner corners COLSxROWS, one odd and one even (e.g. 9x6)")
-    po.add_argument("--square-mm", type=float, required=True, help="square size [mm]")
+    po.add_argument("--board-image", default=None, help="the image of the board lying face up at --board-origin-mm")
+    po.add_argument("--board", default="9x6", help="inner corners COLSxROWS, one odd and one even (default 9x6)")
+    po.add_argument("--square-mm", type=float, default=None, help="square size [mm] (with --board-image)")
+    po.add_argument("--video", default=None,
+                    help="instead of a board: a video (or image folder) of the rig; the pose is fitted jointly with "
+                         "the tip's motion (a fixed pivot, a steady precession about the vertical, nutation)")
+    po.add_argument("--protocol", default=None,
+                    help="with --video: the protocol (the tip marker; its [camera] placement is the rough start)")
     add_board_placement_options(po)
     po.add_argument("--out", required=True, help="camera.json to write (the input's keys, with the pose)")
     po.set_defaults(func="_cmd_pose", out_is_file=True)

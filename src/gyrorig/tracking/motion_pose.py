@@ -18,7 +18,9 @@ this assumes, and what it fixes:
   acceleration's angle (not modelled: refused).
 - **the depth scale** comes from the nutation: the tip's nodding moves it along the sphere's
   meridian, whose direction in the image depends on the distance; a pure precession (no
-  nutation) leaves the scale free, and the covariance says so (it grows without bound).
+  nutation), or a camera on the vertical (the nod runs along the line of sight), leaves it
+  nearly free, and then the linearised covariance cannot be trusted: a distance known worse
+  than :data:`MAX_DEPTH_SCALE_SD_REL` is refused.
 - **the azimuth origin** is free: ``phi``'s slow part is 0 at the first tracked frame (the fit
   has no constant in ``phi``).  A lab mark can move it afterwards (``azimuth_offset_rad``).
 
@@ -49,7 +51,10 @@ __all__ = ["MotionPose", "pose_from_motion", "fit_pose_to_track", "MIN_FRAMES"]
 #: tracked frames needed (the joint fit has about 25 parameters)
 MIN_FRAMES = 100
 #: nutation harmonics in the motion model
-HARMONICS = 3
+HARMONICS = 6
+#: the largest relative sd of the camera's distance accepted: beyond it the fit's valley is too flat for its
+#: linearised covariance (a camera straight above the pivot: 3.5 % sd, the error 4 of them)
+MAX_DEPTH_SCALE_SD_REL = 0.01
 
 
 @dataclass(frozen=True)
@@ -210,11 +215,21 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
     if protocol.pivot.acceleration is not None:
         raise TrackingError("the pose from the motion assumes a fixed pivot; this protocol accelerates it (the apparent "
                             "vertical tilts with the acceleration): use a board at a known place or lab fiducials")
-    result = track(video, start, protocol, progress=progress, frame_dots=False)
     tip = tip_marker(protocol)
-    m = result.markers
-    rows = m[(m.marker == tip.name) & m.frame.isin(result.angles.frame[result.angles.theta_rad.notna()])]
-    pose = fit_pose_to_track(rows.t_s.to_numpy(), rows[["x_px", "y_px"]].to_numpy(), rows[["sigma_x_px", "sigma_y_px"]].to_numpy(),
-                             replace(result.camera, pose_covariance=None), float(tip.position_m[2]),
-                             slow_terms=protocol.is_damped)
+    camera = replace(start, pose_covariance=None, pose_points=None)
+    pose = None
+    for _ in range(2):  # the second pass tracks with the pose found: frames the rough pose lost come back
+        result = track(video, camera, protocol, progress=progress, frame_dots=False)
+        m = result.markers
+        rows = m[(m.marker == tip.name) & m.frame.isin(result.angles.frame[result.angles.theta_rad.notna()])]
+        pose = fit_pose_to_track(rows.t_s.to_numpy(), rows[["x_px", "y_px"]].to_numpy(),
+                                 rows[["sigma_x_px", "sigma_y_px"]].to_numpy(), replace(result.camera,
+                                 pose_covariance=None), float(tip.position_m[2]), slow_terms=protocol.is_damped)
+        camera = replace(camera, rvec=pose.rvec, tvec=pose.tvec)
+    if pose.depth_scale_sd_rel > MAX_DEPTH_SCALE_SD_REL:
+        raise TrackingError(
+            f"the tip's motion fixes the camera's distance only to {pose.depth_scale_sd_rel:.1%} (limit "
+            f"{MAX_DEPTH_SCALE_SD_REL:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or the "
+            "nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a known "
+            "place or lab fiducials")
     return pose, result.summary()
