@@ -104,6 +104,16 @@ def test_the_rotation_vector_nearest_a_reference_is_the_same_rotation():
     assert np.linalg.norm(other + r) < 3e-3
 
 
+def _analyze(tmp_path, camera: str, proto):
+    """``gyrorig analyze`` of the rendered video with a camera file; the angle table, the tip's truth, fit.json."""
+    assert main(["analyze", str(tmp_path / "v" / "video.mkv"), "--camera", str(tmp_path / camera),
+                 "--protocol", str(proto), "--out", str(tmp_path / "an"), "--truth",
+                 str(tmp_path / "v" / "truth.csv")]) == 0
+    angles = pd.read_csv(tmp_path / "an" / "track" / "angles.csv")
+    truth = pd.read_csv(tmp_path / "v" / "truth.csv")
+    return angles, truth[truth.marker == "tip"].set_index("frame"), json.loads((tmp_path / "an" / "fit.json").read_text())
+
+
 def _analyze_with_board_pose(tmp_path, seed: int, capsys):
     proto = _no_fiducials(tmp_path)
     p = load_protocol(proto)
@@ -121,13 +131,7 @@ def _analyze_with_board_pose(tmp_path, seed: int, capsys):
     (tmp_path / "cal.json").write_text(json.dumps(cal))
     assert load_camera(tmp_path / "cal.json").pose_points is not None
     capsys.readouterr()
-    assert main(["analyze", str(tmp_path / "v" / "video.mkv"), "--camera", str(tmp_path / "cal.json"),
-                 "--protocol", str(proto), "--out", str(tmp_path / "an"), "--truth",
-                 str(tmp_path / "v" / "truth.csv")]) == 0
-    angles = pd.read_csv(tmp_path / "an" / "track" / "angles.csv")
-    truth = pd.read_csv(tmp_path / "v" / "truth.csv")
-    truth = truth[truth.marker == "tip"].set_index("frame")
-    fit = json.loads((tmp_path / "an" / "fit.json").read_text())
+    angles, truth, fit = _analyze(tmp_path, "cal.json", proto)
     return angles, truth, fit, rendered_cam, cal, proto
 
 
@@ -192,13 +196,7 @@ def _pose_from_motion_and_analyze(tmp_path, seed: int, capsys):
     assert main(["pose", "--camera", str(tmp_path / "nopose.json"), "--video", str(tmp_path / "v" / "video.mkv"),
                  "--protocol", str(rough), "--out", str(tmp_path / "posed.json")]) == 0
     capsys.readouterr()
-    assert main(["analyze", str(tmp_path / "v" / "video.mkv"), "--camera", str(tmp_path / "posed.json"),
-                 "--protocol", str(proto), "--out", str(tmp_path / "an"), "--truth",
-                 str(tmp_path / "v" / "truth.csv")]) == 0
-    angles = pd.read_csv(tmp_path / "an" / "track" / "angles.csv")
-    truth = pd.read_csv(tmp_path / "v" / "truth.csv")
-    truth = truth[truth.marker == "tip"].set_index("frame")
-    fit = json.loads((tmp_path / "an" / "fit.json").read_text())
+    angles, truth, fit = _analyze(tmp_path, "posed.json", proto)
     return angles, truth, fit, true_cam, json.loads((tmp_path / "posed.json").read_text())
 
 

@@ -72,7 +72,7 @@ class MotionPose:
     depth_scale_sd_rel: float
 
     def camera_fields(self, video: str) -> dict:
-        """The keys this pose adds to ``camera.json``."""
+        """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose)."""
         sd = np.sqrt(np.diag(self.covariance))
         return {"rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(), "pose_covariance": self.covariance.tolist(),
                 "pose_source": {
@@ -84,7 +84,6 @@ class MotionPose:
                     "assumes": "a fixed pivot; the slow motion a precession about the vertical at a steady rate "
                                + ("with tilt and rate drifting linearly (damped scene)" if self.slow_terms
                                   else "and a constant slow tilt (undamped scene)")}}
-        # (no pose_points: moving the intrinsics holds this pose)
 
 
 class _Model:
