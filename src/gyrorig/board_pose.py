@@ -165,19 +165,13 @@ def pose_from_board(image: str | Path, camera_matrix: np.ndarray, dist_coeffs: n
     rms = float(np.sqrt(np.mean(np.sum(resid ** 2, axis=1))))
     if rms > MAX_POSE_RMS_PX:
         raise CalibrationInputError(f"{image}: the board's corners fit with {rms:.3g} px RMS (limit {MAX_POSE_RMS_PX} "
-                                    "px): check --board, --square-mm and that the camera file is this camera's")
+                                    "px): check --board and that the camera file is this camera's (a wrong --square-mm cannot show in one "
+                                    "image: a larger board farther away projects the same)")
     # each corner's variance per coordinate from the scatter about the fit (2N - 6 degrees of freedom)
     s2 = max(float(np.sum(resid ** 2)) / max(2 * len(obj) - 6, 1), 1e-8)
-    cam = _Intrinsics(k, dist)
-    cov_corners = pose_covariance_from_points(obj, img, [s2 * np.eye(2)] * len(obj), cam, rvec, tvec)
+    cov_corners = pose_covariance_from_points(obj, img, [s2 * np.eye(2)] * len(obj), k, dist, rvec, tvec)
     cov_place = _placement_covariance(obj_board, img, placement, k, dist, rvec, tvec)
     return BoardPose(rvec, tvec, cov_corners + cov_place, cov_place, obj, img, rms, placement)
-
-
-@dataclass(frozen=True)
-class _Intrinsics:
-    camera_matrix: np.ndarray
-    dist_coeffs: np.ndarray
 
 
 def _solve(obj: np.ndarray, img: np.ndarray, k: np.ndarray, dist: np.ndarray, guess=None):

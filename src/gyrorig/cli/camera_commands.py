@@ -149,7 +149,7 @@ def _pose_from_motion(args: argparse.Namespace, cam) -> dict:
         raise ValueError(f"{args.protocol}: no [camera] section; its position_m and look_at_m give the rough pose the "
                          "fit starts from")
     rough = camera_setup(protocol).camera
-    pose, _ = pose_from_motion(args.video, replace(cam, rvec=rough.rvec, tvec=rough.tvec), protocol,
+    pose = pose_from_motion(args.video, replace(cam, rvec=rough.rvec, tvec=rough.tvec), protocol,
                                progress=progress_printer("pose"))
     sd = np.sqrt(np.diag(pose.covariance))
     print(f"pose from the tip's motion in {args.video}: {pose.frames} frames, chi2_red {pose.chi2_red:.3g}, nutation "

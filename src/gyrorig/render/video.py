@@ -179,18 +179,20 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
             "encode_s": t_encode, "calibration": calib, "pose_board": pose_board}
 
 
-#: the pose board's place in the renders: 9 x 6 inner corners of 20 mm, centred under the pivot, this far
-#: below it, its x axis at this azimuth
+#: the pose board's place in the renders (render_pose_board's default 9 x 6 inner corners of 20 mm): centred
+#: under the pivot, this far below it, its x axis at this azimuth
 POSE_BOARD_HEIGHT_M = -0.05
 POSE_BOARD_YAW_RAD = math.radians(20.0)
+_POSE_BOARD = {"cols": 9, "rows": 6, "square_m": 0.02}
 
 
 def _pose_board(cam, out: Path, seed: int) -> dict | None:
     """A board lying at a known place (``pose_board/board.png``, ``placement.json``); None when it is not
     wholly in view."""
-    a = board_lab_rotation(POSE_BOARD_YAW_RAD)
-    origin = -a @ np.array([4 * 0.02, 2.5 * 0.02, 0.0]) + np.array([0.0, 0.0, POSE_BOARD_HEIGHT_M])
+    b = _POSE_BOARD
+    centre_from_origin = np.array([(b["cols"] - 1) / 2, (b["rows"] - 1) / 2, 0.0]) * b["square_m"]
+    origin = -board_lab_rotation(POSE_BOARD_YAW_RAD) @ centre_from_origin + np.array([0.0, 0.0, POSE_BOARD_HEIGHT_M])
     try:
-        return render_pose_board(cam, out, origin_m=origin, yaw_rad=POSE_BOARD_YAW_RAD, seed=seed)
+        return render_pose_board(cam, out, origin_m=origin, yaw_rad=POSE_BOARD_YAW_RAD, seed=seed, **b)
     except ValueError:
         return None

@@ -22,7 +22,7 @@ this assumes, and what it fixes:
   nearly free, and then the linearised covariance cannot be trusted: a distance known worse
   than :data:`MAX_DEPTH_SCALE_SD_REL` is refused.
 - **the azimuth origin** is free: ``phi``'s slow part is 0 at the first tracked frame (the fit
-  has no constant in ``phi``).  A lab mark can move it afterwards (``azimuth_offset_rad``).
+  has no constant in ``phi``).
 
 The pose's covariance is the joint fit's (pixels weighted by their tracked covariance), scaled by
 the reduced chi-square when above 1, marginalised over the motion parameters.  The starting
@@ -204,11 +204,12 @@ def _rot_z(a: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progress=None) -> tuple[MotionPose, dict]:
+def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progress=None) -> MotionPose:
     """Track the tip with the starting pose, then fit the pose to its pixels (:func:`fit_pose_to_track`).
 
     ``start``: the camera's intrinsics with a rough pose (the protocol's nominal placement).  Refuses an
-    accelerated pivot (its apparent vertical is not the lab's).  Returns the pose and the tracking summary."""
+    accelerated pivot (its apparent vertical is not the lab's), and a distance known worse than
+    :data:`MAX_DEPTH_SCALE_SD_REL`."""
     from .tracker import track, tip_marker
 
     if protocol.pivot.acceleration is not None:
@@ -216,14 +217,13 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
                             "vertical tilts with the acceleration): use a board at a known place or lab fiducials")
     tip = tip_marker(protocol)
     camera = replace(start, pose_covariance=None, pose_points=None)
-    pose = None
     for _ in range(2):  # the second pass tracks with the pose found: frames the rough pose lost come back
         result = track(video, camera, protocol, progress=progress, frame_dots=False)
         m = result.markers
         rows = m[(m.marker == tip.name) & m.frame.isin(result.angles.frame[result.angles.theta_rad.notna()])]
         pose = fit_pose_to_track(rows.t_s.to_numpy(), rows[["x_px", "y_px"]].to_numpy(),
-                                 rows[["sigma_x_px", "sigma_y_px"]].to_numpy(), replace(result.camera,
-                                 pose_covariance=None), float(tip.position_m[2]), slow_terms=protocol.is_damped)
+                                 rows[["sigma_x_px", "sigma_y_px"]].to_numpy(), result.camera, float(tip.position_m[2]),
+                                 slow_terms=protocol.is_damped)
         camera = replace(camera, rvec=pose.rvec, tvec=pose.tvec)
     if pose.depth_scale_sd_rel > MAX_DEPTH_SCALE_SD_REL:
         raise TrackingError(
@@ -231,4 +231,4 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
             f"{MAX_DEPTH_SCALE_SD_REL:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or the "
             "nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a known "
             "place or lab fiducials")
-    return pose, result.summary()
+    return pose

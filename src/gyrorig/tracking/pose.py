@@ -133,20 +133,19 @@ def estimate_pose(video, camera: TrackingCamera, protocol: Protocol, *, span_s: 
         raise TrackingError(f"{source}: no assignment of the {len(spots)} static spots to the fiducials "
                             f"fits (best reprojection error {rms}, limit {max_rms_px} px)")
     rms, rvec, tvec, matched, obj, img, covs = best
-    pose_cov = pose_covariance_from_points(obj, img, covs, camera, rvec, tvec)
+    pose_cov = pose_covariance_from_points(obj, img, covs, camera.camera_matrix, camera.dist_coeffs, rvec, tvec)
     posed = replace(camera, rvec=rvec, tvec=tvec, pose_covariance=pose_cov)
     return posed, {"fiducials_matched": matched, "pose_rms_px": rms, "static_spots": len(spots),
                    "object_points_m": obj.tolist(), "image_points_px": img.tolist(),
                    "pose_sigma": np.sqrt(np.diag(pose_cov)).tolist()}
 
 
-def pose_covariance_from_points(obj, img, covs, camera: TrackingCamera, rvec, tvec) -> np.ndarray:
-    """Covariance of (rvec, tvec) from the fiducials' localisation errors (intrinsics held fixed).
-
-    Weighted by each fiducial's covariance from the spot fit on the median image, and
-    scaled up by the reduced chi-square of the reprojection when it exceeds 1.
+def pose_covariance_from_points(obj, img, covs, camera_matrix, dist_coeffs, rvec, tvec) -> np.ndarray:
+    """Covariance of the PnP pose (rvec, tvec) from its image points' localisation errors (intrinsics
+    held fixed): ``covs`` is each point's 2 x 2 pixel covariance (the fiducials' spot fits, a board's
+    corner scatter); scaled up by the reduced chi-square of the reprojection when it exceeds 1.
     """
-    proj, jac = cv2.projectPoints(obj, rvec, tvec, camera.camera_matrix, camera.dist_coeffs)
+    proj, jac = cv2.projectPoints(obj, rvec, tvec, camera_matrix, dist_coeffs)
     r = (img - proj.reshape(-1, 2)).ravel()
     Cinv = np.zeros((2 * len(obj), 2 * len(obj)))
     for i, c in enumerate(covs):
