@@ -156,6 +156,9 @@ def test_footage_without_fiducials_is_measured_with_the_pose_from_a_board(tmp_pa
     assert _rotation_error_rad(cal["rvec"], rendered_cam["rvec"]) < 3e-3
     assert np.linalg.norm(np.subtract(cal["tvec"], rendered_cam["tvec"])) < 3e-3  # m
     assert _theta_within_3_sigma(angles, truth) >= 0.95
+    # a board's pose is knowledge from outside the record: every camera mode keeps its unit prior
+    track_json = json.loads((tmp_path / "an" / "track" / "track.json").read_text())
+    assert track_json["camera_modes"] > 6 and track_json["camera_modes_from_frames"] == 0
     for k in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
         q = fit["quantities"][k]
         assert abs(q["pull"]) < 3, (k, q["pull"])
@@ -208,10 +211,8 @@ def _pivot_depth_error(posed: dict, true_cam: dict) -> tuple[float, float]:
     return float(np.linalg.norm(tv) - np.linalg.norm(true_cam["tvec"])), float(np.sqrt(u @ cov @ u))
 
 
-@pytest.mark.parametrize("seed", [5, pytest.param(6, marks=pytest.mark.slow), pytest.param(7, marks=pytest.mark.slow)])
-def test_footage_without_fiducials_is_measured_with_the_pose_from_the_motion(tmp_path, capsys, seed):
-    """Issue 19's done-when for the pose from the tip's own motion (an oblique camera: the nutation's nod
-    is seen, which fixes the distance): theta within 3 sigma in >= 95 % of frames, pulls within 3."""
+def _check_motion_pose(tmp_path, seed: int, capsys) -> dict:
+    """Issue 19's per-record checks of a motion-found pose; returns fit.json's quantities."""
     angles, truth, fit, true_cam, posed = _pose_from_motion_and_analyze(tmp_path, seed, capsys)
     err, sd = _pivot_depth_error(posed, true_cam)
     assert abs(err) < 4 * sd and sd < 0.01 * np.linalg.norm(true_cam["tvec"])
@@ -222,10 +223,48 @@ def test_footage_without_fiducials_is_measured_with_the_pose_from_the_motion(tmp
     sd_rot = np.linalg.norm(np.sqrt(np.diag(np.array(posed["pose_covariance"]))[:3]))
     assert math.acos(min(1.0, up @ up_true)) < 4 * sd_rot
     assert _theta_within_3_sigma(angles, truth, min_frames=250) >= 0.95
+    # the pose came from this recording: its modes are marked as found from the frames, not known beside them
+    track_json = json.loads((tmp_path / "an" / "track" / "track.json").read_text())
+    assert track_json["camera_modes_from_frames"] == track_json["camera_modes"] == 6
     for k in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
-        q = fit["quantities"][k]
-        assert abs(q["pull"]) < 3, (k, q["pull"])
-        assert q["camera_standard_error"] > 0, k
+        assert fit["quantities"][k]["camera_standard_error"] > 0, k
+    return fit["quantities"]
+
+
+def test_footage_without_fiducials_is_measured_with_the_pose_from_the_motion(tmp_path, capsys):
+    """Issue 19's done-when for the pose from the tip's own motion (an oblique camera: the nutation's nod
+    is seen, which fixes the distance): theta within 3 sigma in >= 95 % of frames, pulls within 3.  Another
+    recording tracked with that pose takes it as outside knowledge (its modes keep their unit priors)."""
+    quantities = _check_motion_pose(tmp_path, 5, capsys)
+    for k in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
+        assert abs(quantities[k]["pull"]) < 3, (k, quantities[k]["pull"])
+    proto = tmp_path / "protocol_0.toml"
+    render_video(load_protocol(proto), tmp_path / "other", seed=99, duration_s=0.3, calibration_views=0)
+    other = track(tmp_path / "other" / "video.mkv", load_camera(tmp_path / "posed.json"), load_protocol(proto),
+                  frame_dots=False)
+    assert other.camera_modes == 6 and other.camera_modes_from_frames == 0
+    # a copy of the recording is the same recording
+    (tmp_path / "copy").mkdir()
+    (tmp_path / "copy" / "renamed.mkv").write_bytes((tmp_path / "v" / "video.mkv").read_bytes())
+    again = track(tmp_path / "copy" / "renamed.mkv", load_camera(tmp_path / "posed.json"), load_protocol(proto),
+                  frame_dots=False)
+    assert again.camera_modes_from_frames == 6
+
+
+@pytest.mark.slow
+def test_the_motion_pose_error_bars_hold_over_seeds(tmp_path, capsys):
+    """Seeds 5-13 through pose-from-motion and analyze: each record passes the checks above, and the pulls of
+    the precession rate, nutation frequency and amplitude have an RMS within 1 +- 3 / sqrt(2 N) (N = 9).
+    Measured: seeds 5-13 RMS 1.32, 1.14, 1.21; seeds 5-34 (30 records) 1.20, 0.99, 1.13."""
+    pulls = []
+    for seed in range(5, 14):
+        folder = tmp_path / f"s{seed}"
+        folder.mkdir()
+        q = _check_motion_pose(folder, seed, capsys)
+        pulls.append([q[k]["pull"] for k in ("precession_rate_rad_s", "nutation_frequency_rad_s",
+                                             "nutation_amplitude_rad")])
+    rms = np.sqrt(np.mean(np.square(pulls), axis=0))
+    assert np.all(np.abs(rms - 1) < 3 / np.sqrt(2 * len(pulls))), rms
 
 
 def test_a_camera_looking_down_the_vertical_is_refused_the_pose_from_the_motion(tmp_path, capsys):

@@ -7,7 +7,10 @@
 when several apply); then, when present, ``psi_rad, psi_sigma_rad`` (the frame's angle about
 the axis), ``exposure_s`` (the angles are averaged over it) and ``theta_cam_k_rad,
 phi_cam_k_rad`` for each camera-model mode ``k = 1, 2, ...`` (each frame's angle shift for a
-one-sigma move of that mode).
+one-sigma move of that mode) with ``cam_k_prior`` (the same in every row: 1 when the mode's sigma is
+knowledge from outside the record, a calibration or a pose from fiducials or a board, which the fit
+takes as a unit Gaussian prior; 0 when the pose was found from this record's own tip motion, so
+that the fit determines the mode from the frames; a table without the column: 1).
 
 **Marker table** (``markers.csv``): one row per detected marker and frame, :data:`MARKER_COLUMNS`.
 
@@ -25,7 +28,7 @@ from collections.abc import Iterable
 import pandas as pd
 
 __all__ = ["ANGLE_COLUMNS", "ANGLE_REQUIRED", "MARKER_COLUMNS", "QUALITY_FLAGS", "camera_mode_columns",
-           "camera_mode_count", "missing_columns", "quality_counts", "tip_truth"]
+           "camera_mode_prior_column", "camera_mode_count", "missing_columns", "quality_counts", "tip_truth"]
 
 ANGLE_COLUMNS = ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
                  "tip_x", "tip_y", "tip_z", "quality")
@@ -43,6 +46,11 @@ QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sph
 def camera_mode_columns(k: int) -> tuple[str, str]:
     """The (theta, phi) columns of camera-model mode ``k`` (1-based)."""
     return f"theta_cam_{k}_rad", f"phi_cam_{k}_rad"
+
+
+def camera_mode_prior_column(k: int) -> str:
+    """The column saying whether camera-model mode ``k`` (1-based) has a prior (1) or is found from the frames (0)."""
+    return f"cam_{k}_prior"
 
 
 def camera_mode_count(columns: Iterable[str]) -> int:

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ..smooth import measurement_covariance
-from ..tables import camera_mode_columns, camera_mode_count, missing_columns
+from ..tables import camera_mode_columns, camera_mode_count, camera_mode_prior_column, missing_columns
 from .constraints import Constraints
 
 __all__ = ["FitError", "FitConvergenceError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
@@ -42,6 +42,11 @@ class FitData:
     t_ref_s: float
     #: (m, n, 2) angle shifts (theta, phi) of each frame for a one-sigma move of camera mode k
     camera_shift: np.ndarray | None = None
+    #: (m,) per camera mode, from the table's ``cam_k_prior``: 1, its sigma is knowledge from outside the
+    #: record; 0, a move of a pose found from this record's own tip motion; None: all 1
+    camera_prior: np.ndarray | None = None
+    #: (m, m) the camera modes' prior residuals are ``camera_prior_root @ a``; None: the identity (unit priors)
+    camera_prior_root: np.ndarray | None = None
     #: (n,) exposure of each frame [s], ``t_s`` at its middle: the model is averaged over it
     #: (a blurred spot's centroid is the mean position over the exposure, which shrinks an
     #: oscillation of angular frequency w by sinc(w T / 2)); None: instantaneous samples
@@ -94,6 +99,22 @@ def _camera_shifts(a: pd.DataFrame) -> np.ndarray | None:
     return shift
 
 
+def _camera_priors(a: pd.DataFrame, k_modes: int) -> np.ndarray | None:
+    """Each mode's ``cam_k_prior`` (1 without the column); FitError for anything but a constant 0 or 1."""
+    if not k_modes:
+        return None
+    out = np.ones(k_modes)
+    for k in range(1, k_modes + 1):
+        col = camera_mode_prior_column(k)
+        if col in a.columns:
+            v = np.unique(a[col].to_numpy(float))
+            if len(v) != 1 or v[0] not in (0.0, 1.0):
+                raise FitError(f"{col} must be 0 (mode found from the frames) or 1 (unit prior), the same in every "
+                               f"row; found {v[:4].tolist()}")
+            out[k - 1] = v[0]
+    return out
+
+
 def _exposures(a: pd.DataFrame, t: np.ndarray) -> np.ndarray | None:
     if "exposure_s" not in a.columns:
         return None
@@ -136,4 +157,5 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
         segment = np.concatenate([[0], np.cumsum(np.diff(t) > half_period)])
     return FitData(frame=frame, t_s=t, theta_rad=a["theta_rad"].to_numpy(float), phi_rad=a["phi_rad"].to_numpy(float),
                    cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]), camera_shift=_camera_shifts(a),
+                   camera_prior=_camera_priors(a, camera_mode_count(a.columns)),
                    exposure_s=_exposures(a, t), constraints=constraints or Constraints())

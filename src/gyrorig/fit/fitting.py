@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -15,9 +16,9 @@ from .model import FitModel, Residuals, model_for_scene
 from .quantities import build_quantities, quantity_functions, truth_values
 from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, Note, NoteKind, Reason, Undetermined
 from .selection import PLANNED_NONCENTRALITY, fit_model, left_out_noncentrality
-from .solver import Solution
+from .solver import Solution, solve
 from .spec import FitTerms
-from .uncertainty import choose_errors, delta_se, phase_uncertainty, statistical_covariance
+from .uncertainty import choose_errors, delta_se, phase_uncertainty, shared_pose_prior_root, statistical_covariance
 
 __all__ = ["fit_angles", "linear_response", "TERM_CHOICES"]
 
@@ -150,6 +151,10 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     constraints = constraints or Constraints()
     data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints)
     sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
+    if data.camera_prior is not None and sol.spec.camera_modes and np.any(data.camera_prior == 0.0):
+        # a pose found from these frames: its modes' priors less what the frames hold, the chosen model refitted
+        data = replace(data, camera_prior_root=shared_pose_prior_root(sol.spec, sol.x, data))
+        sol = solve(sol.spec, data, FitModel(sol.spec).values(sol.x), near=True)
     if constraints:
         notes.append(_constraint_note(constraints, sol.spec))
     at_pole = _azimuth_undefined(data, sol.spec)

@@ -136,7 +136,9 @@ class Residuals:
     With exposures the model is the mean over each frame's exposure, by two-point Gauss-Legendre
     (exact for a cubic; for a sinusoid of angular frequency w off by (w T)^4 / 2900, 1e-11 at
     59 rad/s and 300 us).  With camera modes the model adds ``sum_k a_k (theta_cam_k, phi_cam_k)``
-    and each ``a_k`` has a unit Gaussian prior.
+    and the ``a_k`` have the prior residuals ``R a`` with ``R = FitData.camera_prior_root`` (the
+    identity when None: a unit Gaussian prior on each; see
+    :func:`gyrorig.fit.uncertainty.shared_pose_prior_root` for a pose found from the same frames).
     """
 
     def __init__(self, model: FitModel, data: FitData):
@@ -147,6 +149,8 @@ class Residuals:
         self.tau = data.tau
         self.W = whitener(data.cov)
         self.shift = data.camera_shift if m else None
+        root = data.camera_prior_root if m else None
+        self.mode_root = np.eye(m) if root is None else root
         ix = model.index
         c = data.constraints
         self.fixed = {ix[n]: v for n, v in c.fixed if n in ix}
@@ -165,6 +169,12 @@ class Residuals:
     def size(self) -> int:
         """Number of whitened residuals."""
         return 2 * self.data.n + self.modes + len(self.prior_index)
+
+    @property
+    def informative_size(self) -> int:
+        """Residuals the degrees of freedom count: the camera modes' priors as many as the information they
+        hold (``trace(R^T R)``, rounded; ``m`` for unit priors)."""
+        return 2 * self.data.n + int(round(float(np.sum(self.mode_root**2)))) + len(self.prior_index)
 
     @property
     def free(self) -> int:
@@ -208,7 +218,7 @@ class Residuals:
         W = self.W
         parts = [W[:, 0, 0] * r0, W[:, 1, 0] * r0 + W[:, 1, 1] * r1]
         if self.modes:
-            parts.append(p[-self.modes:])  # unit Gaussian prior on each camera mode
+            parts.append(self.mode_root @ p[-self.modes:])  # the camera modes' priors
         if len(self.prior_index):
             parts.append((p[self.prior_index] - self.prior_mean) / self.prior_sd)
         return np.concatenate(parts)
@@ -223,7 +233,7 @@ class Residuals:
         J = -np.concatenate([W[:, 0, 0, None] * jt, W[:, 1, 0, None] * jt + W[:, 1, 1, None] * jp])
         if m:
             prior = np.zeros((m, J.shape[1]))
-            prior[:, -m:] = np.eye(m)
+            prior[:, -m:] = self.mode_root
             J = np.vstack([J, prior])
         if len(self.prior_index):
             prior = np.zeros((len(self.prior_index), J.shape[1]))

@@ -23,6 +23,7 @@ from .result import ErrorKind, Note, NoteKind
 from .spec import ModelSpec
 
 __all__ = ["delta_se", "phase_uncertainty", "lag1_autocorrelation", "block_bootstrap", "statistical_covariance",
+           "shared_pose_prior_root",
            "choose_errors", "RATE_PARAMETERS"]
 
 #: parameters that enter the model as phase or log-amplitude rates: (name, power of tau)
@@ -71,22 +72,34 @@ def lag1_autocorrelation(model: FitModel, data: FitData, x: np.ndarray) -> tuple
 
 def block_bootstrap(spec: ModelSpec, x: np.ndarray, data: FitData, fns: dict, rng: np.random.Generator,
                     replicates: int, block: int) -> dict[str, float]:
-    """Moving-block bootstrap of the residuals (refits start at the solution): the SD of each quantity."""
+    """Moving-block bootstrap of the residuals (refits start at the solution): the SD of each quantity.
+
+    The camera modes are held at their fitted values (taken out of the data, left out of the refits):
+    the bootstrap measures the statistical part, to which the fit adds the camera's share as it does
+    to the formal errors (modes refitted on each replicate would count a free mode's share twice)."""
     from .solver import solve
 
     model = FitModel(spec)
     r0, r1 = Residuals(model, data).raw(x)
-    th_fit, ph_fit = data.theta_rad - r0, data.phi_rad - r1
+    m = spec.camera_modes
+    th_fit, ph_fit = data.theta_rad - r0, data.phi_rad - r1  # the model, camera modes included
+    if m:
+        th_fit = th_fit - np.tensordot(x[-m:], data.camera_shift[:, :, 0], axes=1)
+        ph_fit = ph_fit - np.tensordot(x[-m:], data.camera_shift[:, :, 1], axes=1)
+    spec0 = replace(spec, camera_modes=0)
+    data0 = replace(data, camera_shift=None, camera_prior=None, camera_prior_root=None)
+    start = FitModel(spec0).values(x[:len(x) - m])
     n = data.n
     out = {k: [] for k in fns}
     for _ in range(replicates):
         starts = rng.integers(0, max(n - block, 1), size=int(math.ceil(n / block)))
         idx = np.concatenate([np.arange(s, s + block) for s in starts])[:n]
         idx = np.minimum(idx, n - 1)
-        d = replace(data, theta_rad=th_fit + r0[idx], phi_rad=ph_fit + r1[idx])
-        s = solve(spec, d, model.values(x))
+        d = replace(data0, theta_rad=th_fit + r0[idx], phi_rad=ph_fit + r1[idx])
+        s = solve(spec0, d, start)
+        xs = np.concatenate([s.x, x[len(x) - m:]])
         for k, f in fns.items():
-            out[k].append(f(s.x))
+            out[k].append(f(xs))
     return {k: float(np.std(v, ddof=1)) for k, v in out.items()}
 
 
@@ -105,6 +118,40 @@ def statistical_covariance(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data
     out = np.zeros_like(cov)
     out[:nb, :nb] = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
     return out
+
+
+def shared_pose_prior_root(spec: ModelSpec, x: np.ndarray, data: FitData) -> np.ndarray:
+    """The camera modes' prior rows when some are moves of a pose found from these same frames.
+
+    Such a pose's covariance (unit in each mode) holds information the frames also hold: a unit prior
+    beside the frames would count it twice, and the fit's error bars would shrink (measured: the
+    precession rate's pulls had RMS 1.8).  No prior at all fails where the angles do not fix a move
+    that the pose fit's pixels did (its depth seen from above: the move then runs off to hundreds of
+    sigmas).  The prior kept is the pose's information less what the frames hold on their own: with
+    ``S`` the frames' information on the free modes (the Schur complement of the normal matrix, every
+    other parameter fitted, the held modes' and the user's priors in), the prior precision is
+    ``V diag(max(1 - s, 0)) V^T`` for ``S = V diag(s) V^T``.  The frames and the prior then hold the
+    pose's own information once; a move the frames determine (``s >= 1``) is theirs to fit.
+
+    Returns ``R`` (m x m) for :attr:`FitData.camera_prior_root`: identity rows for the held modes."""
+    m = spec.camera_modes
+    flags = np.ones(m) if data.camera_prior is None else np.asarray(data.camera_prior, float)
+    free = np.flatnonzero(flags == 0.0)
+    root = np.eye(m)
+    if not len(free):
+        return root
+    J = Residuals(FitModel(spec), replace(data, camera_prior_root=None)).jac(x)
+    nb = len(x) - m
+    keep = np.ones(J.shape[0], bool)
+    keep[2 * data.n + free] = False  # the free modes' own unit priors
+    N = J[keep].T @ J[keep]
+    f = nb + free
+    o = np.setdiff1d(np.arange(len(x)), f)
+    S = N[np.ix_(f, f)] - N[np.ix_(f, o)] @ np.linalg.pinv(N[np.ix_(o, o)], rcond=1e-14, hermitian=True) @ N[np.ix_(o, f)]
+    s, V = np.linalg.eigh(0.5 * (S + S.T))
+    w = np.sqrt(np.clip(1.0 - s, 0.0, 1.0))
+    root[np.ix_(free, free)] = (w[:, None] * V.T)
+    return root
 
 
 def choose_errors(spec: ModelSpec, x: np.ndarray, chi2_value: float, dof: int, data: FitData, fns: dict,

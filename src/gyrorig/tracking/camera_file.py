@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -53,6 +54,10 @@ class TrackingCamera:
     #: the points the pose was solved from (``object_points_m`` in the lab, ``image_points_px``): moving the
     #: intrinsics then re-solves the pose from them (None: the pose is held)
     pose_points: dict | None = None
+    #: the fingerprint (:func:`gyrorig.tracking.sources.fingerprint`) of the recording whose tip motion gave the
+    #: pose (``pose_source.video_fingerprint``): tracking that recording marks the pose's modes as found from
+    #: its own frames (None: the pose is outside knowledge)
+    pose_recording: str | None = None
 
     @property
     def has_pose(self) -> bool:
@@ -211,7 +216,19 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
         d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
         float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1,
-        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)), points)
+        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)), points, _pose_recording(path, d))
+
+
+def _pose_recording(path: Path, d: dict) -> str | None:
+    """``pose_source.video_fingerprint`` (a pose found from a recording's own motion), checked."""
+    source = d.get("pose_source")
+    value = source.get("video_fingerprint") if isinstance(source, dict) else None
+    if value is None:
+        return None
+    if not isinstance(value, str) or not re.fullmatch(r"[0-9a-f]{64}", value):
+        raise CameraFileError(f"{path}: pose_source.video_fingerprint must be a 64-digit hex digest (as gyrorig pose "
+                              "writes it)")
+    return value
 
 
 def _pose_points(path: Path, value) -> dict:

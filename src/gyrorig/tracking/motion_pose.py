@@ -45,6 +45,7 @@ from ..protocols import Protocol
 from .camera_file import TrackingCamera
 from .errors import TrackingError
 from .rays import tips_from_pixels
+from .sources import as_source, fingerprint
 
 __all__ = ["MotionPose", "pose_from_motion", "fit_pose_to_track", "MIN_FRAMES"]
 
@@ -70,9 +71,16 @@ class MotionPose:
     slow_terms: bool
     #: sd of the depth scale relative to the pivot's distance (the weakest direction; large: no nutation)
     depth_scale_sd_rel: float
+    #: the recording's fingerprint (:func:`gyrorig.tracking.sources.fingerprint`; None: frames in memory)
+    video_fingerprint: str | None = None
 
     def camera_fields(self, video: str) -> dict:
-        """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose)."""
+        """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose).
+
+        ``pose_source.video_fingerprint`` lets the tracker recognise the recording: its angles then carry the
+        pose's modes as found from their own frames (``cam_k_prior`` 0), which the fit determines from the
+        frames instead of taking the pose's covariance as independent knowledge (it is not: the same tip
+        positions gave it)."""
         sd = np.sqrt(np.diag(self.covariance))
         return {"rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(), "pose_covariance": self.covariance.tolist(),
                 "pose_source": {
@@ -81,6 +89,7 @@ class MotionPose:
                     "depth_scale_sd_rel": self.depth_scale_sd_rel,
                     "nutation_frequency_rad_s": self.nutation_frequency_rad_s,
                     "azimuth_origin": "phi's slow (precession) part is 0 at the first tracked frame",
+                    **({"video_fingerprint": self.video_fingerprint} if self.video_fingerprint else {}),
                     "assumes": "a fixed pivot; the slow motion a precession about the vertical at a steady rate "
                                + ("with tilt and rate drifting linearly (damped scene)" if self.slow_terms
                                   else "and a constant slow tilt (undamped scene)")}}
@@ -216,7 +225,8 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
         raise TrackingError("the pose from the motion assumes a fixed pivot; this protocol accelerates it (the apparent "
                             "vertical tilts with the acceleration): use a board at a known place or lab fiducials")
     tip = tip_marker(protocol)
-    camera = replace(start, pose_covariance=None, pose_points=None)
+    video = as_source(video)
+    camera = replace(start, pose_covariance=None, pose_points=None, pose_recording=None)
     for _ in range(2):  # the second pass tracks with the pose found: frames the rough pose lost come back
         result = track(video, camera, protocol, progress=progress, frame_dots=False)
         m = result.markers
@@ -231,4 +241,4 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
             f"{MAX_DEPTH_SCALE_SD_REL:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or the "
             "nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a known "
             "place or lab fiducials")
-    return pose
+    return replace(pose, video_fingerprint=fingerprint(video))

@@ -30,7 +30,7 @@ from .rays import tips_from_pixels
 from .sources import as_source
 from .spot import fit_spot
 
-__all__ = ["estimate_pose", "camera_modes"]
+__all__ = ["estimate_pose", "camera_modes", "camera_modes_by_source"]
 
 
 def _median_image(source, fps: float, span_s: float, samples: int) -> np.ndarray:
@@ -186,11 +186,19 @@ def camera_modes(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiduci
     (m, n, 2) array: ``[k, i] = (dtheta, dphi)`` of frame ``i`` for mode ``k`` (central
     differences over +-1 sigma along each eigenvector of the covariance). [rad]
     """
+    return camera_modes_by_source(xy_px, cam, radius_m, fiducials, min_effect_rad)[0]
+
+
+def camera_modes_by_source(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiducials: dict | None = None,
+                           min_effect_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`camera_modes`, and which of them are moves of the pose: ``(modes, is_pose)``, ``is_pose`` an
+    (m,) bool array (the intrinsics' modes first, then the pose's)."""
     xy = np.asarray(xy_px, float).reshape(-1, 2)
-    moves = []
+    moves, kinds = [], []
     if cam.intrinsics_covariance is not None:
         for d in _eigen_moves(cam.intrinsics_covariance):
             moves.append([cam.with_intrinsics(cam.intrinsics_parameters, sign * d) for sign in (1.0, -1.0)])
+            kinds.append(False)
     if fiducials is not None and moves:
         obj = np.asarray(fiducials["object_points_m"], float)
         img = np.asarray(fiducials["image_points_px"], float)
@@ -204,12 +212,14 @@ def camera_modes(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiduci
         for d in _eigen_moves(cam.pose_covariance):
             moves.append([replace(cam, rvec=cam.rvec + sign * d[:3], tvec=cam.tvec + sign * d[3:])
                           for sign in (1.0, -1.0)])
-    out = []
-    for plus, minus in moves:
+            kinds.append(True)
+    out, is_pose = [], []
+    for (plus, minus), kind in zip(moves, kinds):
         tp, pp = angles_from_tip(tips_from_pixels(xy, plus, radius_m))
         tm, pm = angles_from_tip(tips_from_pixels(xy, minus, radius_m))
         dv = 0.5 * np.column_stack([tp - tm, wrap_angle(pp - pm)])
         dv = np.where(np.isfinite(dv), dv, 0.0)  # a ray that leaves the sphere under the move: no shift known
         if np.abs(dv).max(initial=0.0) > min_effect_rad:
             out.append(dv)
-    return np.array(out).reshape(len(out), len(xy), 2)
+            is_pose.append(kind)
+    return np.array(out).reshape(len(out), len(xy), 2), np.array(is_pose, bool)

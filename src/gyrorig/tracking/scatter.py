@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN"]
+__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN"]
 
 #: neighbours on each side that predict a frame
 HALF_WINDOW = 3
@@ -98,6 +98,32 @@ def path_residuals(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray, var: np.
     pred = np.einsum("mj,mjk->mk", w, xy[nb])
     pvar = var[idx] + np.einsum("mj,mjk->mk", w * w, var[nb])
     return idx, (xy[idx] - pred) / np.sqrt(pvar)
+
+
+def neighbour_positions(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Each frame's position as its neighbours predict it, its own measurement left out: the degree-5 path
+    of :func:`path_residuals` where a frame has its six neighbours, else the straight line between the
+    nearest frame before and after it (the nearest one at an end of the record).
+
+    Quantities evaluated at these positions carry no part of the frame's own noise: a correction
+    computed at the measured position would be correlated with the measurement it corrects (the
+    camera modes are: their least-squares amplitudes would then be biased).  ``t_s, frames`` (n,) and
+    ``xy`` (n, 2), sorted by time; at least two frames."""
+    n = len(t_s)
+    pred = np.empty_like(xy, dtype=float)
+    for i in range(n):
+        j0, j1 = i - 1, i + 1
+        if j0 < 0:
+            pred[i] = xy[j1]
+        elif j1 >= n:
+            pred[i] = xy[j0]
+        else:
+            u = (t_s[i] - t_s[j0]) / (t_s[j1] - t_s[j0])
+            pred[i] = (1.0 - u) * xy[j0] + u * xy[j1]
+    idx, nb, w = _stencils(t_s, frames, np.ones(n, bool))
+    if len(idx):
+        pred[idx] = np.einsum("mj,mjk->mk", w, xy[nb])
+    return pred
 
 
 def _class_factors(t_s, frames, xy, var, active, labels) -> dict:

@@ -16,6 +16,7 @@ dropped frames leaves gaps in ``t_s``), or else from the camera's rate.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import queue
 import re
@@ -29,7 +30,7 @@ import numpy as np
 
 from .errors import BadInputError, TrackingError
 
-__all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "as_source", "IMAGE_SUFFIXES"]
+__all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "as_source", "fingerprint", "IMAGE_SUFFIXES"]
 
 
 #: container codes (FourCC) of codecs that keep every pixel value: FFV1, raw, Y800/GREY/Y16, HuffYUV, PNG
@@ -75,6 +76,20 @@ class VideoFile:
     def __str__(self) -> str:
         return str(self.path)
 
+    def fingerprint(self) -> str:
+        """The file's size and its first and last MiB, hashed: the same recording wherever it is copied."""
+        h = hashlib.sha256()
+        try:
+            size = self.path.stat().st_size
+            h.update(str(size).encode())
+            with open(self.path, "rb") as f:
+                h.update(f.read(_FINGERPRINT_BYTES))
+                f.seek(max(size - _FINGERPRINT_BYTES, 0))
+                h.update(f.read(_FINGERPRINT_BYTES))
+        except OSError as exc:
+            raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
+        return h.hexdigest()
+
     def open(self) -> Frames:
         cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         if not cap.isOpened():
@@ -108,6 +123,10 @@ class FrameArrays:
 
     def __str__(self) -> str:
         return self.name
+
+    def fingerprint(self) -> None:
+        """Frames in memory have no recording to recognise later."""
+        return None
 
     def open(self) -> Frames:
         h, w = np.shape(self.frames[0])[:2]
@@ -162,6 +181,15 @@ class ImageFolder:
     def __str__(self) -> str:
         return str(self.path)
 
+    def fingerprint(self) -> str:
+        """The images' names and sizes and the frame times, hashed."""
+        h = hashlib.sha256()
+        for f in self.files:
+            h.update(f"{f.name}\0{f.stat().st_size}\0".encode())
+        if self.t_s is not None:
+            h.update(np.asarray(self.t_s, float).tobytes())
+        return h.hexdigest()
+
     def _read(self, k: int) -> np.ndarray:
         image = cv2.imread(str(self.files[k]), cv2.IMREAD_UNCHANGED)
         if image is None:
@@ -184,6 +212,16 @@ class ImageFolder:
                 yield np.ascontiguousarray(image), float(t)
 
         return Frames(int(w), int(h), math.nan, len(self.files), items())
+
+
+#: bytes read from each end of a video file for its fingerprint
+_FINGERPRINT_BYTES = 1 << 20
+
+
+def fingerprint(video) -> str | None:
+    """A digest that recognises a recording again (a copy of it too); None for frames in memory."""
+    source = as_source(video)
+    return source.fingerprint() if hasattr(source, "fingerprint") else None
 
 
 def as_source(video) -> VideoFile | ImageFolder | FrameArrays:

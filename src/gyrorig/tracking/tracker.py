@@ -16,8 +16,9 @@ Per frame (a sensor with gamma is linearised first):
 
 After the loop the per-frame errors are checked against the tip's scatter about its path and
 scaled when needed, outliers removed (:mod:`gyrorig.tracking.scatter`), and the camera model's
-uncertainty is propagated as angle modes (:func:`gyrorig.tracking.pose.camera_modes`).  The
-tables' columns are in :mod:`gyrorig.tables`.
+uncertainty is propagated as angle modes (:func:`gyrorig.tracking.pose.camera_modes`); a pose
+found from this same recording's tip motion (``gyrorig pose --video``) marks its modes as found
+from the frames, not known beside them (``cam_k_prior`` 0).  The tables' columns are in :mod:`gyrorig.tables`.
 """
 
 from __future__ import annotations
@@ -36,16 +37,16 @@ import pandas as pd
 from .. import _io
 from ..markers import Marker, parse_markers
 from ..protocols import Protocol, ProtocolError
-from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count
+from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count, camera_mode_prior_column
 from .camera_file import TrackingCamera
 from .detect import detection_threshold
 from .follow import TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
-from .pose import camera_modes, estimate_pose
+from .pose import camera_modes_by_source, estimate_pose
 from .rays import angles_with_covariance
-from .scatter import SigmaCheck, check_sigmas
-from .sources import as_source
+from .scatter import SigmaCheck, check_sigmas, neighbour_positions
+from .sources import as_source, fingerprint
 from .spot import SpotFit
 
 __all__ = ["TrackResult", "track", "track_video", "tip_marker", "frame_interval_stats"]
@@ -98,9 +99,16 @@ class TrackResult:
         """Number of camera-model modes in the angle table."""
         return camera_mode_count(self.angles.columns)
 
+    @property
+    def camera_modes_from_frames(self) -> int:
+        """How many of them are moves of a pose found from this record's own tip motion (no prior in the fit)."""
+        cols = [camera_mode_prior_column(k + 1) for k in range(self.camera_modes)]
+        return sum(int(c in self.angles and self.angles[c].iloc[0] == 0.0) for c in cols)
+
     def summary(self) -> dict:
         return {"frames": self.frames, "fps": self.camera.fps, "tracked_fraction": self.tracked_fraction, "decode_s": self.decode_s,
                 "track_s": self.track_s, "pose": self.pose, "camera_modes": self.camera_modes,
+                "camera_modes_from_frames": self.camera_modes_from_frames,
                 "camera_sigma_rad": self.camera_sigma_rad, "rvec": self.camera.rvec.tolist(),
                 "tvec": self.camera.tvec.tolist(),
                 "sigma_check": self.sigma_check.as_dict() if self.sigma_check is not None else None,
@@ -273,16 +281,21 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
 
 
 def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera, length_m: float,
-                      pose: dict | None) -> list[float]:
-    """Add the camera-model modes' columns; returns their RMS effect on (theta, phi) [rad] (NaN without)."""
+                      pose: dict | None, pose_from_these_frames: bool) -> list[float]:
+    """Add the camera-model modes' columns (the pose's without a prior when ``pose_from_these_frames``);
+    returns their RMS effect on (theta, phi) [rad] (NaN without)."""
     rows = np.array(sorted(tip_px))
     min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
-    modes = camera_modes(np.array([tip_px[r] for r in rows]), camera, length_m, pose, min_effect)
+    xy = np.array([tip_px[r] for r in rows], float).reshape(-1, 2)
+    if len(rows) > 1:  # the shifts at the neighbours' prediction: free of the frame's own noise
+        xy = neighbour_positions(angles.t_s.to_numpy(float)[rows], angles.frame.to_numpy()[rows], xy)
+    modes, is_pose = camera_modes_by_source(xy, camera, length_m, pose, min_effect)
     for mode in range(len(modes)):
         for j, col in enumerate(camera_mode_columns(mode + 1)):
             v = np.full(len(angles), np.nan)
             v[rows] = modes[mode, :, j]
             angles[col] = v
+        angles[camera_mode_prior_column(mode + 1)] = 0.0 if (is_pose[mode] and pose_from_these_frames) else 1.0
     if len(modes):
         return np.sqrt(np.mean(np.sum(modes**2, axis=0), axis=0)).tolist()
     return [float("nan"), float("nan")]
@@ -379,8 +392,9 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     if not angles.theta_rad.notna().any():
         raise TrackingError(f"{source}: the tip marker was never found in {k} frames")
     check = _check_and_scale(angles, markers, rows, _sensor_doubts(camera, lossy, follower), tip.name)
+    own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
-                                     pose_info or camera.pose_points)
+                                     pose_info or camera.pose_points, own_pose)
     if progress:
         progress(k, k)
     times = frame_interval_stats(np.asarray(raw_times), camera.fps)
