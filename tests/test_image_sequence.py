@@ -132,3 +132,25 @@ def test_container_rounding_is_not_a_variable_rate():
     t = np.round(np.arange(480) / 240.0, 3)
     stats = frame_interval_stats(t, 240.0)
     assert stats["agrees_with_camera"] and stats["jitter_rel"] > 0.05
+
+
+def test_a_recording_is_recognised_by_its_fingerprint_wherever_it_is_copied(tmp_path):
+    """``sources.fingerprint``: the same for a copy (file or image folder), different for another recording, None
+    for frames in memory (what lets the tracker know that a motion-found pose came from the record it tracks)."""
+    from gyrorig.tracking.sources import FrameArrays, fingerprint
+
+    rng = np.random.default_rng(0)
+    (tmp_path / "a.bin").write_bytes(rng.integers(0, 256, 3_000_000, dtype=np.uint8).tobytes())
+    (tmp_path / "b.bin").write_bytes((tmp_path / "a.bin").read_bytes())
+    (tmp_path / "c.bin").write_bytes((tmp_path / "a.bin").read_bytes()[:-1] + b"x")  # differs only at the end
+    assert fingerprint(tmp_path / "a.bin") == fingerprint(tmp_path / "b.bin") != fingerprint(tmp_path / "c.bin")
+    for name in ("f", "g"):
+        (tmp_path / name).mkdir()
+    for k in range(3):
+        image = rng.integers(0, 4096, (20, 30), dtype=np.uint16)
+        for name in ("f", "g"):
+            cv2.imwrite(str(tmp_path / name / f"frame{k}.png"), image)
+    assert fingerprint(tmp_path / "f") == fingerprint(tmp_path / "g")
+    (tmp_path / "g" / "frame2.png").unlink()
+    assert fingerprint(tmp_path / "f") != fingerprint(tmp_path / "g")
+    assert fingerprint(FrameArrays([np.zeros((4, 4), np.uint8)])) is None

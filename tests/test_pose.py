@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrorig.board_pose import BoardPlacement, pose_from_board, same_rotation_near
+from gyrorig.board_pose import BoardPlacement, pose_from_board
+from gyrorig.geometry import same_rotation_near
 from gyrorig.calibration import CalibrationInputError
 from gyrorig.camera import camera_setup, with_image_size
 from gyrorig.cli import main
@@ -26,6 +27,8 @@ from gyrorig.render import render_video
 from gyrorig.render.board import render_pose_board
 from gyrorig.tables import camera_mode_columns
 from gyrorig.tracking import load_camera, track
+from gyrorig.tracking import TrackingError
+from gyrorig.tracking.motion_pose import AzimuthMark, MotionPose, fix_azimuth
 
 from conftest import PROTOCOL_DIR
 
@@ -243,12 +246,51 @@ def test_footage_without_fiducials_is_measured_with_the_pose_from_the_motion(tmp
     other = track(tmp_path / "other" / "video.mkv", load_camera(tmp_path / "posed.json"), load_protocol(proto),
                   frame_dots=False)
     assert other.camera_modes == 6 and other.camera_modes_from_frames == 0
+    _check_azimuth_mark(tmp_path, proto)
     # a copy of the recording is the same recording
     (tmp_path / "copy").mkdir()
     (tmp_path / "copy" / "renamed.mkv").write_bytes((tmp_path / "v" / "video.mkv").read_bytes())
     again = track(tmp_path / "copy" / "renamed.mkv", load_camera(tmp_path / "posed.json"), load_protocol(proto),
                   frame_dots=False)
     assert again.camera_modes_from_frames == 6
+
+
+def _check_azimuth_mark(tmp_path, proto) -> None:
+    """A lab mark fixes the motion pose's azimuth origin: the whole rotation then agrees with the renderer's
+    within 4 sd in each coordinate; a mark stated 5 degrees off in azimuth turns it away by far more."""
+    true_cam = json.loads((tmp_path / "v" / "camera.json").read_text())
+    mark_m = np.array([0.12, 0.05, -0.06])
+    px = cv2.projectPoints(mark_m[None], np.array(true_cam["rvec"]), np.array(true_cam["tvec"]),
+                           np.array(true_cam["camera_matrix"]), np.array(true_cam["dist_coeffs"]))[0].ravel()
+    assert main(["pose", "--camera", str(tmp_path / "nopose.json"), "--video", str(tmp_path / "v" / "video.mkv"),
+                 "--protocol", str(tmp_path / "protocol_1.toml"), "--azimuth-mark-px", f"{px[0]:.4f},{px[1]:.4f}",
+                 "--mark-position-mm", "120,50,-60", "--mark-sd-px", "0.5", "--out", str(tmp_path / "marked.json")]) == 0
+    marked = json.loads((tmp_path / "marked.json").read_text())
+    assert "mark" in marked["pose_source"]["azimuth_origin"]
+    rv_true = np.array(true_cam["rvec"])
+
+    def rotation_pulls(rvec, cov):
+        d = same_rotation_near(np.asarray(rvec, float), rv_true) - rv_true
+        return np.abs(d) / np.sqrt(np.diag(np.asarray(cov))[:3])
+
+    assert np.all(rotation_pulls(marked["rvec"], marked["pose_covariance"]) < 4)
+    r = marked["pose_source"]["azimuth_mark"]["distance_from_vertical_m"]
+    assert abs(r["as_posed"] - r["stated"]) < 0.003  # the pose puts the mark where it is (3 mm: 1 px at its distance)
+    # the check can fail: the same pose, the mark stated 5 degrees further round
+    cam = load_camera(tmp_path / "nopose.json", require_pose=False)
+    found = MotionPose(np.array(marked["rvec"]), np.array(marked["tvec"]), np.array(marked["pose_covariance"]),
+                       1.0, 300, 59.0, False, 0.001)
+    turned = np.radians(5.0)
+    wrong = mark_m.copy()
+    wrong[:2] = [mark_m[0] * math.cos(turned) - mark_m[1] * math.sin(turned),
+                 mark_m[0] * math.sin(turned) + mark_m[1] * math.cos(turned)]
+    off = fix_azimuth(found, cam, AzimuthMark(tuple(px), tuple(wrong), 0.5, 0.001))
+    assert abs(off.azimuth_mark["turn_rad"] - turned) < 1e-3
+    assert np.max(rotation_pulls(off.rvec, off.covariance)) > 10
+    # a mark on the vertical has no azimuth; one stated above the camera is never met by its ray
+    for position in ((0.0, 0.0, -0.06), (0.12, 0.05, 2.0)):
+        with pytest.raises(TrackingError):
+            fix_azimuth(found, cam, AzimuthMark(tuple(px), position))
 
 
 @pytest.mark.slow
@@ -281,3 +323,12 @@ def test_a_camera_looking_down_the_vertical_is_refused_the_pose_from_the_motion(
     assert not (tmp_path / "posed.json").exists()
     # neither a board nor a video: bad input
     assert main(["pose", "--camera", str(tmp_path / "nopose.json"), "--out", str(tmp_path / "x.json")]) == 2
+    # a mark's pixel without its lab position, or a mark for a board's pose: bad input, found before any tracking
+    video = ["--video", str(tmp_path / "v" / "video.mkv"), "--protocol", str(rough)]
+    assert main(["pose", "--camera", str(tmp_path / "nopose.json"), *video, "--azimuth-mark-px", "300,200",
+                 "--out", str(tmp_path / "x.json")]) == 2
+    assert main(["pose", "--camera", str(tmp_path / "nopose.json"), "--board-image", str(tmp_path / "b.png"),
+                 "--azimuth-mark-px", "300,200", "--mark-position-mm", "100,0,-60", "--out", str(tmp_path / "x.json")]) == 2
+    assert main(["pose", "--camera", str(tmp_path / "nopose.json"), *video, "--azimuth-mark-px", "300",
+                 "--mark-position-mm", "-100,0,-60", "--out", str(tmp_path / "x.json")]) == 2
+    assert not (tmp_path / "x.json").exists()

@@ -29,10 +29,10 @@ import cv2
 import numpy as np
 
 from .calibration import CalibrationInputError, find_board_corners, read_gray
-from .geometry import board_lab_rotation
+from .geometry import board_lab_rotation, same_rotation_near
 from .tracking.pose import pose_covariance_from_points
 
-__all__ = ["BoardPlacement", "BoardPose", "pose_from_board", "check_board_asymmetric", "same_rotation_near"]
+__all__ = ["BoardPlacement", "BoardPose", "pose_from_board", "check_board_asymmetric"]
 
 #: the corners' reprojection RMS above which the board image is refused (a wrong board size or square, a
 #: bent board, or intrinsics that do not belong to this camera)
@@ -184,16 +184,6 @@ def _solve(obj: np.ndarray, img: np.ndarray, k: np.ndarray, dist: np.ndarray, gu
     if guess is not None:
         rv = same_rotation_near(rv, guess[0])
     return rv, tv.ravel()
-
-
-def same_rotation_near(rvec: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """The rotation vector of ``rvec``'s rotation closest to ``ref`` (a rotation by angle a about u is also one
-    by a - 2 pi about u: near a half turn, e.g. a camera looking straight down, solvers return either)."""
-    a = float(np.linalg.norm(rvec))
-    if a == 0.0:
-        return rvec
-    other = rvec * (1.0 - 2.0 * math.pi / a)
-    return other if np.linalg.norm(other - ref) < np.linalg.norm(rvec - ref) else rvec
 
 
 def _placement_covariance(obj_board, img, placement: BoardPlacement, k, dist, rvec, tvec) -> np.ndarray:

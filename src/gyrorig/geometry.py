@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["tip_from_angles", "angles_from_tip", "wrap_angle", "axis_rotation", "ray_sphere_distances",
-           "board_lab_rotation"]
+           "board_lab_rotation", "same_rotation_near"]
 
 
 def tip_from_angles(theta_rad: ArrayLike, phi_rad: ArrayLike) -> NDArray[np.float64]:
@@ -84,3 +84,13 @@ def board_lab_rotation(yaw_rad: float) -> np.ndarray:
     printed side) pointing down, its y axis = z x x."""
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
     return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
+
+
+def same_rotation_near(rvec: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """The rotation vector of ``rvec``'s rotation closest to ``ref`` (a rotation by angle a about u is also one
+    by a - 2 pi about u: near a half turn, e.g. a camera looking straight down, solvers return either)."""
+    a = float(np.linalg.norm(rvec))
+    if a == 0.0:
+        return rvec
+    other = rvec * (1.0 - 2.0 * math.pi / a)
+    return other if np.linalg.norm(other - ref) < np.linalg.norm(rvec - ref) else rvec

@@ -113,12 +113,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 #: options whose value is a comma-separated list of numbers (argparse takes "-80,50,-50" for an option)
-_NUMBER_LIST_OPTIONS = ("--board-origin-mm",)
+_NUMBER_LIST_OPTIONS = ("--board-origin-mm", "--azimuth-mark-px", "--mark-position-mm")
 _NUMBER_LIST = re.compile(r"^-[0-9.]+(,[-+0-9.eE]+)*$")
 
 
 def _join_number_lists(argv: list[str]) -> list[str]:
-    """``--board-origin-mm -80,50,-50`` as ``--board-origin-mm=-80,50,-50``."""
+    """``--board-origin-mm -80,50,-50`` as ``--board-origin-mm=-80,50,-50`` (and the other number lists)."""
     out: list[str] = []
     for token in argv:
         if out and out[-1] in _NUMBER_LIST_OPTIONS and _NUMBER_LIST.match(token):

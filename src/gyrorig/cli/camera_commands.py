@@ -30,20 +30,44 @@ def _board_size(args: argparse.Namespace) -> tuple[int, int, float]:
     return cols, rows, args.square_mm / 1000.0
 
 
+def _numbers(option: str, text: str, axes: str, example: str, limit: float) -> list[float]:
+    """A comma-separated list of ``len(axes)`` numbers, each within +-limit, or ValueError naming the option."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != len(axes):
+        raise ValueError(f"{option} {text!r}: expected {','.join(axes)}, e.g. {example}")
+    for axis, v in zip(axes, values):
+        number("", f"{option} {axis}", v, lo=-limit, hi=limit)
+    return values
+
+
+def _azimuth_mark(args: argparse.Namespace):
+    """--azimuth-mark-px with --mark-position-mm, checked (None without either)."""
+    from ..tracking.motion_pose import AzimuthMark
+
+    if args.azimuth_mark_px is None and args.mark_position_mm is None:
+        return None
+    if args.azimuth_mark_px is None or args.mark_position_mm is None:
+        raise ValueError("--azimuth-mark-px and --mark-position-mm go together: the mark's pixel and its lab position")
+    if args.video is None:
+        raise ValueError("--azimuth-mark-px fixes the azimuth origin of a pose from the motion (--video); a board's "
+                         "pose has its own")
+    px = _numbers("--azimuth-mark-px", args.azimuth_mark_px, "XY", "812.5,402", 1e5)
+    pos = _numbers("--mark-position-mm", args.mark_position_mm, "XYZ", "150,0,-60", 1e5)
+    number("", "--mark-sd-px", args.mark_sd_px, lo=0.0, hi=1e3)
+    number("", "--mark-position-sd-mm", args.mark_position_sd_mm, lo=0.0, hi=1e3)
+    return AzimuthMark(tuple(px), tuple(v / 1000.0 for v in pos), args.mark_sd_px, args.mark_position_sd_mm / 1000.0)
+
+
 def _board_placement(args: argparse.Namespace):
     """--board-origin-mm and the placement's uncertainties, checked (None without --board-origin-mm)."""
     from ..board_pose import BoardPlacement
 
     if args.board_origin_mm is None:
         return None
-    try:
-        origin = [float(v) for v in args.board_origin_mm.split(",")]
-    except ValueError:
-        origin = []
-    if len(origin) != 3:
-        raise ValueError(f"--board-origin-mm {args.board_origin_mm!r}: expected X,Y,Z in mm, e.g. -80,50,-50")
-    for axis, v in zip("XYZ", origin):
-        number("", f"--board-origin-mm {axis}", v, lo=-1e5, hi=1e5)
+    origin = _numbers("--board-origin-mm", args.board_origin_mm, "XYZ", "-80,50,-50", 1e5)
     number("", "--board-yaw-deg", args.board_yaw_deg, lo=-360.0, hi=360.0)
     number("", "--origin-sd-mm", args.origin_sd_mm, lo=0.0, hi=1e3)
     number("", "--yaw-sd-deg", args.yaw_sd_deg, lo=0.0, hi=90.0)
@@ -110,11 +134,12 @@ def _cmd_pose(args: argparse.Namespace) -> int:
 
     if (args.board_image is None) == (args.video is None):
         raise ValueError("give one of --board-image (a board lying at a known place) and --video (the rig's motion)")
+    mark = _azimuth_mark(args)  # checked before any work
     cam = load_camera(args.camera, require_pose=False)
     out = json.loads(Path(args.camera).read_text(encoding="utf-8"))
     out = {k: v for k, v in out.items() if k not in ("pose_points", "pose_source", "pose_covariance")}
     if args.video is not None:
-        out.update(_pose_from_motion(args, cam))
+        out.update(_pose_from_motion(args, cam, mark))
     else:
         from ..board_pose import pose_from_board
 
@@ -132,13 +157,13 @@ def _cmd_pose(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _pose_from_motion(args: argparse.Namespace, cam) -> dict:
+def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
     """``gyrorig pose --video``: the rough pose from the protocol's camera placement, then the fit."""
     from dataclasses import replace
 
     from ..camera import camera_setup
     from ..protocols import load_protocol
-    from ..tracking.motion_pose import pose_from_motion
+    from ..tracking.motion_pose import fix_azimuth, pose_from_motion
     from .printing import progress_printer
 
     if args.protocol is None:
@@ -151,9 +176,16 @@ def _pose_from_motion(args: argparse.Namespace, cam) -> dict:
     rough = camera_setup(protocol).camera
     pose = pose_from_motion(args.video, replace(cam, rvec=rough.rvec, tvec=rough.tvec), protocol,
                                progress=progress_printer("pose"))
+    if mark is not None:
+        pose = fix_azimuth(pose, cam, mark)
     sd = np.sqrt(np.diag(pose.covariance))
     print(f"pose from the tip's motion in {args.video}: {pose.frames} frames, chi2_red {pose.chi2_red:.3g}, nutation "
           f"{pose.nutation_frequency_rad_s:.5g} rad/s; rotation sd {np.degrees(np.linalg.norm(sd[:3])):.3g} deg, "
           f"position sd {np.linalg.norm(sd[3:]) * 1e3:.3g} mm, depth scale sd {pose.depth_scale_sd_rel:.2%}")
-    print("azimuth origin: phi's slow (precession) part is 0 at the first tracked frame")
-    return pose.camera_fields(str(args.video))
+    fields = pose.camera_fields(str(args.video))
+    print(f"azimuth origin: {fields['pose_source']['azimuth_origin']}")
+    if pose.azimuth_mark is not None:
+        r = pose.azimuth_mark["distance_from_vertical_m"]
+        print(f"  turned by {np.degrees(pose.azimuth_mark['turn_rad']):.3f} deg; the mark lies "
+              f"{r['as_posed'] * 1e3:.2f} mm from the vertical as posed, {r['stated'] * 1e3:.2f} mm as stated")
+    return fields

@@ -190,6 +190,15 @@ def build_parser() -> argparse.ArgumentParser:
     po.add_argument("--protocol", default=None,
                     help="with --video: the protocol (the tip marker; its [camera] placement is the rough start)")
     add_board_placement_options(po)
+    m = po.add_argument_group("azimuth origin of a pose from the motion (default: phi's slow part 0 at the first frame)")
+    m.add_argument("--azimuth-mark-px", default=None, metavar="X,Y",
+                   help="with --video: a lab mark's position in the video's image [px]; the pose is turned about "
+                        "the vertical so that the mark lies at the azimuth of --mark-position-mm")
+    m.add_argument("--mark-position-mm", default=None, metavar="X,Y,Z",
+                   help="the mark's position relative to the pivot (z up) [mm], e.g. a dot on the table")
+    m.add_argument("--mark-sd-px", type=float, default=1.0, help="uncertainty of each mark pixel coordinate (default 1)")
+    m.add_argument("--mark-position-sd-mm", type=float, default=1.0,
+                   help="uncertainty of each mark position coordinate [mm] (default 1)")
     po.add_argument("--out", required=True, help="camera.json to write (the input's keys, with the pose)")
     po.set_defaults(func="_cmd_pose", out_is_file=True)
 

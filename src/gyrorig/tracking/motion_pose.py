@@ -40,14 +40,14 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import lombscargle
 
-from ..geometry import angles_from_tip
+from ..geometry import angles_from_tip, same_rotation_near
 from ..protocols import Protocol
 from .camera_file import TrackingCamera
 from .errors import TrackingError
 from .rays import tips_from_pixels
 from .sources import as_source, fingerprint
 
-__all__ = ["MotionPose", "pose_from_motion", "fit_pose_to_track", "MIN_FRAMES"]
+__all__ = ["MotionPose", "AzimuthMark", "pose_from_motion", "fit_pose_to_track", "fix_azimuth", "MIN_FRAMES"]
 
 #: tracked frames needed (the joint fit has about 25 parameters)
 MIN_FRAMES = 100
@@ -73,6 +73,8 @@ class MotionPose:
     depth_scale_sd_rel: float
     #: the recording's fingerprint (:func:`gyrorig.tracking.sources.fingerprint`; None: frames in memory)
     video_fingerprint: str | None = None
+    #: how the azimuth origin was fixed by a lab mark (:func:`fix_azimuth`); None: phi's slow part 0 at the first frame
+    azimuth_mark: dict | None = None
 
     def camera_fields(self, video: str) -> dict:
         """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose).
@@ -88,7 +90,9 @@ class MotionPose:
                     "sigma_rvec_rad": sd[:3].tolist(), "sigma_tvec_m": sd[3:].tolist(),
                     "depth_scale_sd_rel": self.depth_scale_sd_rel,
                     "nutation_frequency_rad_s": self.nutation_frequency_rad_s,
-                    "azimuth_origin": "phi's slow (precession) part is 0 at the first tracked frame",
+                    "azimuth_origin": (self.azimuth_mark["origin"] if self.azimuth_mark else
+                                       "phi's slow (precession) part is 0 at the first tracked frame"),
+                    **({"azimuth_mark": self.azimuth_mark} if self.azimuth_mark else {}),
                     **({"video_fingerprint": self.video_fingerprint} if self.video_fingerprint else {}),
                     "assumes": "a fixed pivot; the slow motion a precession about the vertical at a steady rate "
                                + ("with tilt and rate drifting linearly (damped scene)" if self.slow_terms
@@ -242,3 +246,78 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
             "nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a known "
             "place or lab fiducials")
     return replace(pose, video_fingerprint=fingerprint(video))
+
+
+@dataclass(frozen=True)
+class AzimuthMark:
+    """A mark at a known place in the lab, seen in the image: it fixes the azimuth origin of a motion-found pose."""
+
+    #: where the mark is in the image [px]
+    pixel_px: tuple[float, float]
+    #: where it is in the lab, relative to the pivot (x, y, z) [m]; its horizontal direction sets the azimuth
+    position_m: tuple[float, float, float]
+    pixel_sd_px: float = 1.0
+    position_sd_m: float = 0.001
+
+
+def _mark_point(rvec, tvec, cam: TrackingCamera, mark_px, height_m: float) -> np.ndarray:
+    """Where the ray through ``mark_px`` meets the horizontal plane ``z = height_m`` (lab, pivot at 0)."""
+    R = cv2.Rodrigues(np.asarray(rvec, float))[0]
+    n = cv2.undistortPoints(np.asarray(mark_px, float).reshape(1, 1, 2), cam.camera_matrix, cam.dist_coeffs).ravel()
+    d = R.T @ np.array([n[0], n[1], 1.0])
+    c = -R.T @ np.asarray(tvec, float)
+    if abs(d[2]) < 1e-9 or (height_m - c[2]) / d[2] <= 0:
+        return np.full(3, np.nan)
+    return c + (height_m - c[2]) / d[2] * d
+
+
+def _turned(p6: np.ndarray, m5: np.ndarray, cam: TrackingCamera) -> np.ndarray:
+    """The pose ``p6`` turned about the vertical so that the mark (pixel ``m5[:2]``, lab position ``m5[2:]``)
+    lies at its stated azimuth; NaN when its ray does not reach the mark's height."""
+    x = _mark_point(p6[:3], p6[3:], cam, m5[:2], m5[4])
+    turn = math.atan2(m5[3], m5[2]) - math.atan2(x[1], x[0])
+    rot = cv2.Rodrigues(p6[:3])[0] @ _rot_z(turn).T
+    return np.concatenate([same_rotation_near(cv2.Rodrigues(rot)[0].ravel(), p6[:3]), p6[3:]])
+
+
+def fix_azimuth(pose: MotionPose, camera: TrackingCamera, mark: AzimuthMark) -> MotionPose:
+    """The pose turned about the vertical so that a lab mark lies at its stated azimuth (the pivot stays).
+
+    The mark's ray is met with the horizontal plane at the mark's stated height; the azimuth of that
+    point is set to the stated one.  The covariance takes the pose's (its own azimuth origin, "phi 0
+    at the first frame", drops out) and the mark's pixel and position errors through central
+    differences.  The mark's distance from the vertical as the pose places it, against the stated
+    one, is reported in ``azimuth_mark`` (a check of the pose).  Raises :class:`TrackingError` for a mark
+    on the vertical (no azimuth) or one whose ray does not reach its height."""
+    pos = np.asarray(mark.position_m, float)
+    r_stated = float(math.hypot(pos[0], pos[1]))
+    if r_stated < 10 * mark.position_sd_m:
+        raise TrackingError(f"the azimuth mark lies {r_stated * 1e3:.3g} mm from the vertical through the pivot, "
+                            f"within 10 of its position sd ({mark.position_sd_m * 1e3:.3g} mm): it has no azimuth; "
+                            "use a mark farther out")
+    p6 = np.concatenate([pose.rvec, pose.tvec])
+    m5 = np.concatenate([np.asarray(mark.pixel_px, float), pos])
+    x = _mark_point(pose.rvec, pose.tvec, camera, m5[:2], pos[2])
+    if not np.all(np.isfinite(x)):
+        raise TrackingError(f"the ray through the azimuth mark at {tuple(mark.pixel_px)} px does not reach the mark's "
+                            f"height z = {pos[2] * 1e3:.4g} mm in this pose: check the pixel and --mark-position-mm")
+    turned = _turned(p6, m5, camera)
+    jp, jm = np.zeros((6, 6)), np.zeros((6, 5))
+    for j, h in enumerate([1e-6] * 6):
+        e = np.zeros(6)
+        e[j] = h
+        jp[:, j] = (_turned(p6 + e, m5, camera) - _turned(p6 - e, m5, camera)) / (2 * h)
+    for j, h in enumerate([1e-3, 1e-3, 1e-6, 1e-6, 1e-6]):
+        e = np.zeros(5)
+        e[j] = h
+        jm[:, j] = (_turned(p6, m5 + e, camera) - _turned(p6, m5 - e, camera)) / (2 * h)
+    sd_m = np.array([mark.pixel_sd_px] * 2 + [mark.position_sd_m] * 3)
+    cov = jp @ pose.covariance @ jp.T + (jm * sd_m**2) @ jm.T
+    turn = float(math.atan2(pos[1], pos[0]) - math.atan2(x[1], x[0]))
+    info = {"origin": f"the lab mark at {tuple(round(float(v) * 1e3, 3) for v in pos)} mm (pixel "
+                      f"{tuple(round(float(v), 2) for v in mark.pixel_px)}) lies at its stated azimuth",
+            "pixel_px": [float(v) for v in mark.pixel_px], "position_m": pos.tolist(),
+            "pixel_sd_px": mark.pixel_sd_px, "position_sd_m": mark.position_sd_m,
+            "turn_rad": math.remainder(turn, 2 * math.pi),
+            "distance_from_vertical_m": {"stated": r_stated, "as_posed": float(math.hypot(x[0], x[1]))}}
+    return replace(pose, rvec=turned[:3], tvec=turned[3:], covariance=0.5 * (cov + cov.T), azimuth_mark=info)
