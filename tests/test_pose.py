@@ -296,8 +296,7 @@ def _check_azimuth_mark(tmp_path, proto) -> None:
 @pytest.mark.slow
 def test_the_motion_pose_error_bars_hold_over_seeds(tmp_path, capsys):
     """Seeds 5-13 through pose-from-motion and analyze: each record passes the checks above, and the pulls of
-    the precession rate, nutation frequency and amplitude have an RMS within 1 +- 3 / sqrt(2 N) (N = 9).
-    Measured: seeds 5-13 RMS 1.32, 1.14, 1.21; seeds 5-34 (30 records) 1.20, 0.99, 1.13."""
+    the precession rate, nutation frequency and amplitude have an RMS within 1 +- 3 / sqrt(2 N) (N = 9)."""
     pulls = []
     for seed in range(5, 14):
         folder = tmp_path / f"s{seed}"

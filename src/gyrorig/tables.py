@@ -10,7 +10,7 @@ phi_cam_k_rad`` for each camera-model mode ``k = 1, 2, ...`` (each frame's angle
 one-sigma move of that mode) with ``cam_k_prior`` (the same in every row: 1 when the mode's sigma is
 knowledge from outside the record, a calibration or a pose from fiducials or a board, which the fit
 takes as a unit Gaussian prior; 0 when the pose was found from this record's own tip motion, so
-that the fit determines the mode from the frames; a table without the column: 1).
+that the fit keeps only the part of that prior the frames do not hold; a table without the column: 1).
 
 **Marker table** (``markers.csv``): one row per detected marker and frame, :data:`MARKER_COLUMNS`.
 
@@ -49,7 +49,8 @@ def camera_mode_columns(k: int) -> tuple[str, str]:
 
 
 def camera_mode_prior_column(k: int) -> str:
-    """The column saying whether camera-model mode ``k`` (1-based) has a prior (1) or is found from the frames (0)."""
+    """The column saying whether camera-model mode ``k`` (1-based) is knowledge from outside the record (1) or a
+    move of a pose found from the record's own frames (0)."""
     return f"cam_{k}_prior"
 
 

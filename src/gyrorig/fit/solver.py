@@ -79,7 +79,7 @@ def solve(spec: ModelSpec, data: FitData, start: dict[str, float], *, near: bool
     model = FitModel(spec)
     white = Residuals(model, data)
     x0 = white.start(model.vector(start))
-    n_res = white.informative_size  # the priors add a residual per camera mode (but a free one) and per prior
+    n_res = white.informative_size  # the frames, the camera modes' priors (as much as they hold) and the user's
     n_free = white.free
     if n_res <= n_free:
         raise FitError(f"{data.n} frames are too few for a model with {n_free} free parameters")

@@ -124,10 +124,9 @@ def shared_pose_prior_root(spec: ModelSpec, x: np.ndarray, data: FitData) -> np.
     """The camera modes' prior rows when some are moves of a pose found from these same frames.
 
     Such a pose's covariance (unit in each mode) holds information the frames also hold: a unit prior
-    beside the frames would count it twice, and the fit's error bars would shrink (measured: the
-    precession rate's pulls had RMS 1.8).  No prior at all fails where the angles do not fix a move
-    that the pose fit's pixels did (its depth seen from above: the move then runs off to hundreds of
-    sigmas).  The prior kept is the pose's information less what the frames hold on their own: with
+    beside the frames would count it twice and shrink the fit's error bars.  No prior at all fails
+    where the angles do not fix a move that the pose fit's pixels did (the depth of a camera above
+    the pivot): the move is then free to run off.  The prior kept is the pose's information less what the frames hold on their own: with
     ``S`` the frames' information on the free modes (the Schur complement of the normal matrix, every
     other parameter fitted, the held modes' and the user's priors in), the prior precision is
     ``V diag(max(1 - s, 0)) V^T`` for ``S = V diag(s) V^T``.  The frames and the prior then hold the
@@ -150,7 +149,7 @@ def shared_pose_prior_root(spec: ModelSpec, x: np.ndarray, data: FitData) -> np.
     S = N[np.ix_(f, f)] - N[np.ix_(f, o)] @ np.linalg.pinv(N[np.ix_(o, o)], rcond=1e-14, hermitian=True) @ N[np.ix_(o, f)]
     s, V = np.linalg.eigh(0.5 * (S + S.T))
     w = np.sqrt(np.clip(1.0 - s, 0.0, 1.0))
-    root[np.ix_(free, free)] = (w[:, None] * V.T)
+    root[np.ix_(free, free)] = w[:, None] * V.T
     return root
 
 

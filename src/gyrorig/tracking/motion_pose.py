@@ -44,7 +44,7 @@ from ..geometry import angles_from_tip, same_rotation_near
 from ..protocols import Protocol
 from .camera_file import TrackingCamera
 from .errors import TrackingError
-from .rays import tips_from_pixels
+from .rays import pixel_rays, tips_from_pixels
 from .sources import as_source, fingerprint
 
 __all__ = ["MotionPose", "AzimuthMark", "pose_from_motion", "fit_pose_to_track", "fix_azimuth", "MIN_FRAMES"]
@@ -79,10 +79,10 @@ class MotionPose:
     def camera_fields(self, video: str) -> dict:
         """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose).
 
-        ``pose_source.video_fingerprint`` lets the tracker recognise the recording: its angles then carry the
-        pose's modes as found from their own frames (``cam_k_prior`` 0), which the fit determines from the
-        frames instead of taking the pose's covariance as independent knowledge (it is not: the same tip
-        positions gave it)."""
+        ``pose_source.video_fingerprint`` lets the tracker recognise the recording: its angles then mark the
+        pose's modes as found from their own frames (``cam_k_prior`` 0), and the fit keeps of the pose's
+        covariance only what the frames do not hold themselves (the same tip positions gave it; see
+        :func:`gyrorig.fit.uncertainty.shared_pose_prior_root`)."""
         sd = np.sqrt(np.diag(self.covariance))
         return {"rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(), "pose_covariance": self.covariance.tolist(),
                 "pose_source": {
@@ -261,11 +261,11 @@ class AzimuthMark:
 
 
 def _mark_point(rvec, tvec, cam: TrackingCamera, mark_px, height_m: float) -> np.ndarray:
-    """Where the ray through ``mark_px`` meets the horizontal plane ``z = height_m`` (lab, pivot at 0)."""
-    R = cv2.Rodrigues(np.asarray(rvec, float))[0]
-    n = cv2.undistortPoints(np.asarray(mark_px, float).reshape(1, 1, 2), cam.camera_matrix, cam.dist_coeffs).ravel()
-    d = R.T @ np.array([n[0], n[1], 1.0])
-    c = -R.T @ np.asarray(tvec, float)
+    """Where the ray through ``mark_px`` meets the horizontal plane ``z = height_m`` (lab, pivot at 0); NaN where
+    it does not (a ray parallel to the plane, or the plane behind the camera)."""
+    posed = replace(cam, rvec=np.asarray(rvec, float), tvec=np.asarray(tvec, float))
+    d = pixel_rays(np.asarray(mark_px, float), posed)[0]
+    c = posed.centre_m
     if abs(d[2]) < 1e-9 or (height_m - c[2]) / d[2] <= 0:
         return np.full(3, np.nan)
     return c + (height_m - c[2]) / d[2] * d

@@ -109,18 +109,12 @@ def neighbour_positions(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray) -> 
     computed at the measured position would be correlated with the measurement it corrects (the
     camera modes are: their least-squares amplitudes would then be biased).  ``t_s, frames`` (n,) and
     ``xy`` (n, 2), sorted by time; at least two frames."""
-    n = len(t_s)
-    pred = np.empty_like(xy, dtype=float)
-    for i in range(n):
-        j0, j1 = i - 1, i + 1
-        if j0 < 0:
-            pred[i] = xy[j1]
-        elif j1 >= n:
-            pred[i] = xy[j0]
-        else:
-            u = (t_s[i] - t_s[j0]) / (t_s[j1] - t_s[j0])
-            pred[i] = (1.0 - u) * xy[j0] + u * xy[j1]
-    idx, nb, w = _stencils(t_s, frames, np.ones(n, bool))
+    xy = np.asarray(xy, float)
+    pred = np.empty_like(xy)
+    pred[0], pred[-1] = xy[1], xy[-2]
+    u = ((t_s[1:-1] - t_s[:-2]) / (t_s[2:] - t_s[:-2]))[:, None]
+    pred[1:-1] = (1.0 - u) * xy[:-2] + u * xy[2:]
+    idx, nb, w = _stencils(t_s, frames, np.ones(len(t_s), bool))
     if len(idx):
         pred[idx] = np.einsum("mj,mjk->mk", w, xy[nb])
     return pred
