@@ -55,7 +55,14 @@ def _with(section, key, value):
     return data
 
 
-_DELETE = object()
+class _Delete:
+    """The key is removed (a stable repr keeps parametrize ids equal across pytest-xdist workers)."""
+
+    def __repr__(self) -> str:
+        return "<deleted>"
+
+
+_DELETE = _Delete()
 
 BAD = [
     # (section, key, value, words the message must contain)

@@ -1,36 +1,96 @@
-"""Detection: bright blobs in a window, as start points for the spot fits."""
+"""Detection: spots brighter than their surroundings, as start points for the spot fits.
+
+A real frame is bright, textured and unevenly lit, so a spot is judged by its **local contrast**, not
+by its level: the image minus its grey-scale opening by a square larger than any marker (the opening
+removes every bright structure that the square cannot fit inside, and keeps the background's slow
+variations, edges and all).  The threshold is a number of robust standard deviations (1.4826 x the
+median absolute deviation) of that contrast over the frame, so a textured background raises it only as
+far as its texture reaches, and it never depends on the frame's brightness.
+"""
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
-__all__ = ["find_blobs", "detection_threshold"]
+__all__ = ["Detection", "Blob", "find_blobs", "detection_threshold", "local_contrast", "opening_size_px",
+           "THRESHOLD_SIGMAS"]
+
+#: a spot's local contrast must exceed the contrast's median by this many of its robust standard deviations
+THRESHOLD_SIGMAS = 8.0
 
 
-def detection_threshold(image: np.ndarray) -> tuple[float, float]:
-    """Background level and noise of a frame (from every 8th pixel), and the blob threshold above them.
+@dataclass(frozen=True)
+class Detection:
+    """How spots are told from the background in a frame: ``threshold`` on the local contrast [ADU]
+    (:func:`local_contrast` with an opening of side ``scale_px``), ``noise`` the contrast's robust SD [ADU]."""
 
-    Returns ``(threshold, noise_sigma)`` [ADU]: the threshold is 8 noise sigmas (at least 4 ADU)
-    above the median.
+    threshold: float
+    noise: float
+    scale_px: int
+
+
+class Blob(NamedTuple):
+    """A detected spot: centre and radius of its largest inscribed circle [px], its peak contrast [ADU]."""
+
+    x: float
+    y: float
+    r: float
+    peak: float
+
+
+def opening_size_px(largest_radius_px: float, psf_sigma_px: float) -> int:
+    """The opening's square side [px]: odd, wider than a spot of ``largest_radius_px`` with its blur."""
+    return 2 * int(math.ceil(largest_radius_px + 2.0 * psf_sigma_px + 1.0)) + 1
+
+
+def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
+    """``image`` minus its grey-scale opening by a ``scale_px`` square (float32; 0 where nothing narrower
+    than the square stands out)."""
+    img = image if image.dtype in (np.uint8, np.uint16, np.float32) else image.astype(np.float32)
+    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (scale_px, scale_px))
+    opened = cv2.morphologyEx(img, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)
+    return cv2.subtract(img, opened).astype(np.float32, copy=False)
+
+
+def detection_threshold(image: np.ndarray, scale_px: int, *, floor: float = 4.0) -> Detection:
+    """The frame's :class:`Detection`: :data:`THRESHOLD_SIGMAS` robust SDs of the local contrast above its
+    median (at least ``floor`` ADU), the contrast taken over every 2nd pixel of the frame."""
+    contrast = local_contrast(image, scale_px)[::2, ::2]
+    med = float(np.median(contrast))
+    noise = max(1.4826 * float(np.median(np.abs(contrast - med))), 0.5)
+    return Detection(med + max(THRESHOLD_SIGMAS * noise, floor), noise, scale_px)
+
+
+def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold: Detection | float
+               ) -> list[Blob]:
+    """Spots in the window ``[x0, x1) x [y0, y1)``, brightest first: each blob's largest inscribed circle and
+    its peak contrast.
+
+    With a :class:`Detection` the local contrast is thresholded (the window is widened by the opening's
+    size so that the contrast at its edges is the frame's); with a number, the pixel values themselves
+    (for a static image of known flat background).  The maximum of the distance transform finds the centre
+    of the largest disc in a blob, so a spot merged with a smaller neighbour still starts the fit at the
+    right place.  Blobs of fewer than 3 pixels are ignored.
     """
-    sample = image[::8, ::8]
-    bg_level = float(np.median(sample))
-    noise_sigma = max(float(np.std(sample[sample < bg_level + 20])), 0.5)
-    return bg_level + max(8.0 * noise_sigma, 4.0), noise_sigma
-
-
-def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold: float
-               ) -> list[tuple[float, float, float]]:
-    """Bright blobs in the window ``[x0, x1) x [y0, y1)``: ``(cx, cy, radius)`` of each blob's largest
-    inscribed circle [px].
-
-    The maximum of the distance transform finds the centre of the largest disc in a blob,
-    so a spot merged with a smaller neighbour still starts the fit at the right place.
-    Blobs of fewer than 3 pixels are ignored.
-    """
-    sub = image[y0:y1, x0:x1]
-    mask = (sub > threshold).astype(np.uint8)
+    h, w = image.shape
+    if isinstance(threshold, Detection):
+        m = threshold.scale_px
+        ax0, ay0, ax1, ay1 = max(x0 - m, 0), max(y0 - m, 0), min(x1 + m, w), min(y1 + m, h)
+        if ax1 - ax0 < 3 or ay1 - ay0 < 3:
+            return []
+        sub = local_contrast(image[ay0:ay1, ax0:ax1], m)[y0 - ay0:y1 - ay0, x0 - ax0:x1 - ax0]
+        level = threshold.threshold
+    else:
+        sub = image[y0:y1, x0:x1]
+        level = float(threshold)
+    if sub.size == 0:
+        return []
+    mask = (sub > level).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     out = []
     for i in range(1, n):
@@ -38,8 +98,11 @@ def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold:
             continue
         bx, by = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_TOP]
         bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
-        blob = np.pad((labels[by:by + bh, bx:bx + bw] == i).astype(np.uint8), 1)
+        own = labels[by:by + bh, bx:bx + bw] == i
+        blob = np.pad(own.astype(np.uint8), 1)
         dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
         iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
-        out.append((float(bx + ix - 1 + x0), float(by + iy - 1 + y0), float(dist[iy, ix]) + 0.5))
+        peak = float(sub[by:by + bh, bx:bx + bw][own].max())
+        out.append(Blob(float(bx + ix - 1 + x0), float(by + iy - 1 + y0), float(dist[iy, ix]) + 0.5, peak))
+    out.sort(key=lambda b: -b.peak)
     return out

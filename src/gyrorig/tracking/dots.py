@@ -19,9 +19,10 @@ import numpy as np
 from ..geometry import ray_sphere_distances, wrap_angle
 from ..markers import Marker
 from .camera_file import TrackingCamera
-from .detect import find_blobs
+from .detect import Detection, find_blobs
 from .rays import pixel_rays
-from .spot import SpotFit, fit_spot
+from .scene_spot import fit_round_spot
+from .spot import SpotFit
 
 __all__ = ["DotTracker", "dot_angle"]
 
@@ -98,10 +99,10 @@ class DotTracker:
         x0, y0 = circle.min(axis=0) - 3 * r - 5
         x1, y1 = circle.max(axis=0) + 3 * r + 5
         cand = find_blobs(image, max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h), threshold)
-        for cx, cy, cr in sorted(cand, key=lambda c: -c[2]):
+        for cx, cy, cr, _ in sorted(cand, key=lambda c: -c.r):
             if not 0.5 * r <= cr <= 1.6 * r or math.hypot(cx - tip_xy[0], cy - tip_xy[1]) < 1.2 * r_tip:
                 continue
-            fit = fit_spot(image, cx, cy, cr, self.cam)
+            fit = fit_round_spot(image, cx, cy, cr, self.cam)
             if fit is not None:
                 psi = dot_angle(fit.x_px, fit.y_px, dot, n, self.cam)
                 if psi is not None:
@@ -119,10 +120,10 @@ class DotTracker:
                 and math.hypot(c[0] - tip_xy[0], c[1] - tip_xy[1]) >= 1.2 * r_tip]
         if not cand:
             return None
-        cx, cy, cr = min(cand, key=lambda c: (c[0] - px) ** 2 + (c[1] - py) ** 2)
+        cx, cy, cr, _ = min(cand, key=lambda c: (c.x - px) ** 2 + (c.y - py) ** 2)
         if self.misses == 0 and math.hypot(cx - px, cy - py) < max(2.0, 0.3 * cr):
             cx, cy, cr = float(px), float(py), self.last_r[dot.name]  # sub-pixel prediction: fewer iterations
-        return fit_spot(image, cx, cy, cr, self.cam)
+        return fit_round_spot(image, cx, cy, cr, self.cam)
 
     def _psi_variance(self, fit: SpotFit, dot: Marker, n) -> float | None:
         """The variance of psi from the spot covariance through the pixel -> angle map."""
@@ -136,7 +137,7 @@ class DotTracker:
         var = float(jac @ fit.cov_xy @ jac)
         return var if var > 0 else None
 
-    def step(self, image, t_s: float, n: np.ndarray, tip_xy, r_tip: float, threshold: float):
+    def step(self, image, t_s: float, n: np.ndarray, tip_xy, r_tip: float, threshold: Detection):
         """Fit the dots in one frame; returns ``(psi, psi_sigma, [(name, SpotFit), ...])``."""
         if self.psi is None:
             self.psi = self._acquire(image, n, tip_xy, r_tip, threshold)

@@ -40,10 +40,11 @@ import numpy as np
 
 from ..markers import Marker
 from .camera_file import TrackingCamera
-from .detect import find_blobs
+from .detect import Blob, Detection, find_blobs
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .rays import tip_from_pixel
-from .spot import SpotFit, fit_spot
+from .scene_spot import fit_round_spot
+from .spot import SpotFit
 
 __all__ = ["TipFollower", "Located", "SIZE_RANGE"]
 
@@ -55,10 +56,15 @@ AMPLITUDE_CHANGE = (0.6, 1.6)
 #: once followed, the fit's reduced chi-square may exceed its running median by at most this factor (foreign
 #: light under the tip's own, which no mask can separate, makes the fit much worse than usual)
 CHI2_CHANGE = 2.0
+#: ... or its logarithm the running median of the logarithms by this many of their robust SDs, whichever is more
+CHI2_SPREADS = 4.0
 #: the smallest motion gate around the prediction [px]
 MIN_GATE_PX = 3.0
 #: a candidate confirms one of the last frame's when it lies within this many expected radii (+5 px) of it
 ACQUIRE_REACH = 1.0
+#: when searching, the candidates of highest contrast considered, and how many of them are fitted
+ACQUIRE_CANDIDATES = 16
+ACQUIRE_FITS = 8
 #: frames the follower coasts on its prediction after a rejected frame before it searches anew
 COAST_FRAMES = 3
 
@@ -117,7 +123,13 @@ class TipFollower:
         r0, a0 = float(np.median(self.radii)), float(np.median(self.amplitudes))
         # a disc's size changes with its view (its shape gate follows that); a sphere's and a blob's do not
         radius_ok = self.disc is not None or RADIUS_CHANGE[0] * r0 <= fit.radius_px <= RADIUS_CHANGE[1] * r0
-        chi2_ok = fit.chi2_own <= CHI2_CHANGE * max(float(np.median(self.chi2s)), 1.0)
+        # the limit follows the chi-square's own scatter so far (on a log scale): steady on a flat background,
+        # wide where the scene behind the tip or a codec's artefacts change from frame to frame
+        logs = np.log(np.maximum(np.array(self.chi2s), 1e-12))
+        med = float(np.median(logs))
+        spread = 1.4826 * float(np.median(np.abs(logs - med)))
+        limit = max(CHI2_CHANGE * max(math.exp(med), 1.0), math.exp(med + CHI2_SPREADS * spread))
+        chi2_ok = fit.chi2_own <= limit
         return radius_ok and chi2_ok and AMPLITUDE_CHANGE[0] * a0 <= fit.amplitude_adu <= AMPLITUDE_CHANGE[1] * a0
 
     def _looks_like_tip(self, fit: SpotFit) -> bool:
@@ -131,7 +143,7 @@ class TipFollower:
     def _fit(self, frame: np.ndarray, x0: float, y0: float, r0: float, neighbour: str = "joint") -> SpotFit | None:
         """The shape's spot fit at a start point; for a disc, moved to its centre's image."""
         if self.shape == "sphere":
-            return fit_spot(frame, x0, y0, r0, self.camera, neighbour=neighbour)
+            return fit_round_spot(frame, x0, y0, r0, self.camera, neighbour=neighbour)
         fit = fit_ellipse_spot(frame, x0, y0, max(r0, 0.5 * self.r_expected), self.camera)
         if fit is None or self.disc is None:
             return fit
@@ -153,7 +165,9 @@ class TipFollower:
         return predicted is None or math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) <= gate
 
     # ------------------------------------------------------------------------------- search
-    def _candidates(self, frame: np.ndarray, threshold: float, centre=None, reach: int = 0):
+    def _candidates(self, frame: np.ndarray, threshold, centre=None, reach: int = 0) -> list[Blob]:
+        """Blobs of a plausible size for the tip (brightest first), off the lab markers, whose ray meets the
+        tip's sphere."""
         h, w = frame.shape
         if centre is None:
             blobs = find_blobs(frame, 0, 0, w, h, threshold)
@@ -167,33 +181,37 @@ class TipFollower:
                 and not any(math.hypot(c[0] - x, c[1] - y) <= r + 2.0 for x, y, r in self.lab_px)
                 and tip_from_pixel(c[0], c[1], self.camera, self.length_m) is not None]
 
-    def _track(self, frame: np.ndarray, threshold: float) -> SpotFit | None:
+    def _track(self, frame: np.ndarray, threshold: Detection) -> SpotFit | None:
         """The tip near its prediction, or None."""
         predicted, gate = self._prediction()
         cand = self._candidates(frame, threshold, predicted, int(4 * self.r_expected + 20 + gate))
         cand.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
-        for x0, y0, r0 in cand[:3]:
+        for x0, y0, r0, _ in cand[:3]:
             if math.hypot(x0 - predicted[0], y0 - predicted[1]) < max(2.0, 0.3 * r0):
                 # the motion prediction is sub-pixel; the blob's inscribed centre is not: fewer iterations
                 x0, y0, r0 = float(predicted[0]), float(predicted[1]), self.last_r
             fit = self._fit(frame, x0, y0, r0)
             if self._acceptable(fit, predicted, gate):
                 return fit
-            if fit is not None and fit.blended and self.shape == "sphere":
+            if fit is not None and fit.blended and self.shape == "sphere" and self.camera.sensor_known:
                 fit = self._fit(frame, x0, y0, r0, neighbour="mask")
                 if self._acceptable(fit, predicted, gate):
                     return fit
         return None
 
-    def _acquire(self, frame: np.ndarray, threshold: float) -> SpotFit | None:
+    def _acquire(self, frame: np.ndarray, threshold: Detection) -> SpotFit | None:
         """Candidates that look like the tip anywhere; the one nearest to a candidate of the previous frame
         (within :data:`ACQUIRE_REACH`, of similar amplitude), or None (this frame's candidates then wait
         for the next)."""
-        cand = sorted(self._candidates(frame, threshold), key=lambda c: abs(c[2] - self.r_expected))
+        # the highest-contrast candidates of a plausible size (a textured background offers many), the ones
+        # nearest the tip's expected size fitted first
+        cand = sorted(self._candidates(frame, threshold)[:ACQUIRE_CANDIDATES],
+                      key=lambda c: abs(c.r - self.r_expected))
         fits = []
-        for x0, y0, r0 in cand[:6]:
+        for x0, y0, r0, _ in cand[:ACQUIRE_FITS]:
             fit = self._fit(frame, x0, y0, r0)
-            if fit is not None and fit.blended and self.shape == "sphere" and not self._looks_like_tip(fit):
+            if (fit is not None and fit.blended and self.shape == "sphere" and self.camera.sensor_known
+                    and not self._looks_like_tip(fit)):
                 fit = self._fit(frame, x0, y0, r0, neighbour="mask")
             if fit is not None and self._looks_like_tip(fit):
                 fits.append(fit)
@@ -209,7 +227,7 @@ class TipFollower:
         return None
 
     # ------------------------------------------------------------------------------- per frame
-    def locate(self, frame: np.ndarray, threshold: float) -> Located:
+    def locate(self, frame: np.ndarray, threshold: Detection) -> Located:
         """The tip in this frame."""
         if self.last:
             fit = self._track(frame, threshold)

@@ -55,7 +55,7 @@ def _static_spots(median: np.ndarray, camera: TrackingCamera) -> list[tuple[floa
     bg = float(np.median(sample))
     noise = max(float(np.std(sample[sample < bg + 20])), 0.5)
     spots = []
-    for cx, cy, r in find_blobs(median, 0, 0, median.shape[1], median.shape[0], bg + max(8 * noise, 4.0)):
+    for cx, cy, r, _ in find_blobs(median, 0, 0, median.shape[1], median.shape[0], bg + max(8 * noise, 4.0)):
         fit = fit_spot(median, cx, cy, r, camera)
         if fit is not None:
             spots.append((fit.x_px, fit.y_px, fit.amplitude_adu, fit.cov_xy))

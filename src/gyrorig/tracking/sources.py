@@ -3,7 +3,8 @@ frames held in memory.
 
 A source opens to :class:`Frames`: the image size, the nominal frame rate (NaN when unknown),
 the frame count (0 when unknown) and an iterator of ``(image, t_s)`` pairs, ``image`` a 2-D
-array (the first channel of a colour frame) and ``t_s`` the frame's start time from the
+array of luma (a colour frame's luma, not one of its channels) or, opened with ``colour=True``, an
+RGB array, and ``t_s`` the frame's start time from the
 container's timestamps (NaN when the source has none: the tracker then counts frames at the
 camera's rate).
 
@@ -33,9 +34,9 @@ from .errors import BadInputError, TrackingError
 __all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "as_source", "fingerprint", "IMAGE_SUFFIXES"]
 
 
-#: container codes (FourCC) of codecs that keep every pixel value: FFV1, raw, Y800/GREY/Y16, HuffYUV, PNG
-LOSSLESS_FOURCC = {"ffv1", "FFV1", "\x00\x00\x00\x00", "Y800", "GREY", "Y16 ", "HFYU", "huff", "FFVH", "png ",
-                   "MPNG", "rawv", "DIB "}
+#: FFmpeg decoders of codecs that keep every pixel value (anything else changes them: H.264, HEVC, mp4v, MJPEG)
+LOSSLESS_CODECS = {"ffv1", "rawvideo", "huffyuv", "ffvhuff", "png", "apng", "tiff", "utvideo", "magicyuv", "qtrle",
+                   "zlib", "v210", "v410", "r210", "y41p", "ayuv"}
 
 
 @dataclass
@@ -43,7 +44,8 @@ class Frames:
     """An opened source; iterate it for ``(image, t_s)``, close it when done (or use ``with``).
 
     ``lossy``: the codec changes pixel values (mp4v, H.264, MJPEG ...): the sensor's noise model then
-    does not describe them."""
+    does not describe them.  ``bit_depth``: bits per value as stored (None when the source does not say;
+    16-bit files may carry fewer significant bits, as camera.json says)."""
 
     width_px: int
     height_px: int
@@ -51,6 +53,7 @@ class Frames:
     count: int
     items: Iterator[tuple[np.ndarray, float]]
     lossy: bool = False
+    bit_depth: int | None = None
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -68,7 +71,15 @@ class Frames:
 
 
 class VideoFile:
-    """A video container read through OpenCV's FFmpeg backend (frame times from its timestamps)."""
+    """A video container decoded by FFmpeg through PyAV.
+
+    Frames come as the codec stores them, without a colour conversion: the luma plane (Y of a YUV
+    codec, the one plane of a grey one) at the stream's own bit depth (a 10-bit HEVC phone clip gives
+    values 0-1023), or RGB when ``colour`` is asked for (converted by FFmpeg at the stream's depth).
+    Frame times are the presentation times (``pts`` x time base, from the first frame's), so a
+    variable frame rate and dropped frames keep their real times.  Decoding runs in FFmpeg's own
+    threads and in a background thread of ours (PyAV releases the GIL while decoding).
+    """
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
@@ -90,22 +101,45 @@ class VideoFile:
             raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
         return h.hexdigest()
 
-    def open(self) -> Frames:
-        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
-        if not cap.isOpened():
-            why = "no such file" if not self.path.exists() else "empty file" if self.path.stat().st_size == 0 else \
-                "not a video OpenCV's FFmpeg can decode"
-            raise BadInputError(f"cannot open video {self.path}: {why}")
-        # unconverted frames: 16-bit FFV1 stays 16-bit, a YUV codec gives its luma plane (OpenCV warns
-        # about that on every frame; its warnings are silenced while the file is read)
-        level = cv2.utils.logging.getLogLevel()
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-        cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
-        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
-        fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode("latin-1")
-        return Frames(w, h, float(cap.get(cv2.CAP_PROP_FPS)), int(cap.get(cv2.CAP_PROP_FRAME_COUNT)),
-                      _decoded_frames(cap, on_close=lambda: cv2.utils.logging.setLogLevel(level)),
-                      lossy=fourcc not in LOSSLESS_FOURCC)
+    def open(self, *, colour: bool = False) -> Frames:
+        import av
+
+        if not self.path.is_file():
+            raise BadInputError(f"cannot open video {self.path}: no such file")
+        if self.path.stat().st_size == 0:
+            raise BadInputError(f"cannot open video {self.path}: empty file")
+        try:
+            container = av.open(str(self.path), "r")
+            stream = container.streams.video[0]
+        except (av.FFmpegError, IndexError, ValueError) as exc:
+            raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})") from exc
+        stream.thread_type = "AUTO"
+        ctx = stream.codec_context
+        pix = ctx.format
+        if pix is None or not ctx.width or not ctx.height:
+            container.close()
+            raise BadInputError(f"cannot open video {self.path}: no picture size or pixel format in the stream")
+        bits = int(pix.components[0].bits)
+        rate = stream.average_rate or stream.guessed_rate or stream.base_rate
+        fps = float(rate) if rate else math.nan
+        lossy = ctx.name not in LOSSLESS_CODECS
+        return Frames(int(ctx.width), int(ctx.height), fps, int(stream.frames or 0),
+                      _decoded_frames(container, stream, colour), lossy=lossy, bit_depth=bits)
+
+
+def _plane_image(frame, colour: bool) -> np.ndarray:
+    """One decoded frame as a 2-D luma array (no conversion where the codec stores luma) or an RGB array."""
+    fmt = frame.format
+    bits = fmt.components[0].bits
+    if colour:
+        return frame.to_ndarray(format="rgb48le" if bits > 8 else "rgb24")
+    luma = fmt.components[0]
+    if fmt.is_planar and luma.is_luma and luma.plane == 0 and not fmt.is_big_endian:
+        plane = frame.planes[0]
+        dtype = np.uint16 if bits > 8 else np.uint8
+        row = np.frombuffer(plane, dtype=dtype).reshape(frame.height, -1)
+        return np.array(row[:, :frame.width])  # a copy: the decoder reuses its buffers
+    return frame.to_ndarray(format="gray16le" if bits > 8 else "gray")
 
 
 class FrameArrays:
@@ -128,10 +162,10 @@ class FrameArrays:
         """Frames in memory have no recording to recognise later."""
         return None
 
-    def open(self) -> Frames:
+    def open(self, *, colour: bool = False) -> Frames:
         h, w = np.shape(self.frames[0])[:2]
         times = self.t_s if self.t_s is not None else [math.nan] * len(self.frames)
-        items = ((f[:, :, 0] if f.ndim == 3 else f, float(t)) for f, t in zip(self.frames, times))
+        items = ((_as_wanted(np.asarray(f), colour, "RGB"), float(t)) for f, t in zip(self.frames, times))
         return Frames(int(w), int(h), math.nan, len(self.frames), items)
 
 
@@ -196,9 +230,9 @@ class ImageFolder:
             raise BadInputError(f"{self.files[k]}: unreadable image")
         if image.dtype not in (np.uint8, np.uint16):
             raise BadInputError(f"{self.files[k]}: {image.dtype} pixels; allowed 8- or 16-bit")
-        return image[:, :, 0] if image.ndim == 3 else image
+        return image
 
-    def open(self) -> Frames:
+    def open(self, *, colour: bool = False) -> Frames:
         first = self._read(0)
         h, w = first.shape
         times = self.t_s if self.t_s is not None else [math.nan] * len(self.files)
@@ -209,9 +243,26 @@ class ImageFolder:
                 if image.shape != (h, w):
                     raise BadInputError(f"{self.files[k]}: {image.shape[1]} x {image.shape[0]} pixels; the first "
                                         f"image ({self.files[0].name}) is {w} x {h}")
-                yield np.ascontiguousarray(image), float(t)
+                yield np.ascontiguousarray(_as_wanted(image, colour, "BGR")), float(t)
 
         return Frames(int(w), int(h), math.nan, len(self.files), items())
+
+
+def _as_wanted(image: np.ndarray, colour: bool, order: str) -> np.ndarray:
+    """A frame as the tracker asked for it: luma (Rec. 601 weights) or RGB; ``order`` is a colour frame's
+    channel order (``RGB`` for frames in memory, ``BGR`` from OpenCV's image reader).  A grey frame asked
+    for in colour is three equal channels."""
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[:, :, :3]
+    if colour:
+        if image.ndim == 2:
+            return np.repeat(image[:, :, None], 3, axis=2)
+        return image[:, :, ::-1] if order == "BGR" else image
+    if image.ndim == 3:
+        if image.dtype in (np.uint8, np.uint16):
+            return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if order == "BGR" else cv2.COLOR_RGB2GRAY)
+        return image @ (np.array([0.114, 0.587, 0.299]) if order == "BGR" else np.array([0.299, 0.587, 0.114]))
+    return image
 
 
 #: bytes read from each end of a video file for its fingerprint
@@ -234,21 +285,35 @@ def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
     raise TypeError(f"expected a video path or a frame source, got {type(video).__name__}")
 
 
-def _decoded_frames(cap: cv2.VideoCapture, depth: int = 8, on_close=None) -> Iterator[tuple[np.ndarray, float]]:
-    """Yield ``(frame, start time s)``, decoding in a background thread.
+def _decoded_frames(container, stream, colour: bool, depth: int = 8) -> Iterator[tuple[np.ndarray, float]]:
+    """Yield ``(frame, start time s)``, decoding in a background thread (decoding the next frames overlaps
+    with tracking this one: two cores give the slower of the two, not their sum).
 
-    OpenCV releases the GIL while decoding, so decoding the next frames overlaps with
-    tracking this one (two cores: throughput is the slower of the two, not their sum).
+    Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
+    then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there.
     """
+    import av
+
     q: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
+    base = stream.time_base
 
     def reader() -> None:
-        while not stop.is_set():
-            ok, frame = cap.read()
-            q.put((frame, cap.get(cv2.CAP_PROP_POS_MSEC)) if ok else None)
-            if not ok:
-                return
+        first = None
+        try:
+            for frame in container.decode(stream):
+                if stop.is_set():
+                    return
+                if frame.pts is None or base is None:
+                    t = math.nan
+                else:
+                    first = frame.pts if first is None else first
+                    t = float((frame.pts - first) * base)
+                q.put((_plane_image(frame, colour), t))
+        except (av.FFmpegError, ValueError, MemoryError):
+            pass  # a truncated or damaged stream: the frames decoded so far stand
+        finally:
+            q.put(None)
 
     thread = threading.Thread(target=reader, daemon=True)
     thread.start()
@@ -257,8 +322,7 @@ def _decoded_frames(cap: cv2.VideoCapture, depth: int = 8, on_close=None) -> Ite
             item = q.get()
             if item is None:
                 return
-            frame, pos_ms = item
-            yield (frame[:, :, 0] if frame.ndim == 3 else frame), (pos_ms / 1000.0 if pos_ms >= 0 else math.nan)
+            yield item
     finally:
         stop.set()
         while thread.is_alive():  # unblock a reader waiting on a full queue
@@ -267,6 +331,4 @@ def _decoded_frames(cap: cv2.VideoCapture, depth: int = 8, on_close=None) -> Ite
             except queue.Empty:
                 pass
             thread.join(timeout=0.05)
-        cap.release()
-        if on_close is not None:
-            on_close()
+        container.close()

@@ -39,8 +39,8 @@ from ..markers import Marker, parse_markers
 from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count, camera_mode_prior_column
 from .camera_file import TrackingCamera
-from .detect import detection_threshold
-from .follow import TipFollower
+from .detect import Detection, detection_threshold, opening_size_px
+from .follow import SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .pose import camera_modes_by_source, estimate_pose
@@ -158,7 +158,7 @@ class _Tables:
         self.last_frame: tuple[int, float, float] | None = None  # (index, t_frame, threshold) of the last frame
 
     def frame(self, camera: TrackingCamera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
-              frame: np.ndarray, index: int, t_frame: float, threshold: float) -> None:
+              frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
         located = follower.locate(frame, threshold)
         if located.previous is not None and self.last_frame is not None:
@@ -343,6 +343,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         follower = TipFollower(camera, tip, parse_markers(protocol).fiducials())
         dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
+        # the local-contrast opening must be wider than the largest spot the follower takes for the tip
+        scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
         rows = _Tables()
         prev_hash = None
         last_index = -1
@@ -379,8 +381,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             prev_hash = digest
             if linear is not None:
                 frame = linear(frame)
-            if k % 100 == 0:  # background level and noise, refreshed every 100 frames (slow illumination drift)
-                threshold, _ = detection_threshold(frame)
+            if k % 100 == 0:  # the contrast's spread, refreshed every 100 frames (drifting light, moving scenes)
+                threshold = detection_threshold(frame, scale_px, floor=4.0 * camera.max_adu / 255.0)
             rows.frame(camera, tip, follower, dots, frame, index, t_frame, threshold)
             t_track += time.perf_counter() - t1
             k += 1

@@ -1,0 +1,220 @@
+"""Footage that looks recorded: the rig's markers on a real photograph, through a phone's encoder.
+
+The markers come from the renderer (:func:`gyrorig.render.render_frames`: the simulator's trajectory,
+the camera model, motion blur, rolling shutter) as each pixel's coverage by a marker; the scene
+behind them is a real photograph (one of scikit-image's, e.g. ``coffee``, ``brick``, ``astronaut``),
+drifting across the field (something moving behind the rig) under flickering light.  Composited in
+linear light, with shot and read noise, then encoded as a phone does: gamma 2.2, 8-bit YUV 4:2:0,
+H.264 or HEVC at a constant quality, frame times on a 90 kHz clock with jitter and dropped frames, or a
+slow-motion file whose container rate is lower than the capture rate.
+
+The truth beside the video is the renderer's (frame numbers on the capture grid); the camera file is the
+one a user would write: intrinsics and pose, frame rate and exposure, gamma, and no sensor numbers.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from .. import _io
+from ..camera import camera_setup
+from ..protocols import Protocol, parse_protocol
+from .video import render_frames
+
+__all__ = ["PhoneStyle", "PHOTOS", "render_phone_video", "photo_background"]
+
+#: scikit-image's bundled photographs used as backgrounds
+PHOTOS = ("coffee", "brick", "astronaut", "camera", "rocket", "gravel", "chelsea")
+
+#: the renderer's marker brightness in the composite's helper render (every marker alike): light / this = coverage
+_COVERAGE_E_PER_S = 1.0e9
+
+
+@dataclass(frozen=True)
+class PhoneStyle:
+    """How the recording is made and stored."""
+
+    #: a scikit-image photograph (:data:`PHOTOS`), or None for a flat grey background
+    photo: str | None = "coffee"
+    #: background brightness (linear, 0-1, of the photograph's brightest value)
+    background_level: float = 0.55
+    #: the background drifts by this many pixels per second (something moving behind the rig); 0: static
+    drift_px_per_s: float = 40.0
+    #: light flicker: relative amplitude and frequency [Hz]
+    flicker_fraction: float = 0.03
+    flicker_hz: float = 7.0
+    #: the markers' linear RGB (a white retroreflective dot near full scale; a red sticker (0.7, 0.05, 0.05))
+    marker_rgb: tuple[float, float, float] = (0.97, 0.97, 0.97)
+    #: "libx264" or "libx265"; "ffv1" keeps every value
+    codec: str = "libx265"
+    #: constant-quality factor of the encoder (phones record at about 20-28)
+    crf: int = 23
+    #: 8 or 10 bits per value in the file
+    bit_depth: int = 8
+    #: gamma of the stored values (recorded = linear^(1/gamma))
+    gamma: float = 2.2
+    #: full well and read noise of a phone pixel [e]
+    full_well_e: float = 6000.0
+    read_noise_e: float = 3.0
+    #: frame-time jitter (SD, as a fraction of the frame interval) and the fraction of frames dropped
+    jitter_fraction: float = 0.05
+    drop_fraction: float = 0.02
+    #: the container's frame rate when it differs from the capture rate (slow motion); None: the capture rate
+    container_fps: float | None = None
+
+    def check(self) -> None:
+        if self.photo is not None and self.photo not in PHOTOS:
+            raise ValueError(f"photo = {self.photo!r}: allowed {', '.join(PHOTOS)} or None")
+        if self.codec not in ("libx264", "libx265", "ffv1"):
+            raise ValueError(f"codec = {self.codec!r}: allowed 'libx264', 'libx265', 'ffv1'")
+        if self.bit_depth not in (8, 10):
+            raise ValueError(f"bit_depth = {self.bit_depth}: allowed 8, 10")
+        if not 0.0 <= self.drop_fraction < 0.5:
+            raise ValueError(f"drop_fraction = {self.drop_fraction}: allowed [0, 0.5)")
+        if not 0.0 <= self.jitter_fraction < 0.25:
+            raise ValueError(f"jitter_fraction = {self.jitter_fraction}: allowed [0, 0.25)")
+
+
+def photo_background(name: str | None, width_px: int, height_px: int, margin_px: int) -> np.ndarray:
+    """The photograph in linear RGB (0-1), resized to cover the frame plus ``margin_px`` on every side."""
+    w, h = width_px + 2 * margin_px, height_px + 2 * margin_px
+    if name is None:
+        return np.full((h, w, 3), 0.5, np.float32)
+    import skimage.data
+
+    img = getattr(skimage.data, name)()
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    img = img[:, :, :3].astype(np.float32) / 255.0
+    scale = max(w / img.shape[1], h / img.shape[0])
+    img = cv2.resize(img, (int(math.ceil(img.shape[1] * scale)), int(math.ceil(img.shape[0] * scale))),
+                     interpolation=cv2.INTER_CUBIC)
+    return np.clip(img[:h, :w], 0.0, 1.0) ** 2.2
+
+
+def _coverage_protocol(scene: Mapping[str, Any]) -> Protocol:
+    """The scene with every dot of one brightness and no background: the render is each pixel's coverage."""
+    d = copy.deepcopy(dict(scene))
+    for m in d["markers"].values():
+        if m.get("kind", "dot") != "occluder":
+            m["brightness_e_per_s"] = _COVERAGE_E_PER_S
+    sensor = d["camera"].setdefault("sensor", {})
+    sensor["background_e_per_s"] = 0.0
+    d["camera"]["illumination_drift_fraction"] = 0.0
+    return parse_protocol(d)
+
+
+def _frame_times(n: int, fps: float, style: PhoneStyle, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Which capture frames are kept, and their stored times [s] (container clock)."""
+    keep = np.ones(n, bool)
+    if style.drop_fraction > 0 and n > 2:
+        drop = rng.random(n) < style.drop_fraction
+        drop[0] = drop[-1] = False
+        keep &= ~drop
+    k = np.flatnonzero(keep)
+    store_fps = style.container_fps or fps
+    t = k / store_fps + rng.normal(0.0, style.jitter_fraction / store_fps, len(k))
+    t[0] = 0.0
+    t = np.maximum.accumulate(t + 1e-9 * np.arange(len(k)))  # times keep their order
+    return k, t
+
+
+def render_phone_video(scene: Mapping[str, Any], out_dir: str | Path, *, style: PhoneStyle = PhoneStyle(),
+                       seed: int = 0, duration_s: float | None = None) -> dict:
+    """Render the scene (a protocol dict with ``[camera]`` and ``[markers]``) as a phone recording.
+
+    Writes ``video.mp4`` (or ``video.mkv`` for FFV1), ``truth.csv`` (the renderer's, every capture frame) and
+    ``camera.json`` (what a user knows: intrinsics, pose, capture fps, exposure, gamma; no sensor numbers),
+    each under a temporary name renamed when complete.  Returns the paths, the frames kept and the stored
+    times.
+    """
+    import av
+
+    style.check()
+    rng = np.random.default_rng(seed)
+    protocol = _coverage_protocol(scene)
+    cam = camera_setup(protocol).camera
+    duration = protocol.scene.duration_s if duration_s is None else float(duration_s)
+    n = int(math.floor(duration * cam.fps + 1e-9))
+    keep, t_store = _frame_times(n, cam.fps, style, rng)
+    margin = int(math.ceil(abs(style.drift_px_per_s) * duration)) + 2
+    photo = photo_background(style.photo, cam.width_px, cam.height_px, margin)
+    peak = _COVERAGE_E_PER_S * cam.exposure_s
+    rgb = np.asarray(style.marker_rgb, np.float32)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    name = "video.mkv" if style.codec == "ffv1" else "video.mp4"
+    tmp = out / f".{name}.partial{Path(name).suffix}"
+    kept = set(int(k) for k in keep)
+    stored = dict(zip((int(k) for k in keep), t_store))
+    truths = []
+    container = av.open(str(tmp), "w", format="matroska" if style.codec == "ffv1" else "mp4")
+    try:
+        stream = container.add_stream(style.codec, rate=Fraction(round(cam.fps * 1000), 1000))
+        stream.width, stream.height = cam.width_px, cam.height_px
+        ten = style.bit_depth == 10
+        stream.pix_fmt = ("yuv420p10le" if ten else "yuv420p") if style.codec != "ffv1" else \
+            ("yuv444p10le" if ten else "yuv444p")
+        clock = Fraction(1, 90000)
+        stream.time_base = clock
+        stream.codec_context.time_base = clock
+        if style.codec != "ffv1":
+            stream.options = {"crf": str(style.crf), "preset": "veryfast"}
+            if style.codec == "libx265":
+                stream.options["x265-params"] = "log-level=error"
+        top = (1 << style.bit_depth) - 1
+        for k, (image, truth) in enumerate(render_frames(protocol, seed=seed, duration_s=duration, noise=False)):
+            truths.append(truth)
+            if k not in kept:
+                continue
+            t = k / cam.fps
+            shift = style.drift_px_per_s * t
+            x0 = int(round(margin + shift * 0.8))
+            y0 = int(round(margin + shift * 0.6))
+            bg = photo[y0:y0 + cam.height_px, x0:x0 + cam.width_px] * style.background_level
+            light = 1.0 + style.flicker_fraction * math.sin(2 * math.pi * style.flicker_hz * t)
+            alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
+            linear = (bg * (1.0 - alpha) + alpha * rgb) * light
+            electrons = rng.poisson(np.clip(linear, 0.0, 1.0) * style.full_well_e).astype(np.float32)
+            electrons += rng.normal(0.0, style.read_noise_e, electrons.shape).astype(np.float32)
+            value = np.clip(electrons / style.full_well_e, 0.0, 1.0) ** (1.0 / style.gamma)
+            frame_rgb = np.round(value * top).astype(np.uint16 if ten else np.uint8)
+            frame = av.VideoFrame.from_ndarray(frame_rgb, format="rgb48le" if ten else "rgb24")
+            if ten:  # rgb48le holds 16-bit values: scale 10-bit ones up to the full range
+                frame = av.VideoFrame.from_ndarray((frame_rgb.astype(np.uint32) * 65535 // top).astype(np.uint16),
+                                                   format="rgb48le")
+            frame.pts = int(round(stored[k] * 90000))
+            frame.time_base = clock
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+        container.close()
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, out / name)
+    finally:
+        try:
+            container.close()
+        except Exception:  # noqa: BLE001 - already closed, or failed while writing: the file is removed below
+            pass
+        if tmp.exists():
+            tmp.unlink()
+    truth = pd.concat(truths, ignore_index=True)
+    _io.write_csv(truth, out / "truth.csv")
+    camera = {k: v for k, v in cam.to_json().items() if k not in ("sensor", "psf_sigma_px", "motion_blur_samples")}
+    camera["sensor"] = {"bit_depth": style.bit_depth, "gamma": style.gamma}
+    _io.write_json(camera, out / "camera.json")
+    return {"video": str(out / name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.json"),
+            "frames": n, "kept": keep.tolist(), "stored_t_s": t_store.tolist()}
+
