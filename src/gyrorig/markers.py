@@ -9,7 +9,9 @@ the default: a ball of that radius; ``"disc"``: a flat dot of that radius, e.g. 
 tape, facing along ``normal = [x, y, z]`` in the same coordinates, default the stem axis
 ``[0, 0, 1]``; ``"blob"``: an appearance the tracker must not assume, drawn as a sphere),
 ``brightness_e_per_s`` (electrons per pixel per second inside the dot; needed to render or
-plan, not to track).  ``kind = "occluder"`` instead describes an opaque cylinder about the axis
+plan, not to track), ``colour`` (``"any"``, the default: the dot is told by its brightness; ``"red"``,
+``"green"``, ``"blue"``: a coloured sticker, told by that colour) and ``polarity`` (``"bright"``, the
+default, or ``"dark"``: a black dot on a light rotor).  ``kind = "occluder"`` instead describes an opaque cylinder about the axis
 (``radius_m, z_min_m, z_max_m``, on the frame), e.g. the rotor can.
 
 The renderer draws every dot; the tracker follows the ``tip`` (on the axis), the frame's dots
@@ -29,9 +31,14 @@ import numpy as np
 from ._validate import ProtocolError, check_keys, number, vector3
 from .protocols import Protocol
 
-__all__ = ["Marker", "Occluder", "MarkerSet", "parse_markers", "TIP_MARKER", "MARKER_SHAPES", "MARKER_BODIES"]
+__all__ = ["Marker", "Occluder", "MarkerSet", "parse_markers", "TIP_MARKER", "MARKER_SHAPES", "MARKER_BODIES",
+           "MARKER_COLOURS", "MARKER_POLARITIES"]
 
 MARKER_SHAPES = ("sphere", "disc", "blob")
+#: what sets a marker apart from what is around it: its brightness (``any``) or one colour of sticker
+MARKER_COLOURS = ("any", "red", "green", "blue")
+#: a marker brighter than its surroundings (a retroreflective or white dot) or darker (a black dot on a light rotor)
+MARKER_POLARITIES = ("bright", "dark")
 MARKER_BODIES = ("frame", "rotor", "lab")
 
 #: the marker the tracker follows (on the symmetry axis, on the frame)
@@ -52,6 +59,10 @@ class Marker:
     shape: str = "sphere"
     #: a disc's unit normal, in the coordinates of its body
     normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    #: :data:`MARKER_COLOURS`: "any" (found by brightness) or the colour of a sticker (found by that colour)
+    colour: str = "any"
+    #: :data:`MARKER_POLARITIES`: brighter or darker than what is around it
+    polarity: str = "bright"
 
     @property
     def off_axis_m(self) -> float:
@@ -130,7 +141,8 @@ def parse_markers(source: Protocol | Mapping[str, Any]) -> MarkerSet:
                                       number(s, "z_min_m", m["z_min_m"], lo=-1.0, hi=1.0),
                                       number(s, "z_max_m", m["z_max_m"], lo=-1.0, hi=1.0)))
             continue
-        check_keys(s, m, {"body", "position_m", "radius_m"}, {"kind", "brightness_e_per_s", "shape", "normal"})
+        check_keys(s, m, {"body", "position_m", "radius_m"},
+                   {"kind", "brightness_e_per_s", "shape", "normal", "colour", "polarity"})
         if m.get("kind", "dot") != "dot":
             raise ProtocolError(f"{s}.kind = {m['kind']!r}: allowed 'dot', 'occluder'")
         if m["body"] not in MARKER_BODIES:
@@ -144,11 +156,16 @@ def parse_markers(source: Protocol | Mapping[str, Any]) -> MarkerSet:
         length = math.sqrt(sum(v * v for v in normal))
         if length == 0:
             raise ProtocolError(f"{s}.normal = {list(normal)!r}: must not be zero")
+        colour, polarity = m.get("colour", "any"), m.get("polarity", "bright")
+        if colour not in MARKER_COLOURS:
+            raise ProtocolError(f"{s}.colour = {colour!r}: allowed {', '.join(map(repr, MARKER_COLOURS))}")
+        if polarity not in MARKER_POLARITIES:
+            raise ProtocolError(f"{s}.polarity = {polarity!r}: allowed {', '.join(map(repr, MARKER_POLARITIES))}")
         brightness = (None if "brightness_e_per_s" not in m else
                       number(s, "brightness_e_per_s", m["brightness_e_per_s"], lo=0.0, lo_open=True))
         dots.append(Marker(name, m["body"], vector3(s, "position_m", m["position_m"]),
                            number(s, "radius_m", m["radius_m"], lo=0.0, lo_open=True, hi=0.1), brightness, shape,
-                           tuple(v / length for v in normal)))
+                           tuple(v / length for v in normal), colour, polarity))
     if not dots:
         raise ProtocolError("[markers] has no dot (kind = 'dot'): nothing to track")
     return MarkerSet(tuple(dots), tuple(occluders))

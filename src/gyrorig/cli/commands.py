@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -199,11 +200,20 @@ def _cmd_bench_render(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _with_capture_fps(camera, capture_fps: float | None):
+    """The camera with ``--capture-fps`` applied (checked: a positive finite rate)."""
+    if capture_fps is None:
+        return camera
+    if not (math.isfinite(capture_fps) and 0 < capture_fps <= 1e6):
+        raise ValueError(f"--capture-fps {capture_fps:g}: allowed (0, 1e6] frames per second")
+    return replace(camera, capture_fps=float(capture_fps))
+
+
 def _cmd_track(args: argparse.Namespace) -> int:
     from ..tracking import load_camera, track_video
 
     protocol = load_protocol(args.protocol)
-    camera = load_camera(args.camera, require_pose=False)
+    camera = _with_capture_fps(load_camera(args.camera, require_pose=False), args.capture_fps)
     summary = track_video(args.video, camera, protocol, args.out, progress=progress_printer("track"),
                           frame_dots=not args.tip_only)
     n = summary["frames"]
@@ -422,7 +432,12 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         return EXIT_OK if ok == len(summary) else EXIT_FAILED
     if protocol is None or args.camera is None:
         raise ValueError("analyze VIDEO needs --camera and --protocol")
-    res = analyze_video(src, args.camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
+    camera = args.camera
+    if args.capture_fps is not None:
+        from ..tracking import load_camera
+
+        camera = _with_capture_fps(load_camera(args.camera, require_pose=False), args.capture_fps)
+    res = analyze_video(src, camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
                         terms=terms_arg(args.terms), constraints=constraints,
                         stage=lambda msg: print(msg, flush=True))
     ts = res["time_s"]

@@ -208,6 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--camera", required=True, help="camera.json with intrinsics and the pose relative to the pivot")
     k.add_argument("--protocol", required=True, help="protocol with the [markers] geometry")
     k.add_argument("--out", required=True, help="output directory")
+    add_capture_fps(k)
     k.add_argument("--tip-only", action="store_true",
                    help="skip the frame's off-axis dots (no psi_rad; about twice as fast)")
     k.add_argument("--overlay", action="store_true",
@@ -232,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--camera", default=None, help="camera.json")
     an.add_argument("--protocol", default=None, help="protocol TOML")
     an.add_argument("--out", required=True, help="output directory")
+    add_capture_fps(an)
     add_fit_options(an)
     an.set_defaults(func="_cmd_analyze")
 
@@ -252,6 +254,13 @@ def build_parser() -> argparse.ArgumentParser:
     cal.set_defaults(out_is_file=True)
     _add_overwrite(sub)
     return p
+
+
+def add_capture_fps(parser) -> None:
+    """``--capture-fps``: the rate a slow-motion file was captured at (its stored rate is lower)."""
+    parser.add_argument("--capture-fps", type=float, default=None,
+                        help="the rate the frames were captured at, when the file stores them at a lower one (slow "
+                             "motion: captured at 240, stored at 30); overrides camera.json's capture_fps")
 
 
 def _add_overwrite(sub) -> None:

@@ -179,10 +179,9 @@ def render_phone_video(scene: Mapping[str, Any], out_dir: str | Path, *, style: 
             if k not in kept:
                 continue
             t = k / cam.fps
-            shift = style.drift_px_per_s * t
-            x0 = int(round(margin + shift * 0.8))
-            y0 = int(round(margin + shift * 0.6))
-            bg = photo[y0:y0 + cam.height_px, x0:x0 + cam.width_px] * style.background_level
+            shift = style.drift_px_per_s * t  # along (0.8, 0.6), by fractions of a pixel (bilinear)
+            centre = (margin + 0.8 * shift + (cam.width_px - 1) / 2, margin + 0.6 * shift + (cam.height_px - 1) / 2)
+            bg = cv2.getRectSubPix(photo, (cam.width_px, cam.height_px), centre) * style.background_level
             light = 1.0 + style.flicker_fraction * math.sin(2 * math.pi * style.flicker_hz * t)
             alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
             linear = (bg * (1.0 - alpha) + alpha * rgb) * light

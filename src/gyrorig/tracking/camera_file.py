@@ -58,6 +58,9 @@ class TrackingCamera:
     #: pose (``pose_source.video_fingerprint``): tracking that recording marks the pose's modes as found from
     #: its own frames (None: the pose is outside knowledge)
     pose_recording: str | None = None
+    #: the rate the frames were captured at when the file stores them at another (slow motion: captured at 240,
+    #: stored at 30); NaN: the file's own times are real times [frames/s]
+    capture_fps: float = math.nan
 
     @property
     def has_pose(self) -> bool:
@@ -150,6 +153,8 @@ def _check_camera_values(path: Path, d: dict) -> None:
         _scalar(path, "fps", d["fps"], 0.0, lo_open=True, hi=1e6)
     if "exposure_s" in d:
         _scalar(path, "exposure_s", d["exposure_s"], 0.0, hi=10.0)
+    if "capture_fps" in d:
+        _scalar(path, "capture_fps", d["capture_fps"], 0.0, lo_open=True, hi=1e6)
     if d.get("shutter", "global") not in ("global", "rolling"):
         raise CameraFileError(f"{path}: shutter = {d['shutter']!r}: allowed 'global', 'rolling'")
     if "readout_time_s" in d:
@@ -216,7 +221,8 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
         d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
         float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1,
-        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)), points, _pose_recording(path, d))
+        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)), points, _pose_recording(path, d),
+        float(d.get("capture_fps", np.nan)))
 
 
 def _pose_recording(path: Path, d: dict) -> str | None:

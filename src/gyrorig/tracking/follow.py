@@ -62,6 +62,21 @@ CHI2_SPREADS = 4.0
 MIN_GATE_PX = 3.0
 #: a candidate confirms one of the last frame's when it lies within this many expected radii (+5 px) of it
 ACQUIRE_REACH = 1.0
+#: a scene with this many candidates of the tip's size or more is busy (a texture's spots, not the rig's few): the tip
+#: is then the candidate that moved unlike the scene, by more than this between the two frames [px]
+BUSY_CANDIDATES = 12
+SCENE_MOTION_PX = 0.5
+#: the scene is registered between frames at most this wide (downsampled), and its shift believed when the phase
+#: correlation's peak holds at least this much of the response
+REGISTER_WIDTH_PX = 480
+REGISTER_MIN_RESPONSE = 0.08
+#: a reacquired tip lies within this many expected radii of where it was lost, plus this many times its fastest
+#: motion per frame before the loss for every frame since
+REACQUIRE_RADII = 3.0
+REACQUIRE_SPEEDS = 2.0
+#: a spot whose centre is known worse than this fraction of the tip's expected radius is not a clean image of it
+#: (a texture's blob, a tip partly hidden)
+MAX_SIGMA_RADII = 0.25
 #: when searching, the candidates of highest contrast considered, and how many of them are fitted
 ACQUIRE_CANDIDATES = 16
 ACQUIRE_FITS = 8
@@ -92,6 +107,22 @@ def _lab_images(camera: TrackingCamera, markers: tuple[Marker, ...]) -> list[tup
     return out
 
 
+def scene_shift(before: np.ndarray | None, after: np.ndarray) -> np.ndarray | None:
+    """How the scene moved between two frames [px] (phase correlation of the frames downsampled to at most
+    :data:`REGISTER_WIDTH_PX`, Hann-windowed), or None when there is no frame before or the scene has too little
+    texture to say (a weak correlation peak, :data:`REGISTER_MIN_RESPONSE`)."""
+    if before is None or before.shape != after.shape:
+        return None
+    f = max(1, int(math.ceil(after.shape[1] / REGISTER_WIDTH_PX)))
+    a = cv2.resize(np.asarray(before, np.float32), None, fx=1 / f, fy=1 / f, interpolation=cv2.INTER_AREA)
+    b = cv2.resize(np.asarray(after, np.float32), None, fx=1 / f, fy=1 / f, interpolation=cv2.INTER_AREA)
+    window = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_32F)
+    (dx, dy), response = cv2.phaseCorrelate(a, b, window)
+    if not response >= REGISTER_MIN_RESPONSE:
+        return None
+    return np.array([dx * f, dy * f])
+
+
 class TipFollower:
     """Finds the tip spot in each frame (see the module docstring)."""
 
@@ -113,8 +144,11 @@ class TipFollower:
         self.chi2s: deque[float] = deque(maxlen=15)
         self.misses = 0
         self.pending: list[SpotFit] = []  # the last frame's candidates, when searching
+        self.pending_frame: np.ndarray | None = None  # ... and that frame
         self.confirmed: SpotFit | None = None  # the candidate of the last frame that this frame confirmed
         self.had_lock = False
+        self.lost_at: tuple[float, float, float] | None = None  # where the tip was lost (x, y) and its speed [px/frame]
+        self.since_lost = 0  # frames since
 
     # ------------------------------------------------------------------------------- checks
     def _appearance_ok(self, fit: SpotFit) -> bool:
@@ -132,8 +166,17 @@ class TipFollower:
         chi2_ok = fit.chi2_own <= limit
         return radius_ok and chi2_ok and AMPLITUDE_CHANGE[0] * a0 <= fit.amplitude_adu <= AMPLITUDE_CHANGE[1] * a0
 
+    def _as_bright(self, fit: SpotFit) -> bool:
+        """The fit's amplitude within :data:`AMPLITUDE_CHANGE` of the tip's running median (True without one)."""
+        if len(self.amplitudes) < 3:
+            return True
+        a0 = float(np.median(self.amplitudes))
+        return AMPLITUDE_CHANGE[0] * a0 <= fit.amplitude_adu <= AMPLITUDE_CHANGE[1] * a0
+
     def _looks_like_tip(self, fit: SpotFit) -> bool:
         """The shape and size test for a fit whose position is already the tip's (see the module docstring)."""
+        if not math.sqrt(max(float(np.max(np.linalg.eigvalsh(fit.cov_xy))), 0.0)) <= MAX_SIGMA_RADII * self.r_expected:
+            return False
         if self.disc is None:
             lo, hi = SIZE_RANGE[self.shape]
             return bool(math.isfinite(fit.radius_px) and lo * self.r_expected <= fit.radius_px <= hi * self.r_expected)
@@ -205,26 +248,53 @@ class TipFollower:
         for the next)."""
         # the highest-contrast candidates of a plausible size (a textured background offers many), the ones
         # nearest the tip's expected size fitted first
-        cand = sorted(self._candidates(frame, threshold)[:ACQUIRE_CANDIDATES],
-                      key=lambda c: abs(c.r - self.r_expected))
+        everything = self._candidates(frame, threshold)
+        busy = len(everything) >= BUSY_CANDIDATES
+        cand = sorted(everything[:ACQUIRE_CANDIDATES], key=lambda c: abs(c.r - self.r_expected))
         fits = []
         for x0, y0, r0, _ in cand[:ACQUIRE_FITS]:
             fit = self._fit(frame, x0, y0, r0)
             if (fit is not None and fit.blended and self.shape == "sphere" and self.camera.sensor_known
                     and not self._looks_like_tip(fit)):
                 fit = self._fit(frame, x0, y0, r0, neighbour="mask")
-            if fit is not None and self._looks_like_tip(fit):
+            # a reacquired tip is as bright as before it was lost (its image's size may have changed meanwhile)
+            if fit is not None and self._looks_like_tip(fit) and (not self.had_lock or self._as_bright(fit)):
                 fits.append(fit)
         reach = ACQUIRE_REACH * self.r_expected + 5.0
         pairs = [(abs(math.log(f.radius_px / self.r_expected)), math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
                  for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
                  if AMPLITUDE_CHANGE[0] <= f.amplitude_adu / g.amplitude_adu <= AMPLITUDE_CHANGE[1]]
         pairs = [p for p in pairs if p[1] <= reach]
+        if pairs:
+            pairs = self._unlike_the_scene(pairs, scene_shift(self.pending_frame, frame), busy)
         if pairs:  # the confirmed candidate nearest the tip's expected size
             _, _, _, fit, self.confirmed = min(pairs, key=lambda p: p[:3])
             return fit
-        self.pending = fits
+        self.pending, self.pending_frame = fits, frame
         return None
+
+    def _unlike_the_scene(self, pairs: list, shift: np.ndarray | None, busy: bool) -> list:
+        """The confirmed candidates that moved unlike the scene between the two frames: a spot of a textured
+        scene moves with it (still, or drifting), the tip with the top.  The scene's motion is ``shift`` (the
+        frames' registration, when there is something to register) or their median motion.  The test is made
+        in a busy scene (``busy``: :data:`BUSY_CANDIDATES` spots of the tip's size or more, a texture's), and
+        when reacquiring a tip that moved faster than twice :data:`SCENE_MOTION_PX` per frame before it was
+        lost (a slow tip cannot be told from the scene in two frames; the rig's own few spots in a quiet scene
+        are told apart by size).  When none moved unlike the scene
+        (the tip not among them, or a still top in a busy scene) none is taken.  A reacquisition only considers
+        candidates within reach of where the tip was lost (:data:`REACQUIRE_RADII`, :data:`REACQUIRE_SPEEDS`)."""
+        fast = False
+        if self.had_lock and self.lost_at is not None:  # the tip cannot have gone further than its speed allows
+            x, y, speed = self.lost_at
+            reach = REACQUIRE_RADII * self.r_expected + REACQUIRE_SPEEDS * speed * self.since_lost
+            pairs = [p for p in pairs if math.hypot(p[3].x_px - x, p[3].y_px - y) <= reach]
+            fast = speed > 2 * SCENE_MOTION_PX
+        if not pairs or not (busy or fast):
+            return pairs
+        moves = np.array([[f.x_px - g.x_px, f.y_px - g.y_px] for *_, f, g in pairs])
+        scene = shift if shift is not None else np.median(moves, axis=0)
+        odd = np.hypot(*(moves - scene).T)
+        return [p for p, o in zip(pairs, odd) if o > SCENE_MOTION_PX]
 
     # ------------------------------------------------------------------------------- per frame
     def locate(self, frame: np.ndarray, threshold: Detection) -> Located:
@@ -236,8 +306,9 @@ class TipFollower:
                 return Located(fit, "ok")
             self.misses += 1
             if self.misses > COAST_FRAMES:
-                self.last.clear()
+                self._lose()
             return Located(None, "missing")
+        self.since_lost += 1
         fit = self._acquire(frame, threshold)
         if fit is None:
             return Located(None, "missing")
@@ -246,6 +317,15 @@ class TipFollower:
         self._accept(previous)
         self._accept(fit)
         return Located(fit, quality, previous)
+
+    def _lose(self) -> None:
+        """Forget the track; remember where it ended and how fast the tip moved (a reacquisition's reach)."""
+        if self.last:
+            p = np.array(self.last)
+            speed = float(np.max(np.hypot(*np.diff(p, axis=0).T))) if len(p) > 1 else 0.0
+            self.lost_at = (float(p[-1, 0]), float(p[-1, 1]), speed)
+            self.since_lost = self.misses
+        self.last.clear()
 
     def _accept(self, fit: SpotFit) -> None:
         self.last.append((fit.x_px, fit.y_px))
@@ -258,5 +338,5 @@ class TipFollower:
 
     def lost(self) -> None:
         """The located spot was not usable (its ray misses the tip's sphere): search anew."""
-        self.last.clear()
+        self._lose()
         self.misses = 0

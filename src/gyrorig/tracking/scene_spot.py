@@ -7,7 +7,7 @@ covers the scene: ``mu = B (1 - c) + M c``, ``c`` the disc's coverage blurred by
 (``erfc((rho - r) / (sqrt(2) sigma)) / 2``), ``M`` the marker's level and ``B`` the scene **just outside
 the disc at the same angle**: the mean of the ring ``r + 3 sigma <= rho < r + 3 sigma + 2`` px in
 :data:`ANGLE_BINS` bins around the centre, interpolated in angle.  Only the pixels inside the ring are
-fitted (``x, y, r, M``; unweighted least squares, the ring taken again about each new centre); what the
+fitted (``x, y, r, M`` and the blur; weighted least squares, the ring taken again about the first few centres); what the
 scene does between the ring and the disc's edge is left in the residuals, and the centre's covariance
 comes from them (:func:`sandwich_covariance`), so it grows where the scene behind
 the edge is busy.
@@ -40,6 +40,11 @@ RING_GAP_SIGMAS = 3.0
 #: the edge's blur is fitted (a recording's optics, focus and codec widen the PSF), up to this factor (+1 px) of the
 #: camera file's PSF sigma
 MAX_BLUR = 2.5
+#: the ring (and the pixels inside it) is taken again about the new centre for this many passes, then held
+RING_PASSES = 3
+#: the fit has converged when a full Gauss-Newton step moves the centre by less than this [px] (the ring is taken
+#: again about each new centre, so the steps settle at a small fraction of the centre's error, not at zero)
+CONVERGED_PX = 1e-3
 #: the marker's own noise is measured on at least this many pixels inside its edge (else the ring's holds there)
 MIN_INNER_PIXELS = 8
 #: a ring bin brighter than the ring's median by this many robust SDs of the ring's bins, and by this fraction
@@ -117,14 +122,15 @@ def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, i
     again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured."""
     converged = False
     var_in = None  # the residuals' variance on the marker (unknown before the first pass)
-    for _ in range(iterations):
+    for it in range(iterations):
         dx, dy = xx - p[0], yy - p[1]
         rho = np.hypot(dx, dy) + 1e-12
-        gap = RING_GAP_SIGMAS * p[4]
-        bins, scene, spread = _ring(win, np.arctan2(dy, dx), rho, p[2] + gap)
-        if bins is None:
-            return None
-        use = (rho < p[2] + gap) & allowed
+        if it < RING_PASSES:  # then the ring and the fitted pixels stay put: their edges would make the steps flip
+            gap = RING_GAP_SIGMAS * p[4]
+            bins, scene, spread = _ring(win, np.arctan2(dy, dx), rho, p[2] + gap)
+            if bins is None:
+                return None
+            use = (rho < p[2] + gap) & allowed
         arg = (rho - p[2]) / (math.sqrt(2.0) * p[4])
         c = 0.5 * erfc(arg)
         gauss = np.exp(-arg * arg) / (math.sqrt(2.0 * math.pi) * p[4])
@@ -149,21 +155,25 @@ def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, i
             return None
         if not np.all(np.isfinite(step)):
             return None
-        for _ in range(30):  # halve the step until the radius and the blur stay in range
+        # converged when the full step is small (one more pass then evaluates the weights, residuals and Fisher
+        # matrix at the solution); a step is halved until the radius and the blur stay in range
+        converged = abs(step[0]) < CONVERGED_PX and abs(step[1]) < CONVERGED_PX
+        for _ in range(12):
             if (p[2] + step[2] > 0.3 * r0 and 0.2 * sigma < p[4] + step[4] < sigma_max and abs(step[0]) <= r0
                     and abs(step[1]) <= r0):
                 break
             step = step / 2
+            converged = False
         else:
             return None
         p = p + step
-        # converged: one more pass evaluates the weights, residuals and Fisher matrix at the solution
-        converged = abs(step[0]) < 1e-4 and abs(step[1]) < 1e-4
+    if not converged:
+        return None
     return _Solution(p, converged, use, weight, jac, resid, fisher, bins, c)
 
 
 def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
-                   iterations: int = 10) -> SpotFit | None:
+                   iterations: int = 15) -> SpotFit | None:
     """Fit the opaque disc in front of the scene (module docstring) around ``(x0, y0)``, start radius ``r0``.
 
     Saturated pixels are left out, and so is the light of another spot that reaches inside the ring

@@ -101,6 +101,20 @@ class VideoFile:
             raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
         return h.hexdigest()
 
+    def median_interval_s(self) -> float:
+        """The median interval between the stream's presentation times [s], read from its packets without
+        decoding them (NaN when the stream has no times)."""
+        import av
+
+        try:
+            with av.open(str(self.path), "r") as container:
+                stream = container.streams.video[0]
+                pts = [p.pts for p in container.demux(stream) if p.pts is not None]
+                base = stream.time_base
+        except (av.FFmpegError, IndexError, ValueError, OSError) as exc:
+            raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
+        return _median_interval(np.sort(np.asarray(pts, float)) * float(base)) if base else math.nan
+
     def open(self, *, colour: bool = False) -> Frames:
         import av
 
@@ -161,6 +175,10 @@ class FrameArrays:
     def fingerprint(self) -> None:
         """Frames in memory have no recording to recognise later."""
         return None
+
+    def median_interval_s(self) -> float:
+        """The median interval between the frames' times [s] (NaN without times)."""
+        return _median_interval(self.t_s) if self.t_s is not None else math.nan
 
     def open(self, *, colour: bool = False) -> Frames:
         h, w = np.shape(self.frames[0])[:2]
@@ -224,6 +242,10 @@ class ImageFolder:
             h.update(np.asarray(self.t_s, float).tobytes())
         return h.hexdigest()
 
+    def median_interval_s(self) -> float:
+        """The median interval between the frames' times [s] (NaN without timestamps)."""
+        return _median_interval(self.t_s) if self.t_s is not None else math.nan
+
     def _read(self, k: int) -> np.ndarray:
         image = cv2.imread(str(self.files[k]), cv2.IMREAD_UNCHANGED)
         if image is None:
@@ -246,6 +268,12 @@ class ImageFolder:
                 yield np.ascontiguousarray(_as_wanted(image, colour, "BGR")), float(t)
 
         return Frames(int(w), int(h), math.nan, len(self.files), items())
+
+
+def _median_interval(t_s) -> float:
+    dt = np.diff(np.asarray(t_s, float))
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    return float(np.median(dt)) if len(dt) else math.nan
 
 
 def _as_wanted(image: np.ndarray, colour: bool, order: str) -> np.ndarray:

@@ -40,6 +40,7 @@ from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count, camera_mode_prior_column
 from .camera_file import TrackingCamera
 from .detect import Detection, detection_threshold, opening_size_px
+from .appearance import marker_image
 from .follow import SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
@@ -49,7 +50,7 @@ from .scatter import SigmaCheck, check_sigmas, neighbour_positions
 from .sources import as_source, fingerprint
 from .spot import SpotFit
 
-__all__ = ["TrackResult", "track", "track_video", "tip_marker", "frame_interval_stats"]
+__all__ = ["TrackResult", "track", "track_video", "tip_marker", "frame_interval_stats", "check_frame_rate"]
 
 Progress = Callable[[int, int], None]
 logger = logging.getLogger(__name__)
@@ -301,16 +302,6 @@ def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera
     return [float("nan"), float("nan")]
 
 
-def _linearizer(camera: TrackingCamera):
-    """For a sensor with gamma: a function that maps recorded values back to linear ones (same full scale,
-    float32); None for a linear sensor."""
-    if camera.gamma == 1.0:
-        return None
-    top = float(camera.max_adu)
-    table = (top * (np.arange(camera.max_adu + 1) / top) ** camera.gamma).astype(np.float32)
-    return lambda frame: table[frame]
-
-
 def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progress | None = None,
           frame_dots: bool = True) -> TrackResult:
     """Track the tip marker through a video (a path, or a frame source of :mod:`gyrorig.tracking.sources`).
@@ -318,8 +309,10 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     With ``frame_dots`` (and frame-fixed dots off the axis in the protocol, like the crossbar)
     these are tracked too: their detections go to ``markers`` and the frame's angle about the
     axis to ``angles`` (``psi_rad, psi_sigma_rad``; modulo pi for a symmetric pair).  Frame
-    numbers come from the container's timestamps (frames a camera dropped are gaps); a frame
-    identical to the one before is marked ``duplicate``.  Reads only the video, the camera and
+    numbers come from the container's timestamps on camera.json's frame rate (frames a camera dropped
+    are gaps; a variable rate's frames keep their order and own times; a slow-motion file's times are
+    scaled by its rate over ``camera.capture_fps``); a frame identical to the one before is marked
+    ``duplicate``.  Frames are read at the video's own bit depth.  Reads only the video, the camera and
     the protocol's markers.
 
     Raises :class:`TrackingError` for an unreadable video, a camera that does not match the
@@ -330,16 +323,21 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     pose_info = None
     if not camera.has_pose:
         camera, pose_info = estimate_pose(source, camera, protocol)
-    with source.open() as frames:
-        if not math.isfinite(camera.fps):
-            camera = replace(camera, fps=frames.fps)
+    appearance = marker_image(tip, camera)
+    with source.open(colour=appearance.colour) as frames:
+        camera, time_scale = _timing(camera, frames, source)
+        if frames.bit_depth is not None and frames.bit_depth < 16 and (1 << frames.bit_depth) - 1 != camera.max_adu:
+            logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
+                        frames.bit_depth, camera.max_adu.bit_length())
+            camera = replace(camera, max_adu=(1 << frames.bit_depth) - 1)
         if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
             raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                                 f"{frames.width_px} x {frames.height_px}")
         lossy = frames.lossy
-        if lossy and camera.sensor_known:  # the codec changed the pixel values: the noise model does not hold
+        if (lossy or not appearance.keeps_sensor_model) and camera.sensor_known:
+            # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = replace(camera, gain_e_per_adu=math.nan)
-        linear = _linearizer(camera)
+        appearance = marker_image(tip, camera)
         follower = TipFollower(camera, tip, parse_markers(protocol).fiducials())
         dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
@@ -347,10 +345,9 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
         rows = _Tables()
         prev_hash = None
-        last_index = -1
+        clock = _FrameClock(camera.fps, time_scale, source)
         k = 0
         t_decode = t_track = 0.0  # t_decode: time spent waiting for decoded frames
-        raw_times: list[float] = []
         it = iter(frames)
         while True:
             t0 = time.perf_counter()
@@ -360,18 +357,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             if item is None:
                 break
             frame, t_frame = item
-            t_frame = t_frame if math.isfinite(t_frame) else k / camera.fps
-            raw_times.append(t_frame)
-            index = int(round(t_frame * camera.fps))
-            if index <= last_index:
-                raise BadInputError(
-                    f"{source}: frames at {t_frame:.6g} s and before both number {index} at camera.json's fps "
-                    f"{camera.fps:g} (the video's nominal rate is {frames.fps:g} fps): the camera file's fps does "
-                    "not match the video's frame times")
-            last_index = index
-            if abs(t_frame - index / camera.fps) <= TIME_SNAP_FRAMES / camera.fps:
-                # a container's time base rounds (Matroska: to 1 ms); the frame's own time is its index's
-                t_frame = index / camera.fps
+            index, t_frame = clock.number(t_frame, k)
             digest = hash(frame[::7, ::7].tobytes())
             if digest == prev_hash:
                 rows.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
@@ -379,8 +365,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
                 k += 1
                 continue
             prev_hash = digest
-            if linear is not None:
-                frame = linear(frame)
+            frame = appearance(frame)
             if k % 100 == 0:  # the contrast's spread, refreshed every 100 frames (drifting light, moving scenes)
                 threshold = detection_threshold(frame, scale_px, floor=4.0 * camera.max_adu / 255.0)
             rows.frame(camera, tip, follower, dots, frame, index, t_frame, threshold)
@@ -390,20 +375,102 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
                 progress(k, frames.count)
     if k == 0:
         raise TrackingError(f"{source}: no frame could be decoded (unreadable or truncated video)")
+    check_frame_rate(np.asarray(clock.times), camera.fps, source)
     angles, markers = rows.tables(camera, dots is not None)
     if not angles.theta_rad.notna().any():
         raise TrackingError(f"{source}: the tip marker was never found in {k} frames")
-    check = _check_and_scale(angles, markers, rows, _sensor_doubts(camera, lossy, follower), tip.name)
+    doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
+    check = _check_and_scale(angles, markers, rows, doubts, tip.name)
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
                                      pose_info or camera.pose_points, own_pose)
     if progress:
         progress(k, k)
-    times = frame_interval_stats(np.asarray(raw_times), camera.fps)
+    times = frame_interval_stats(np.asarray(clock.times), camera.fps)
+    if times:
+        times.update(time_scale=time_scale, renumbered_frames=clock.renumbered,
+                     capture_fps=camera.capture_fps if math.isfinite(camera.capture_fps) else None)
     if not times.get("agrees_with_camera", True):
         logger.warning("%s: %s", source, times["warning"])
     return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
                        pose_info, camera_sigma, check, times)
+
+
+#: the frame rate is checked against camera.json's after this many frames (and again at the end)
+RATE_CHECK_FRAMES = 30
+#: a record whose intervals are this many grid steps or more (all but :data:`RATE_MISMATCH_SHARE` of them) is stored
+#: at a lower rate than camera.json's fps, not missing frames
+RATE_MISMATCH_SHARE = 0.9
+
+
+class _FrameClock:
+    """Frame numbers and times from the source's times: scaled to real time (slow motion), numbered on the camera's
+    rate (a frame that would repeat the last number, a variable rate's jitter, takes the next one and keeps its own
+    time), snapped to its number's time when within :data:`TIME_SNAP_FRAMES` (a container's rounding), the rate
+    checked after :data:`RATE_CHECK_FRAMES` frames."""
+
+    def __init__(self, fps: float, time_scale: float, source):
+        self.fps, self.time_scale, self.source = fps, time_scale, source
+        self.times: list[float] = []  # every frame's time as read (scaled) [s]
+        self.last = -1
+        self.renumbered = 0
+
+    def number(self, t_s: float, k: int) -> tuple[int, float]:
+        """The ``k``-th decoded frame's number and time [s] (its time NaN: counted at the camera's rate)."""
+        t = t_s * self.time_scale if math.isfinite(t_s) else k / self.fps
+        self.times.append(t)
+        index = int(round(t * self.fps))
+        if index <= self.last:
+            self.renumbered += 1
+            index = self.last + 1
+        self.last = index
+        if len(self.times) == RATE_CHECK_FRAMES:
+            check_frame_rate(np.asarray(self.times), self.fps, self.source)
+        if abs(t - index / self.fps) <= TIME_SNAP_FRAMES / self.fps:
+            t = index / self.fps
+        return index, t
+
+
+def _timing(camera: TrackingCamera, frames, source) -> tuple[TrackingCamera, float]:
+    """The camera with its frame rate settled, and the factor from the file's times to real times: a capture rate
+    stated apart from the file's (slow motion) scales the file's times so that their median interval is one
+    capture interval."""
+    if math.isfinite(camera.capture_fps):
+        interval = source.median_interval_s() if hasattr(source, "median_interval_s") else math.nan
+        if not (math.isfinite(interval) and interval > 0):
+            raise BadInputError(f"{source}: a capture rate of {camera.capture_fps:g} fps is given, but the file has no "
+                                "frame times to scale")
+        return replace(camera, fps=camera.capture_fps), 1.0 / (camera.capture_fps * interval)
+    if not math.isfinite(camera.fps):
+        return replace(camera, fps=frames.fps), 1.0
+    return camera, 1.0
+
+
+def check_frame_rate(t_s: np.ndarray, fps: float, source) -> None:
+    """Refuse frame times that camera.json's ``fps`` cannot number (bad input, :class:`BadInputError`): frames
+    closer than 3/4 of a grid step (the file's rate is higher), or all but a few of them whole grid steps apart
+    (:data:`RATE_MISMATCH_SHARE`: a slow-motion file stored at a lower rate than it was captured at; dropped
+    frames leave only some such gaps).  A variable rate and dropped frames pass (they keep their own times)."""
+    dt = np.diff(np.asarray(t_s, float))
+    dt = dt[np.isfinite(dt)]
+    if len(dt) < 3:
+        return
+    steps = dt * fps
+    med = float(np.median(steps))
+    if med < 0.75:
+        raise BadInputError(f"{source}: the frames are {float(np.median(dt)) * 1e3:.4g} ms apart (median), "
+                            f"{1.0 / float(np.median(dt)):.5g} fps, but camera.json says {fps:g} fps: two frames would "
+                            "share one number; give camera.json the video's frame rate")
+    wide = steps >= 1.5
+    if len(dt) >= 10 and np.mean(wide) >= RATE_MISMATCH_SHARE:
+        whole = np.abs(steps - np.round(steps)) < 0.2
+        what = (f"{source}: all but {np.sum(~wide)} of {len(dt)} frame intervals are {med:.3g} frame intervals of "
+                f"camera.json's {fps:g} fps ({1.0 / float(np.median(dt)):.5g} fps in the file)")
+        if np.mean(whole[wide]) >= RATE_MISMATCH_SHARE:
+            raise BadInputError(what + ": a slow-motion file stored at a lower rate than it was captured at? Give the "
+                                "capture rate (--capture-fps or capture_fps in camera.json), or give camera.json's fps "
+                                "the file's rate")
+        raise BadInputError(what + ": camera.json's fps does not match the video")
 
 
 #: the median frame interval may differ from 1 / camera.json's fps by this fraction before a warning

@@ -1,0 +1,70 @@
+"""The image the tracker works on: one where the tip marker is brighter than what is around it.
+
+- a bright marker (``polarity = "bright"``, ``colour = "any"``): the frame's luma, linearised when the
+  camera records with a gamma;
+- a dark marker (``polarity = "dark"``): the linearised luma turned over (full scale minus it);
+- a coloured sticker (``colour = "red" | "green" | "blue"``): from the RGB frame, each channel linearised,
+  that channel minus the mean of the other two (grey, white and black scenes give about 0, the sticker
+  its colour's excess; a dark coloured marker is turned over as well).
+
+Only the first keeps the sensor's noise model; the others are judged by the recorded-footage models
+(:mod:`gyrorig.tracking.scene_spot`, the scatter check).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..markers import Marker
+from .camera_file import TrackingCamera
+
+__all__ = ["MarkerImage", "marker_image"]
+
+_CHANNEL = {"red": 0, "green": 1, "blue": 2}
+
+
+class MarkerImage:
+    """Turns decoded frames into the tracker's image (module docstring): ``colour`` says whether frames must
+    be decoded as RGB; calling it maps one decoded frame; ``keeps_sensor_model`` whether the sensor's noise model
+    still describes the result."""
+
+    def __init__(self, marker: Marker, camera: TrackingCamera):
+        self.colour = marker.colour != "any"
+        self.dark = marker.polarity == "dark"
+        self.keeps_sensor_model = not (self.colour or self.dark)
+        self.top = float(camera.max_adu)
+        self.channel = _CHANNEL.get(marker.colour)
+        self._linear = _linearizer(camera)
+
+    def describe(self, marker: Marker) -> str:
+        """Why the sensor model no longer holds ('' when it does)."""
+        parts = ([f"a {marker.colour} marker's colour contrast"] if self.colour else []) + (
+            ["a dark marker (the image turned over)"] if self.dark else [])
+        return "; ".join(parts)
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray:
+        image = frame if self._linear is None else self._linear(frame)
+        if self.colour:
+            rgb = np.asarray(image, np.float32)
+            others = [c for c in range(3) if c != self.channel]
+            image = rgb[:, :, self.channel] - 0.5 * (rgb[:, :, others[0]] + rgb[:, :, others[1]])
+        if self.dark:
+            image = (self.top if not self.colour else 0.0) - np.asarray(image, np.float32)
+        return image
+
+
+def _linearizer(camera: TrackingCamera) -> Callable[[np.ndarray], np.ndarray] | None:
+    """For a sensor with gamma: a function that maps recorded values back to linear ones (same full scale,
+    float32); None for a linear sensor."""
+    if camera.gamma == 1.0:
+        return None
+    top = float(camera.max_adu)
+    table = (top * (np.arange(camera.max_adu + 1) / top) ** camera.gamma).astype(np.float32)
+    return lambda frame: table[np.minimum(frame, camera.max_adu)]
+
+
+def marker_image(marker: Marker, camera: TrackingCamera) -> MarkerImage:
+    """The :class:`MarkerImage` for a marker seen by a camera."""
+    return MarkerImage(marker, camera)
