@@ -103,6 +103,22 @@ def _interrupted(exc: BaseException) -> bool:
     return False
 
 
+def _show_first_look(exc, out) -> str | None:
+    """For a tip never found: the first frame searched with its spots and verdicts, written beside ``--out``
+    (``OUT.first-look.png``; the output folder itself is not made for a failed run); its path, or None."""
+    look = getattr(exc, "first_look", None)
+    if look is None or out is None:
+        return None
+    from ..report.overlay import write_first_look
+
+    path = Path(out).absolute()
+    path = path.with_name(path.name + ".first-look.png")
+    try:
+        return str(write_first_look(look, path))
+    except OSError:
+        return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code."""
     try:
@@ -145,6 +161,7 @@ def _main(argv: Sequence[str] | None) -> int:
     if not args.quiet:
         _announce_compiling()
     quiet = contextlib.redirect_stdout(io.StringIO()) if args.quiet else contextlib.nullcontext()
+    final_out = getattr(args, "out", None)
     try:
         with quiet, _output(args):
             return int(getattr(commands, args.func)(args))
@@ -153,7 +170,9 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"gyrorig: {'error' if code == EXIT_BAD_INPUT else 'failed'}: {exc}", file=sys.stderr)
         return code
     except TrackingError as exc:
-        print(f"gyrorig: tracking failed: {exc}", file=sys.stderr)
+        shown = _show_first_look(exc, final_out)
+        print(f"gyrorig: tracking failed: {exc}" + (f"; each spot and why it was refused: {shown}" if shown else ""),
+              file=sys.stderr)
         return EXIT_FAILED
     except SimulationError as exc:
         print(f"gyrorig: simulation failed: {exc}", file=sys.stderr)

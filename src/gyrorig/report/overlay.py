@@ -19,7 +19,7 @@ from matplotlib.patches import Ellipse
 
 from .. import _io
 
-__all__ = ["overlay_frames", "plot_overlay", "write_overlay"]
+__all__ = ["overlay_frames", "plot_overlay", "write_overlay", "write_first_look"]
 
 #: half-width of a panel's crop [px]
 CROP_HALF_PX = 24
@@ -101,4 +101,39 @@ def write_overlay(video, angles: pd.DataFrame, markers: pd.DataFrame, path: str 
     path = Path(path)
     with _io.atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=90)
+    return path
+
+
+#: colours of the first look's verdicts (the rest grey)
+_VERDICT_COLOURS = {"taken for the tip": "lime", "moved with the scene": "orange",
+                    "not found again in the next frame": "yellow", "fitted, not the tip's shape or size": "red",
+                    "fitted, unlike the tip before it was lost": "red", "no spot fit": "magenta",
+                    "not the tip's size": "cyan", "out of the tip's reach": "deepskyblue", "a lab marker": "white"}
+
+
+def write_first_look(look, path: str | Path, title: str = "") -> Path:
+    """The first frame the tracker searched, every spot that stood out in it circled in the colour of what
+    became of it (legend: the verdicts and their counts), written atomically to ``path`` (PNG)."""
+    fig = Figure(figsize=(10, 10 * look.frame.shape[0] / look.frame.shape[1] + 0.8), dpi=100)
+    ax = fig.add_subplot(1, 1, 1)
+    image = np.asarray(look.frame, float)
+    lo, hi = np.percentile(image, [1, 99.8])
+    ax.imshow(image, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1, interpolation="nearest")
+    seen = {}
+    for c in look.candidates:
+        colour = _VERDICT_COLOURS.get(c.verdict.value, "0.6")
+        ax.add_patch(Ellipse((c.x_px, c.y_px), 2 * c.radius_px + 6, 2 * c.radius_px + 6, fill=False, lw=1.2,
+                             ec=colour))
+        seen[c.verdict.value] = (colour, seen.get(c.verdict.value, (colour, 0))[1] + 1)
+    for label, (colour, n) in seen.items():
+        ax.plot([], [], "o", mfc="none", mec=colour, label=f"{label} ({n})")
+    if seen:
+        ax.legend(loc="upper right", fontsize=8, framealpha=0.8)
+    ax.set_title(title or f"first frame searched: spots above {look.threshold.threshold:.3g} of local contrast; the "
+                 f"tip's image expected {look.expected_radius_px:.3g} px in radius (upright)", fontsize=9)
+    ax.set_axis_off()
+    fig.tight_layout()
+    path = Path(path)
+    with _io.atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
     return path

@@ -6,7 +6,14 @@ __all__ = ["TrackingError", "BadInputError", "CameraFileError"]
 
 
 class TrackingError(RuntimeError):
-    """The video cannot be tracked (unreadable, camera mismatch, marker never found)."""
+    """The video cannot be tracked (unreadable, camera mismatch, marker never found).
+
+    ``first_look``: when the tip was never found, the first frame searched and every spot that stood out in
+    it with the reason it was refused (:class:`gyrorig.tracking.follow.FirstLook`; None otherwise)."""
+
+    def __init__(self, *args, first_look=None):
+        super().__init__(*args)
+        self.first_look = first_look
 
 
 class BadInputError(TrackingError, ValueError):

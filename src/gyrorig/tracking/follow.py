@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, replace
+from enum import Enum
 
 import cv2
 import numpy as np
@@ -46,7 +47,7 @@ from .rays import tip_from_pixel
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
 
-__all__ = ["TipFollower", "Located", "SIZE_RANGE"]
+__all__ = ["TipFollower", "Located", "SIZE_RANGE", "Verdict", "Candidate", "FirstLook", "scene_shift"]
 
 #: the fitted radius over the marker's expected image radius allowed for the tip (a sphere, or a blob)
 SIZE_RANGE = {"sphere": (0.7, 1.4), "blob": (0.4, 2.5)}
@@ -107,6 +108,67 @@ def _lab_images(camera: TrackingCamera, markers: tuple[Marker, ...]) -> list[tup
     return out
 
 
+class Verdict(str, Enum):
+    """What became of a spot that stood out in the first frame searched."""
+
+    SIZE = "not the tip's size"
+    LAB_MARKER = "a lab marker"
+    OFF_SPHERE = "out of the tip's reach"
+    NOT_FITTED = "fainter than the candidates fitted"
+    NO_FIT = "no spot fit"
+    SHAPE = "fitted, not the tip's shape or size"
+    NOT_ALIKE = "fitted, unlike the tip before it was lost"
+    UNCONFIRMED = "not found again in the next frame"
+    WITH_SCENE = "moved with the scene"
+    TAKEN = "taken for the tip"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A spot of the first frame searched: its centre and radius [px] and its :class:`Verdict`."""
+
+    x_px: float
+    y_px: float
+    radius_px: float
+    verdict: Verdict
+
+
+#: the first look records at most this many spots
+MAX_RECORDED = 60
+
+
+@dataclass
+class FirstLook:
+    """The first frame the follower searched, the detection threshold, and every spot that stood out in it."""
+
+    frame: np.ndarray
+    threshold: Detection
+    candidates: list
+    #: the tip's image radius the protocol and camera predict (upright) [px]
+    expected_radius_px: float
+    settled: bool = False
+
+    def settle(self, fits: list, near: list, kept: list) -> None:
+        """The next frame's verdict on the first frame's fitted candidates (``fits``; ``near``: the pairs that
+        found them again, ``kept``: the one taken): taken, moved with the scene, or not found again."""
+        chosen = {id(p[4]) for p in kept}
+        confirmed = {id(p[4]) for p in near}
+        by_fit = {(f.x_px, f.y_px): f for f in fits}
+        for k, c in enumerate(self.candidates):
+            f = by_fit.get((c.x_px, c.y_px))
+            if c.verdict is Verdict.UNCONFIRMED and f is not None:
+                v = Verdict.TAKEN if id(f) in chosen else Verdict.WITH_SCENE if id(f) in confirmed else c.verdict
+                self.candidates[k] = replace(c, verdict=v)
+        self.settled = True
+
+    def reasons(self) -> dict[str, int]:
+        """How many spots had each verdict."""
+        out: dict[str, int] = {}
+        for c in self.candidates:
+            out[c.verdict.value] = out.get(c.verdict.value, 0) + 1
+        return out
+
+
 def scene_shift(before: np.ndarray | None, after: np.ndarray) -> np.ndarray | None:
     """How the scene moved between two frames [px] (phase correlation of the frames downsampled to at most
     :data:`REGISTER_WIDTH_PX`, Hann-windowed), or None when there is no frame before or the scene has too little
@@ -147,6 +209,8 @@ class TipFollower:
         self.pending_frame: np.ndarray | None = None  # ... and that frame
         self.confirmed: SpotFit | None = None  # the candidate of the last frame that this frame confirmed
         self.had_lock = False
+        #: the first frame searched: every spot that stood out and what became of it
+        self.first_look: FirstLook | None = None
         self.lost_at: tuple[float, float, float] | None = None  # where the tip was lost (x, y) and its speed [px/frame]
         self.since_lost = 0  # frames since
 
@@ -208,9 +272,10 @@ class TipFollower:
         return predicted is None or math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) <= gate
 
     # ------------------------------------------------------------------------------- search
-    def _candidates(self, frame: np.ndarray, threshold, centre=None, reach: int = 0) -> list[Blob]:
+    def _candidates(self, frame: np.ndarray, threshold, centre=None, reach: int = 0,
+                    refused: list | None = None) -> list[Blob]:
         """Blobs of a plausible size for the tip (brightest first), off the lab markers, whose ray meets the
-        tip's sphere."""
+        tip's sphere; with ``refused``, the others are appended to it as :class:`Candidate` with the reason."""
         h, w = frame.shape
         if centre is None:
             blobs = find_blobs(frame, 0, 0, w, h, threshold)
@@ -220,9 +285,20 @@ class TipFollower:
                                threshold)
         # a tilted disc's inscribed circle is its minor semi-axis: accept down to a steep view of it
         lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
-        return [c for c in blobs if lo <= c[2] <= 1.6 * self.r_expected
-                and not any(math.hypot(c[0] - x, c[1] - y) <= r + 2.0 for x, y, r in self.lab_px)
-                and tip_from_pixel(c[0], c[1], self.camera, self.length_m) is not None]
+        out = []
+        for c in blobs:
+            if not lo <= c.r <= 1.6 * self.r_expected:
+                why = Verdict.SIZE
+            elif any(math.hypot(c.x - x, c.y - y) <= r + 2.0 for x, y, r in self.lab_px):
+                why = Verdict.LAB_MARKER
+            elif tip_from_pixel(c.x, c.y, self.camera, self.length_m) is None:
+                why = Verdict.OFF_SPHERE
+            else:
+                out.append(c)
+                continue
+            if refused is not None and len(refused) < MAX_RECORDED:
+                refused.append(Candidate(c.x, c.y, c.r, why))
+        return out
 
     def _track(self, frame: np.ndarray, threshold: Detection) -> SpotFit | None:
         """The tip near its prediction, or None."""
@@ -248,11 +324,16 @@ class TipFollower:
         for the next)."""
         # the highest-contrast candidates of a plausible size (a textured background offers many), the ones
         # nearest the tip's expected size fitted first
-        everything = self._candidates(frame, threshold)
+        record = [] if self.first_look is None else None  # the first search is kept, to show why it failed
+        everything = self._candidates(frame, threshold, refused=record)
         busy = len(everything) >= BUSY_CANDIDATES
         cand = sorted(everything[:ACQUIRE_CANDIDATES], key=lambda c: abs(c.r - self.r_expected))
         fits = []
-        for x0, y0, r0, _ in cand[:ACQUIRE_FITS]:
+        for k, (x0, y0, r0, _) in enumerate(cand):
+            if k >= ACQUIRE_FITS:
+                if record is not None and len(record) < MAX_RECORDED:
+                    record.append(Candidate(x0, y0, r0, Verdict.NOT_FITTED))
+                continue
             fit = self._fit(frame, x0, y0, r0)
             if (fit is not None and fit.blended and self.shape == "sphere" and self.camera.sensor_known
                     and not self._looks_like_tip(fit)):
@@ -260,15 +341,26 @@ class TipFollower:
             # a reacquired tip is as bright as before it was lost (its image's size may have changed meanwhile)
             if fit is not None and self._looks_like_tip(fit) and (not self.had_lock or self._as_bright(fit)):
                 fits.append(fit)
+                if record is not None:
+                    record.append(Candidate(fit.x_px, fit.y_px, fit.radius_px, Verdict.UNCONFIRMED))
+            elif record is not None:
+                why = Verdict.NO_FIT if fit is None else Verdict.NOT_ALIKE if self.had_lock else Verdict.SHAPE
+                record.append(Candidate(x0, y0, r0, why))
         reach = ACQUIRE_REACH * self.r_expected + 5.0
         pairs = [(abs(math.log(f.radius_px / self.r_expected)), math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
                  for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
                  if AMPLITUDE_CHANGE[0] <= f.amplitude_adu / g.amplitude_adu <= AMPLITUDE_CHANGE[1]]
         pairs = [p for p in pairs if p[1] <= reach]
+        near = pairs
         if pairs:
             pairs = self._unlike_the_scene(pairs, scene_shift(self.pending_frame, frame), busy)
-        if pairs:  # the confirmed candidate nearest the tip's expected size
-            _, _, _, fit, self.confirmed = min(pairs, key=lambda p: p[:3])
+        best = min(pairs, key=lambda p: p[:3]) if pairs else None  # the confirmed one nearest the tip's size
+        if self.first_look is not None and not self.first_look.settled:
+            self.first_look.settle(self.pending, near, [best] if best else [])
+        if record is not None:
+            self.first_look = FirstLook(np.array(frame, copy=True), threshold, record, self.r_expected)
+        if best is not None:
+            _, _, _, fit, self.confirmed = best
             return fit
         self.pending, self.pending_frame = fits, frame
         return None

@@ -378,7 +378,10 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
     angles, markers = rows.tables(camera, dots is not None)
     if not angles.theta_rad.notna().any():
-        raise TrackingError(f"{source}: the tip marker was never found in {k} frames")
+        look = follower.first_look
+        why = "" if look is None else "; in the first frame searched " + (", ".join(
+            f"{n} {reason}" for reason, n in look.reasons().items()) or "no spot stood out from its surroundings")
+        raise TrackingError(f"{source}: the tip marker was never found in {k} frames{why}", first_look=look)
     doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
     check = _check_and_scale(angles, markers, rows, doubts, tip.name)
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
