@@ -18,6 +18,17 @@ Variants (:data:`VARIANTS`):
 - ``disc-mp4``: the same through mp4v (lossy), a 3 ms rolling shutter and gamma 2.2;
 - ``plain-top``: no separate frame (the crossbar dots spin with the rotor), 640x480;
 - ``dim-tip``: the tip 4x dimmer than the crossbar dots, 640x480.
+
+Recorded like a phone (:mod:`gyrorig.render.phone`: the markers in front of a real photograph drifting behind
+the rig under flickering light, gamma 2.2, YUV 4:2:0, frame times on a 90 kHz clock with 5 % jitter and 2 %
+of the frames dropped; the user's camera.json has no sensor numbers), 1280x720 at 240 fps:
+
+- ``phone-coffee-hevc``: scikit-image's ``coffee``, HEVC (libx265, CRF 23);
+- ``phone-brick-h264``: ``brick``, H.264 (libx264, CRF 23), 10 % jitter;
+- ``phone-astronaut-red``: ``astronaut``, a red sticker for a tip (``colour = "red"`` in the user's protocol),
+  HEVC;
+- ``phone-rocket-10bit``: ``rocket``, 10-bit HEVC;
+- ``phone-slowmo``: ``gravel``, captured at 240 fps and stored at 30 (the user states ``capture_fps``), HEVC.
 """
 
 from __future__ import annotations
@@ -36,11 +47,22 @@ import pandas as pd
 
 from ..protocols import BUNDLED_PROTOCOL_DIR, parse_protocol
 from ..render import render_video
+from ..render.phone import PhoneStyle, render_phone_video
 from ..tracking import VideoFile, load_camera, track
 
 __all__ = ["VARIANTS", "variant_protocols", "centroid_50", "clear_frames", "track_variant", "variant_benchmark"]
 
-VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip")
+#: the phone-recorded variants: the :class:`~gyrorig.render.phone.PhoneStyle` of each, and what the user's
+#: protocol says of the tip beyond its place and size
+PHONE_VARIANTS = {
+    "phone-coffee-hevc": (dict(photo="coffee", codec="libx265"), {}),
+    "phone-brick-h264": (dict(photo="brick", codec="libx264", jitter_fraction=0.1), {}),
+    "phone-astronaut-red": (dict(photo="astronaut", codec="libx265", marker_rgb=(0.75, 0.06, 0.05)),
+                            {"colour": "red"}),
+    "phone-rocket-10bit": (dict(photo="rocket", codec="libx265", bit_depth=10), {}),
+    "phone-slowmo": (dict(photo="gravel", codec="libx265", container_fps=30.0), {}),
+}
+VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip", *PHONE_VARIANTS)
 
 
 def _base() -> dict:
@@ -64,6 +86,18 @@ def _independent_camera(d: dict, *, lossy: bool) -> None:
     if lossy:
         cam.update(shutter="rolling", readout_time_s=3e-3)
         cam["sensor"]["gamma"] = 2.2
+
+
+def _phone_camera(d: dict) -> None:
+    """A phone on a stand 0.75 m above the pivot, 10 deg off the vertical: 1280x720 at 240 fps, 1 ms, 60 deg
+    field of view, a mild lens distortion."""
+    tilt = math.radians(10.0)
+    cam = d["camera"]
+    cam.pop("focal_length_mm")
+    cam.pop("pixel_size_um")
+    cam.update(width_px=1280, height_px=720, fps=240.0, exposure_s=1e-3, horizontal_fov_deg=60.0,
+               position_m=[0.75 * math.sin(tilt), 0.0, 0.75 * math.cos(tilt)], distortion=[0.05, -0.02, 0, 0, 0],
+               psf_sigma_px=1.0)
 
 
 def _disc_markers(d: dict) -> None:
@@ -97,7 +131,14 @@ def variant_protocols(name: str, duration_s: float) -> tuple[dict, dict, str]:
     elif name == "dim-tip":
         _small_camera(d)
         d["markers"]["tip"]["brightness_e_per_s"] = 0.25 * d["markers"]["crossbar_a"]["brightness_e_per_s"]
+    if name in PHONE_VARIANTS:
+        _phone_camera(d)
+        codec = "phone"
     user = copy.deepcopy(d)
+    if name in PHONE_VARIANTS:  # what a user writes down: where the markers are and how big, the tip's colour
+        user["markers"] = {k: {kk: vv for kk, vv in m.items() if kk != "brightness_e_per_s"}
+                           for k, m in d["markers"].items()}
+        user["markers"]["tip"].update(PHONE_VARIANTS[name][1])
     if name in ("disc", "disc-mp4"):
         user["markers"] = {"tip": {k: v for k, v in d["markers"]["tip"].items() if k != "brightness_e_per_s"},
                            "can": d["markers"]["can"]}
@@ -119,12 +160,15 @@ def centroid_50(image: np.ndarray, x: float, y: float, half: int = 12) -> tuple[
     return float((w * xx).sum() / w.sum()), float((w * yy).sum() / w.sum())
 
 
-def _centroid_rms(video: Path, truth: pd.DataFrame, frames: np.ndarray) -> float:
+def _centroid_rms(video: Path, truth: pd.DataFrame, frames: np.ndarray, kept: list | None = None) -> float:
+    """The plain centroid's RMS error on the frames given (``kept``: the frame number of each stored frame, when
+    some were dropped)."""
     tip = truth[truth.marker == "tip"].set_index("frame")
     errs = []
     wanted = set(int(f) for f in frames)
     with VideoFile(video).open() as source:
-        for k, (img, _) in enumerate(source):
+        for n, (img, _) in enumerate(source):
+            k = kept[n] if kept is not None else n
             if k in wanted:
                 r = tip.loc[k]
                 cx, cy = centroid_50(img, r.x_px, r.y_px)
@@ -161,12 +205,16 @@ def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0, protocol
     protocol that describes the marker differently)."""
     scene, user, codec = protocols if protocols is not None else variant_protocols(name, duration_s)
     with tempfile.TemporaryDirectory() as tmp:
-        rendered = render_video(parse_protocol(scene), f"{tmp}/v", seed=seed, codec=codec, calibration_views=0)
+        if codec == "phone":
+            rendered = render_phone_video(scene, f"{tmp}/v", style=PhoneStyle(**PHONE_VARIANTS[name][0]), seed=seed)
+        else:
+            rendered = render_video(parse_protocol(scene), f"{tmp}/v", seed=seed, codec=codec, calibration_views=0)
         start = time.perf_counter()
         res = track(rendered["video"], load_camera(f"{tmp}/v/camera.json"), parse_protocol(user))
         wall = time.perf_counter() - start
         truth = pd.read_csv(f"{tmp}/v/truth.csv")
         clear = clear_frames(truth, scene, json.loads(Path(f"{tmp}/v/camera.json").read_text()))
+        clear = clear[clear.isin(res.angles.frame)]  # frames the camera dropped are not in the record
         tip = truth[truth.marker == "tip"]
         m = res.angles.merge(tip[["frame", "visible", "theta_rad", "phi_rad", "x_px", "y_px"]], on="frame",
                              suffixes=("", "_true"))
@@ -179,7 +227,7 @@ def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0, protocol
                                                             suffixes=("", "_true"))
         mk = mk[mk.frame.isin(found.frame)]
         err_px = np.sqrt(((mk.x_px - mk.x_px_true) ** 2 + (mk.y_px - mk.y_px_true) ** 2).mean() / 2)
-        centroid = _centroid_rms(Path(rendered["video"]), truth, found.frame.to_numpy())
+        centroid = _centroid_rms(Path(rendered["video"]), truth, found.frame.to_numpy(), rendered.get("kept"))
     ok = ~wrong
     return {"variant": name, "frames": res.frames, "tip_visible": int(len(visible)),
             "tracked_fraction": len(found) / max(len(visible), 1), "tip_clear": int(len(clear)),

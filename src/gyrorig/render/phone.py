@@ -213,6 +213,8 @@ def render_phone_video(scene: Mapping[str, Any], out_dir: str | Path, *, style: 
     _io.write_csv(truth, out / "truth.csv")
     camera = {k: v for k, v in cam.to_json().items() if k not in ("sensor", "psf_sigma_px", "motion_blur_samples")}
     camera["sensor"] = {"bit_depth": style.bit_depth, "gamma": style.gamma}
+    if style.container_fps:  # slow motion: the user states the capture rate
+        camera["capture_fps"] = cam.fps
     _io.write_json(camera, out / "camera.json")
     return {"video": str(out / name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.json"),
             "frames": n, "kept": keep.tolist(), "stored_t_s": t_store.tolist()}

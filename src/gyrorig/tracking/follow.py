@@ -12,7 +12,8 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   under the tip's own, changes them);
 - **motion**: the spot must lie within a gate around the position predicted from the last frames
   (the gate grows with the tip's observed speed and acceleration in pixels);
-- **lab markers**: a spot where one of the protocol's lab-fixed markers appears is never the tip;
+- **lab markers**: a spot where one of the protocol's lab-fixed markers appears, and nearer its size than the
+  tip's, is never the tip;
 - **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
   only when the next frame confirms it nearby (of the confirmed ones, the nearest to the tip's
   expected size): dots on the spinning rotor jump by a large fraction of a turn between frames, a
@@ -227,8 +228,14 @@ class TipFollower:
         med = float(np.median(logs))
         spread = 1.4826 * float(np.median(np.abs(logs - med)))
         limit = max(CHI2_CHANGE * max(math.exp(med), 1.0), math.exp(med + CHI2_SPREADS * spread))
-        chi2_ok = fit.chi2_own <= limit
+        # a recording's sphere is fitted in front of the scene (gyrorig.tracking.scene_spot), whose residuals
+        # follow the codec's quality from frame to frame; another spot's light is left out there by its sectors
+        chi2_ok = fit.chi2_own <= limit or (self.shape == "sphere" and not self.camera.sensor_known)
         return radius_ok and chi2_ok and AMPLITUDE_CHANGE[0] * a0 <= fit.amplitude_adu <= AMPLITUDE_CHANGE[1] * a0
+
+    def _nearer_size(self, radius_px: float, other_px: float) -> bool:
+        """Whether a spot of ``radius_px`` is nearer (in ratio) to ``other_px`` than to the tip's expected radius."""
+        return abs(math.log(radius_px / other_px)) < abs(math.log(radius_px / self.r_expected))
 
     def _as_bright(self, fit: SpotFit) -> bool:
         """The fit's amplitude within :data:`AMPLITUDE_CHANGE` of the tip's running median (True without one)."""
@@ -289,7 +296,8 @@ class TipFollower:
         for c in blobs:
             if not lo <= c.r <= 1.6 * self.r_expected:
                 why = Verdict.SIZE
-            elif any(math.hypot(c.x - x, c.y - y) <= r + 2.0 for x, y, r in self.lab_px):
+            elif any(math.hypot(c.x - x, c.y - y) <= r + 2.0 and self._nearer_size(c.r, r) for x, y, r in self.lab_px):
+                # where a lab marker appears, a spot of its size (the tip may pass in front of one, visible or not)
                 why = Verdict.LAB_MARKER
             elif tip_from_pixel(c.x, c.y, self.camera, self.length_m) is None:
                 why = Verdict.OFF_SPHERE

@@ -271,9 +271,24 @@ class ImageFolder:
 
 
 def _median_interval(t_s) -> float:
-    dt = np.diff(np.asarray(t_s, float))
-    dt = dt[np.isfinite(dt) & (dt > 0)]
-    return float(np.median(dt)) if len(dt) else math.nan
+    """The frames' interval: the slope of their times against their grid numbers (numbered by the median
+    interval over ever longer stretches, so that jitter and dropped frames neither bias it nor make a late
+    frame's number slip by one), NaN for fewer than two frames."""
+    t = np.sort(np.asarray(t_s, float)[np.isfinite(np.asarray(t_s, float))])
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    if not len(dt):
+        return math.nan
+    step = float(np.median(dt))
+    m = 16
+    while True:
+        part = t[:m] - t[0]
+        n = np.round(part / step)
+        if len(np.unique(n)) > 1:
+            step = float(np.polyfit(n, part, 1)[0])
+        if m >= len(t):
+            return step
+        m *= 4
 
 
 def _as_wanted(image: np.ndarray, colour: bool, order: str) -> np.ndarray:
