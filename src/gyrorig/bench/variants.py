@@ -25,9 +25,9 @@ of the frames dropped; the user's camera.json has no sensor numbers), 1280x720 a
 
 - ``phone-coffee-hevc``: scikit-image's ``coffee``, HEVC (libx265, CRF 23);
 - ``phone-brick-h264``: ``brick``, H.264 (libx264, CRF 23), 10 % jitter;
-- ``phone-astronaut-red``: ``astronaut``, a red sticker for a tip (``colour = "red"`` in the user's protocol),
-  HEVC;
-- ``phone-rocket-10bit``: ``rocket``, 10-bit HEVC;
+- ``phone-brick-red``: ``brick``, a red sticker for a tip (``colour = "red"`` in the user's protocol), HEVC
+  (in front of ``astronaut``'s orange suit or ``rocket``'s lit pad the sticker is lost: they are as red);
+- ``phone-astronaut-10bit``: ``astronaut``, 10-bit HEVC;
 - ``phone-slowmo``: ``gravel``, captured at 240 fps and stored at 30 (the user states ``capture_fps``), HEVC.
 """
 
@@ -57,9 +57,8 @@ __all__ = ["VARIANTS", "variant_protocols", "centroid_50", "clear_frames", "trac
 PHONE_VARIANTS = {
     "phone-coffee-hevc": (dict(photo="coffee", codec="libx265"), {}),
     "phone-brick-h264": (dict(photo="brick", codec="libx264", jitter_fraction=0.1), {}),
-    "phone-astronaut-red": (dict(photo="astronaut", codec="libx265", marker_rgb=(0.75, 0.06, 0.05)),
-                            {"colour": "red"}),
-    "phone-rocket-10bit": (dict(photo="rocket", codec="libx265", bit_depth=10), {}),
+    "phone-brick-red": (dict(photo="brick", codec="libx265", marker_rgb=(0.75, 0.06, 0.05)), {"colour": "red"}),
+    "phone-astronaut-10bit": (dict(photo="astronaut", codec="libx265", bit_depth=10), {}),
     "phone-slowmo": (dict(photo="gravel", codec="libx265", container_fps=30.0), {}),
 }
 VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip", *PHONE_VARIANTS)

@@ -18,10 +18,12 @@ import cv2
 import numpy as np
 
 __all__ = ["Detection", "Blob", "find_blobs", "detection_threshold", "local_contrast", "opening_size_px",
-           "THRESHOLD_SIGMAS"]
+           "THRESHOLD_SIGMAS", "PEAK_FRACTION"]
 
 #: a spot's local contrast must exceed the contrast's median by this many of its robust standard deviations
-THRESHOLD_SIGMAS = 8.0
+THRESHOLD_SIGMAS = 5.0
+#: ... but at most this fraction of the frame's highest local contrast
+PEAK_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -59,11 +61,14 @@ def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
 
 def detection_threshold(image: np.ndarray, scale_px: int, *, floor: float = 4.0) -> Detection:
     """The frame's :class:`Detection`: :data:`THRESHOLD_SIGMAS` robust SDs of the local contrast above its
-    median (at least ``floor`` ADU), the contrast taken over every 2nd pixel of the frame."""
+    median (at least ``floor`` ADU), but never above :data:`PEAK_FRACTION` of the frame's highest contrast (a
+    texture as rough as the marker is bright, e.g. sunlit gravel, would hide it otherwise; the follower then
+    tells the marker by its size, shape and motion).  The contrast is taken over every 2nd pixel."""
     contrast = local_contrast(image, scale_px)[::2, ::2]
     med = float(np.median(contrast))
     noise = max(1.4826 * float(np.median(np.abs(contrast - med))), 0.5)
-    return Detection(med + max(THRESHOLD_SIGMAS * noise, floor), noise, scale_px)
+    level = min(med + max(THRESHOLD_SIGMAS * noise, floor), PEAK_FRACTION * float(contrast.max()))
+    return Detection(max(level, floor), noise, scale_px)
 
 
 def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold: Detection | float

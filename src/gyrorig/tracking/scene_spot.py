@@ -9,7 +9,8 @@ the disc at the same angle**: the mean of the ring ``r + 3 sigma <= rho < r + 3 
 :data:`ANGLE_BINS` bins around the centre, interpolated in angle.  Only the pixels inside the ring are
 fitted (``x, y, r, M`` and the blur; weighted least squares, the ring taken again about the first few centres); what the
 scene does between the ring and the disc's edge is left in the residuals, and the centre's covariance
-comes from them (:func:`sandwich_covariance`), so it grows where the scene behind
+comes from them (:func:`sandwich_covariance`) and from what the unseen scene under the edge may differ from the
+ring (:func:`_scene_covariance`: the ring's own texture at that distance), so it grows where the scene behind
 the edge is busy.
 
 A bin of the ring much brighter than the rest (light of another marker touching the ring) marks the fit
@@ -94,6 +95,24 @@ def _ring(win, th, rho, r_out: float):
     f = u - i0
     spread = 1.4826 * float(np.median(np.abs(values - bins[b])))
     return bins, (1.0 - f) * bins[i0 % ANGLE_BINS] + f * bins[(i0 + 1) % ANGLE_BINS], spread
+
+
+def _scene_covariance(xx, yy, sol: "_Solution", fisher_inv: np.ndarray) -> np.ndarray:
+    """What the scene behind the disc's edge, unseen, may do to the parameters: the ring stands in for it, but
+    the edge lies ``3 sigma + 1`` px further in.  Taking the scene's texture as isotropic, it changes over that
+    distance as much as it does along the ring over the same arc: the ring's structure function at that lag
+    (mean square difference of bins that far apart) is the variance of each bin's error, independent from bin to
+    bin, and it reaches the fit through the pixels it lies behind (``(1 - c)`` of each, by their Jacobian rows)."""
+    p = sol.p
+    gap = RING_GAP_SIGMAS * p[4]
+    arc = 2 * math.pi * (p[2] + gap + RING_WIDTH_PX / 2) / ANGLE_BINS
+    lag = max(1, int(round((gap + 1.0) / arc)))
+    var_bin = float(np.mean((np.roll(sol.bins, lag) - sol.bins) ** 2))
+    th = np.arctan2(yy - p[1], xx - p[0])
+    sector = ((th + math.pi) / (2 * math.pi) * ANGLE_BINS).astype(int) % ANGLE_BINS
+    u = sol.jac * (sol.weight * (1.0 - sol.coverage))[:, :, None]
+    v = np.stack([u[sector == k].sum(axis=0) for k in range(ANGLE_BINS)])  # each bin's effect per unit error
+    return fisher_inv @ (var_bin * v.T @ v) @ fisher_inv
 
 
 @dataclass
@@ -217,7 +236,8 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
         finv = np.linalg.inv(sol.fisher)
     except np.linalg.LinAlgError:
         return None
-    cov = sandwich_covariance(sol.jac, sol.weight, sol.resid, finv)[:2, :2]
+    cov = (sandwich_covariance(sol.jac, sol.weight, sol.resid, finv)
+           + _scene_covariance(xx, yy, sol, finv))[:2, :2]
     chi2 = float(np.sum(sol.resid[use] ** 2 * sol.weight[use])) / max(int(use.sum()) - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
                    bool((win >= cam.max_adu).any()), sol.converged, blended, chi2_own=chi2)

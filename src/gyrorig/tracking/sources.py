@@ -256,13 +256,13 @@ class ImageFolder:
 
     def open(self, *, colour: bool = False) -> Frames:
         first = self._read(0)
-        h, w = first.shape
+        h, w = first.shape[:2]
         times = self.t_s if self.t_s is not None else [math.nan] * len(self.files)
 
         def items():
             for k, t in enumerate(times):
                 image = first if k == 0 else self._read(k)
-                if image.shape != (h, w):
+                if image.shape[:2] != (h, w):
                     raise BadInputError(f"{self.files[k]}: {image.shape[1]} x {image.shape[0]} pixels; the first "
                                         f"image ({self.files[0].name}) is {w} x {h}")
                 yield np.ascontiguousarray(_as_wanted(image, colour, "BGR")), float(t)

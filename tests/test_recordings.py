@@ -1,0 +1,249 @@
+"""Footage that looks recorded (issue 30): real photographs behind the marker, phone codecs and frame times,
+colour and bit depth, slow motion, and a tip that is never found.
+
+The photographs are scikit-image's (``brick``, ``camera``, ``gravel``, ``coffee``, ``astronaut``); the phone
+recordings come from :mod:`gyrorig.render.phone` (the simulator's trajectory through the camera model, in
+front of a drifting photograph, encoded by libx264/libx265 with jittered 90 kHz times and dropped frames).
+"""
+
+import math
+from dataclasses import replace
+from fractions import Fraction
+
+import av
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+import skimage.data
+
+from _stats import sd_ratio_band
+from gyrorig.bench.variants import variant_protocols
+from gyrorig.cli import main
+from gyrorig.markers import parse_markers
+from gyrorig.protocols import BUNDLED_PROTOCOL_DIR, ProtocolError, parse_protocol
+from gyrorig.render.phone import PhoneStyle, render_phone_video
+from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, TrackingCamera, VideoFile, load_camera, track
+from gyrorig.tracking.detect import detection_threshold, find_blobs, opening_size_px
+from gyrorig.tracking.scene_spot import fit_scene_spot
+
+PHOTOS = ("brick", "camera", "gravel", "coffee", "astronaut")
+
+
+def _photo(name: str) -> np.ndarray:
+    img = getattr(skimage.data, name)()
+    return (cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img).astype(np.float64)
+
+
+def _disc(background: np.ndarray, x: float, y: float, r: float, level: float, psf: float, s: int = 8) -> np.ndarray:
+    """An opaque disc of ``level`` in front of ``background`` (supersampled coverage, Gaussian blur)."""
+    half = int(r + 6 * psf + 3)
+    xi, yi = int(x), int(y)
+    sub = (np.arange(s) + 0.5) / s - 0.5
+    xs = (np.arange(xi - half, xi + half + 1)[:, None] + sub).ravel()
+    ys = (np.arange(yi - half, yi + half + 1)[:, None] + sub).ravel()
+    gx, gy = np.meshgrid(xs, ys)
+    cover = ((gx - x) ** 2 + (gy - y) ** 2 <= r * r).reshape(2 * half + 1, s, 2 * half + 1, s).mean(axis=(1, 3))
+    cover = cv2.GaussianBlur(cover, (0, 0), psf)
+    out = background.copy()
+    win = out[yi - half:yi + half + 1, xi - half:xi + half + 1]
+    out[yi - half:yi + half + 1, xi - half:xi + half + 1] = win * (1 - cover) + level * cover
+    return out
+
+
+def _camera(psf: float = 1.0, size=(512, 512)) -> TrackingCamera:
+    return TrackingCamera(np.array([[1000.0, 0, size[0] / 2], [0, 1000.0, size[1] / 2], [0, 0, 1]]), np.zeros(5),
+                          np.zeros(3), np.array([0, 0, 1.0]), size[0], size[1], 100.0, 0.0, "global", 0.0, psf,
+                          math.nan, 0.0, 255)
+
+
+@pytest.mark.parametrize("name", PHOTOS)
+def test_a_marker_on_a_bright_textured_photograph_is_detected(name):
+    """The frame-wide threshold of the flat world landed above the 8-bit maximum on real frames; the local
+    contrast finds a white dot (255) on each of these photographs brought to 10-200."""
+    rng = np.random.default_rng(1)
+    photo = _photo(name) * 0.75 + 10
+    x, y = 200.3 + rng.uniform(0, 100), 180.7 + rng.uniform(0, 100)
+    image = np.clip(_disc(photo, x, y, 7.0, 255.0, 1.0) + rng.normal(0, 2.0, photo.shape), 0, 255).astype(np.uint8)
+    threshold = detection_threshold(image, opening_size_px(2.5 * 7.0, 1.0))
+    assert threshold.threshold < 255
+    blobs = find_blobs(image, 0, 0, image.shape[1], image.shape[0], threshold)
+    assert any(math.hypot(b.x - x, b.y - y) <= 1.5 and 5.0 <= b.r <= 9.0 for b in blobs), name
+
+
+def test_scene_spot_errors_hold_on_real_photographs():
+    """A dot in front of real photographs, 300 draws (position, radius, photograph): the centre's errors
+    against the truth.  The texture under the disc's edge is the main error (about 0.3 px RMS here, far above
+    the noise), and the per-frame covariance takes it from the scene itself: the SD of the pulls in 0.7-1.5
+    (the chi band of 600 values is +- 0.05; the isotropic-texture model of the unseen scene is approximate,
+    1.34 measured, where the residuals alone gave 2.6), and no pull beyond 5."""
+    rng = np.random.default_rng(0)
+    photos = [_photo(n) for n in PHOTOS]
+    cam = _camera()
+    pulls, errors = [], []
+    for k in range(300):
+        photo = photos[k % len(photos)] * 0.8
+        x, y = rng.uniform(60, photo.shape[1] - 60), rng.uniform(60, photo.shape[0] - 60)
+        r = rng.uniform(4, 10)
+        image = np.clip(np.round(_disc(photo, x, y, r, 250.0, 1.0) + rng.normal(0, 2.0, photo.shape)), 0, 255)
+        fit = fit_scene_spot(image.astype(np.float32), x + rng.uniform(-1, 1), y + rng.uniform(-1, 1),
+                             r * rng.uniform(0.85, 1.15), cam)
+        if fit is None:
+            continue
+        e = np.array([fit.x_px - x, fit.y_px - y])
+        errors.append(np.hypot(*e))
+        pulls += list(e / np.sqrt(np.diag(fit.cov_xy)))
+    pulls = np.array(pulls)
+    assert len(errors) >= 280
+    assert 0.7 <= pulls.std() <= 1.5 and np.abs(pulls).max() < 5.0
+
+
+@pytest.fixture(scope="module")
+def phone_clip(tmp_path_factory):
+    """0.6 s of the air-cushion rig at 640 x 480, 200 fps, in front of the coffee photograph, HEVC, 5 % jitter,
+    2 % of the frames dropped; the user's protocol without brightness numbers."""
+    scene, user, _ = variant_protocols("sphere", 0.6)
+    out = tmp_path_factory.mktemp("phone")
+    rendered = render_phone_video(scene, out, style=PhoneStyle(photo="coffee", codec="libx265"), seed=3)
+    return scene, user, rendered
+
+
+def _pulls(res, truth):
+    tip = truth[truth.marker == "tip"]
+    m = res.angles.merge(tip[["frame", "theta_rad", "phi_rad", "visible"]], on="frame", suffixes=("", "_true"))
+    found = m.dropna(subset=["theta_rad"])
+    e_th = (found.theta_rad - found.theta_rad_true) / found.theta_sigma_rad
+    e_ph = np.angle(np.exp(1j * (found.phi_rad - found.phi_rad_true))) / found.phi_sigma_rad
+    return m, found, e_th, e_ph
+
+
+def test_a_phone_recording_on_a_real_background_is_tracked_honestly(phone_clip):
+    """The phone clip as a user describes it: at least 90 % of the frames with the tip visible tracked, no
+    frame beyond 5 sigma flagged ok, the pulls' SD in the chi band of their count widened by 0.25 (the
+    codec's errors are correlated from frame to frame, which the record's scatter sees only in part)."""
+    scene, user, rendered = phone_clip
+    res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user))
+    m, found, e_th, e_ph = _pulls(res, pd.read_csv(rendered["truth"]))
+    assert len(found) >= 0.9 * m.visible.sum()
+    wrong = (e_th.abs() > 5) | (e_ph.abs() > 5)
+    assert not (wrong & (found.quality == "ok")).any()
+    lo, hi = sd_ratio_band(len(found))
+    for pulls in (e_th, e_ph):
+        assert lo - 0.25 <= pulls[~wrong].std() <= hi + 0.25
+
+
+def test_dropped_frames_are_gaps_and_times_are_the_capture_grid(phone_clip):
+    """Frames the phone dropped are missing numbers, not renumbered neighbours; every frame's time is its
+    number's on the camera's grid (the 90 kHz jitter of 5 % of a frame removed)."""
+    scene, user, rendered = phone_clip
+    res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+    assert res.angles.frame.tolist() == rendered["kept"]
+    cam = load_camera(rendered["camera"])
+    np.testing.assert_allclose(res.angles.t_s, res.angles.frame / cam.fps + cam.exposure_s / 2, atol=1e-9)
+    assert res.frame_times["dropped_frames"] == rendered["frames"] - len(rendered["kept"])
+
+
+def test_slow_motion_is_refused_without_its_capture_rate_and_tracked_with_it(tmp_path):
+    """Captured at 200 fps, stored at 25: without the capture rate every interval is 8 grid steps (refused, not
+    an 8x slower precession); with it the frames are numbered on the capture grid."""
+    scene, user, _ = variant_protocols("sphere", 0.3)
+    rendered = render_phone_video(scene, tmp_path, seed=1, style=PhoneStyle(
+        photo="brick", codec="libx264", container_fps=25.0, drop_fraction=0.0))
+    camera_file = tmp_path / "camera.json"
+    cam = load_camera(camera_file)
+    assert cam.capture_fps == 200.0
+    with pytest.raises(BadInputError):
+        track(rendered["video"], replace(cam, capture_fps=math.nan), parse_protocol(user), frame_dots=False)
+    res = track(rendered["video"], cam, parse_protocol(user), frame_dots=False)
+    assert res.angles.frame.tolist() == rendered["kept"]
+    assert abs(res.frame_times["time_scale"] - 25.0 / 200.0) < 1e-3
+
+
+def test_a_variable_frame_rate_is_tracked_with_a_warning(tmp_path):
+    """Frame times scattered by 20 % of the interval: two frames may round to one number; the later takes the
+    next number and keeps its own time, and track.json says the rate is variable."""
+    scene, user, _ = variant_protocols("sphere", 0.3)
+    rendered = render_phone_video(scene, tmp_path, seed=2, style=PhoneStyle(
+        photo="camera", codec="libx264", jitter_fraction=0.2, drop_fraction=0.0))
+    res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+    assert res.frames == len(rendered["kept"])
+    assert res.angles.frame.is_monotonic_increasing and res.angles.frame.is_unique
+    assert res.frame_times["agrees_with_camera"] is False and res.frame_times["jitter_rel"] > 0.1
+
+
+def test_ten_bit_video_is_read_at_its_depth(tmp_path):
+    """A 10-bit HEVC file's luma comes as 10-bit values (0-1023), not squeezed to 8 bits."""
+    path = tmp_path / "ten.mkv"
+    ramp = np.tile(np.linspace(64, 940, 64).astype(np.uint16), (48, 1))
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx265", rate=Fraction(25))
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p10le"
+        stream.options = {"x265-params": "log-level=error:lossless=1"}
+        for _ in range(3):
+            frame = av.VideoFrame(64, 48, "yuv420p10le")
+            frame.planes[0].update(ramp.tobytes())
+            for plane in frame.planes[1:]:
+                plane.update(np.full(plane.buffer_size // 2, 512, np.uint16).tobytes())
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    with VideoFile(path).open() as frames:
+        assert frames.bit_depth == 10
+        image, _ = next(iter(frames))
+    assert image.dtype == np.uint16 and image.max() > 900
+    np.testing.assert_array_equal(image, ramp)
+
+
+def test_colour_frames_are_read_as_luma_not_one_channel(tmp_path):
+    """A red dot on a green background: its luma, not the blue channel (where both are 0)."""
+    rgb = np.zeros((40, 60, 3), np.uint8)
+    rgb[:, :, 1] = 150
+    cv2.circle(rgb, (30, 20), 6, (220, 0, 0), -1)
+    (tmp_path / "seq").mkdir()
+    cv2.imwrite(str(tmp_path / "seq" / "f0.png"), rgb[:, :, ::-1])
+    want = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    for source in (ImageFolder(tmp_path / "seq"), FrameArrays([rgb])):
+        with source.open() as frames:
+            image, _ = next(iter(frames))
+        np.testing.assert_array_equal(image, want)
+        with source.open(colour=True) as frames:
+            image, _ = next(iter(frames))
+        np.testing.assert_array_equal(image, rgb)
+
+
+def test_a_red_sticker_is_tracked_by_its_colour(tmp_path):
+    """A red sticker for a tip in front of the coffee photograph, the protocol saying ``colour = "red"``:
+    tracked, with no frame beyond 5 sigma flagged ok."""
+    scene, user, _ = variant_protocols("sphere", 0.4)
+    user["markers"]["tip"]["colour"] = "red"
+    rendered = render_phone_video(scene, tmp_path, seed=4, style=PhoneStyle(
+        photo="coffee", codec="libx265", marker_rgb=(0.75, 0.06, 0.05)))
+    res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+    m, found, e_th, e_ph = _pulls(res, pd.read_csv(rendered["truth"]))
+    assert len(found) >= 0.8 * m.visible.sum()
+    assert not (((e_th.abs() > 5) | (e_ph.abs() > 5)) & (found.quality == "ok")).any()
+
+
+@pytest.mark.parametrize("key,value", [("colour", "purple"), ("polarity", "grey")])
+def test_marker_colour_and_polarity_are_checked(key, value):
+    d = variant_protocols("sphere", 0.1)[1]
+    d["markers"]["tip"][key] = value
+    with pytest.raises(ProtocolError):
+        parse_markers(parse_protocol(d))
+
+
+def test_a_tip_never_found_shows_each_spot_and_why(tmp_path, capsys, phone_clip):
+    """A protocol stating the tip three times its size: exit 3, no output folder, and beside it an image of
+    the first frame searched with the spots that stood out (the error names how many and why)."""
+    scene, user, rendered = phone_clip
+    text = (BUNDLED_PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(text.replace("radius_m = 0.004\n", "radius_m = 0.012\n", 1))
+    out = tmp_path / "track"
+    code = main(["track", rendered["video"], "--camera", rendered["camera"], "--protocol", str(wrong),
+                 "--out", str(out), "--tip-only"])
+    assert code == 3 and not out.exists()
+    image = cv2.imread(str(tmp_path / "track.first-look.png"))
+    assert image is not None and image.shape[0] > 200
+    assert "first-look.png" in capsys.readouterr().err
