@@ -59,6 +59,30 @@ def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
     return cv2.subtract(img, opened).astype(np.float32, copy=False)
 
 
+def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_px: float, out: list,
+                split_above: float | None) -> None:
+    """The blobs of ``mask`` (in window coordinates offset by ``x0, y0``), appended to ``out``.  A large blob
+    whose peak contrast exceeds ``split_above`` is cut again at half its peak (a bright spot joined to a
+    texture's faint network, a mortar line or a rim, by a low threshold stands apart at half its height)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    min_area = max(3.0, math.pi * min_radius_px * min_radius_px)
+    for i in range(1, n):
+        bx, by = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_TOP]
+        bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
+        if stats[i, cv2.CC_STAT_AREA] < min_area or min(bw, bh) < 2.0 * min_radius_px - 1.0:
+            continue
+        own = labels[by:by + bh, bx:bx + bw] == i
+        values = sub[by:by + bh, bx:bx + bw]
+        peak = float(values[own].max())
+        if split_above is not None and peak > split_above and stats[i, cv2.CC_STAT_AREA] > 4 * min_area + 50:
+            _components(values, own & (values > 0.5 * peak), x0 + bx, y0 + by, min_radius_px, out, None)
+            continue
+        blob = np.pad(own.astype(np.uint8), 1)
+        dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
+        iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
+        out.append(Blob(float(bx + ix - 1 + x0), float(by + iy - 1 + y0), float(dist[iy, ix]) + 0.5, peak))
+
+
 def detection_threshold(image: np.ndarray, scale_px: int, *, floor: float = 4.0) -> Detection:
     """The frame's :class:`Detection`: :data:`THRESHOLD_SIGMAS` robust SDs of the local contrast above its
     median (at least ``floor`` ADU), but never above :data:`PEAK_FRACTION` of the frame's highest contrast (a
@@ -71,8 +95,8 @@ def detection_threshold(image: np.ndarray, scale_px: int, *, floor: float = 4.0)
     return Detection(max(level, floor), noise, scale_px)
 
 
-def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold: Detection | float
-               ) -> list[Blob]:
+def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold: Detection | float, *,
+               min_radius_px: float = 0.0) -> list[Blob]:
     """Spots in the window ``[x0, x1) x [y0, y1)``, brightest first: each blob's largest inscribed circle and
     its peak contrast.
 
@@ -80,7 +104,9 @@ def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold:
     size so that the contrast at its edges is the frame's); with a number, the pixel values themselves
     (for a static image of known flat background).  The maximum of the distance transform finds the centre
     of the largest disc in a blob, so a spot merged with a smaller neighbour still starts the fit at the
-    right place.  Blobs of fewer than 3 pixels are ignored.
+    right place.  Blobs of fewer than 3 pixels are ignored, and those too small to hold a disc of
+    ``min_radius_px`` (by area or by extent: a texture's specks and lines).  A large contrast blob whose peak
+    is more than twice the threshold is cut again at half its peak (:func:`_components`).
     """
     h, w = image.shape
     if isinstance(threshold, Detection):
@@ -95,19 +121,8 @@ def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold:
         level = float(threshold)
     if sub.size == 0:
         return []
-    mask = (sub > level).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    out = []
-    for i in range(1, n):
-        if stats[i, cv2.CC_STAT_AREA] < 3:
-            continue
-        bx, by = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_TOP]
-        bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
-        own = labels[by:by + bh, bx:bx + bw] == i
-        blob = np.pad(own.astype(np.uint8), 1)
-        dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
-        iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
-        peak = float(sub[by:by + bh, bx:bx + bw][own].max())
-        out.append(Blob(float(bx + ix - 1 + x0), float(by + iy - 1 + y0), float(dist[iy, ix]) + 0.5, peak))
+    out: list[Blob] = []
+    # contrast blobs twice the threshold are split at half their peak; raw levels are not (a background under them)
+    _components(sub, sub > level, x0, y0, min_radius_px, out, 2.0 * level if isinstance(threshold, Detection) else None)
     out.sort(key=lambda b: -b.peak)
     return out

@@ -212,7 +212,7 @@ class TipFollower:
         self.had_lock = False
         #: the first frame searched: every spot that stood out and what became of it
         self.first_look: FirstLook | None = None
-        self.lost_at: tuple[float, float, float] | None = None  # where the tip was lost (x, y) and its speed [px/frame]
+        self.lost_at: tuple[float, float, float] | None = None  # where the tip was lost (x, y), its median speed [px/frame]
         self.since_lost = 0  # frames since
 
     # ------------------------------------------------------------------------------- checks
@@ -284,14 +284,15 @@ class TipFollower:
         """Blobs of a plausible size for the tip (brightest first), off the lab markers, whose ray meets the
         tip's sphere; with ``refused``, the others are appended to it as :class:`Candidate` with the reason."""
         h, w = frame.shape
+        # a tilted disc's inscribed circle is its minor semi-axis: accept down to a steep view of it
+        lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
+        small = None if refused is not None else lo - 1.0  # a first look records the small ones too
         if centre is None:
-            blobs = find_blobs(frame, 0, 0, w, h, threshold)
+            blobs = find_blobs(frame, 0, 0, w, h, threshold, min_radius_px=small or 0.0)
         else:
             x0, y0 = max(int(centre[0]) - reach, 0), max(int(centre[1]) - reach, 0)
             blobs = find_blobs(frame, x0, y0, min(int(centre[0]) + reach, w), min(int(centre[1]) + reach, h),
-                               threshold)
-        # a tilted disc's inscribed circle is its minor semi-axis: accept down to a steep view of it
-        lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
+                               threshold, min_radius_px=small or 0.0)
         out = []
         for c in blobs:
             if not lo <= c.r <= 1.6 * self.r_expected:
@@ -394,7 +395,9 @@ class TipFollower:
         moves = np.array([[f.x_px - g.x_px, f.y_px - g.y_px] for *_, f, g in pairs])
         scene = shift if shift is not None else np.median(moves, axis=0)
         odd = np.hypot(*(moves - scene).T)
-        return [p for p, o in zip(pairs, odd) if o > SCENE_MOTION_PX]
+        # moved by more than the two fits' errors allow (5 of their combined SDs), and by SCENE_MOTION_PX at least
+        noise = np.array([math.sqrt(max(np.trace(f.cov_xy) + np.trace(g.cov_xy), 0.0)) for *_, f, g in pairs])
+        return [p for p, o, s in zip(pairs, odd, noise) if o > max(SCENE_MOTION_PX, 5.0 * s)]
 
     # ------------------------------------------------------------------------------- per frame
     def locate(self, frame: np.ndarray, threshold: Detection) -> Located:
@@ -422,7 +425,7 @@ class TipFollower:
         """Forget the track; remember where it ended and how fast the tip moved (a reacquisition's reach)."""
         if self.last:
             p = np.array(self.last)
-            speed = float(np.max(np.hypot(*np.diff(p, axis=0).T))) if len(p) > 1 else 0.0
+            speed = float(np.median(np.hypot(*np.diff(p, axis=0).T))) if len(p) > 1 else 0.0
             self.lost_at = (float(p[-1, 0]), float(p[-1, 1]), speed)
             self.since_lost = self.misses
         self.last.clear()
