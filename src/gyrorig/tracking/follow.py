@@ -231,18 +231,25 @@ class TipFollower:
         # a recording's sphere is fitted in front of the scene (gyrorig.tracking.scene_spot), whose residuals
         # follow the codec's quality from frame to frame; another spot's light is left out there by its sectors
         chi2_ok = fit.chi2_own <= limit or (self.shape == "sphere" and not self.camera.sensor_known)
-        return radius_ok and chi2_ok and AMPLITUDE_CHANGE[0] * a0 <= fit.amplitude_adu <= AMPLITUDE_CHANGE[1] * a0
+        return radius_ok and chi2_ok and AMPLITUDE_CHANGE[0] * a0 <= self._level(fit) <= AMPLITUDE_CHANGE[1] * a0
 
     def _nearer_size(self, radius_px: float, other_px: float) -> bool:
         """Whether a spot of ``radius_px`` is nearer (in ratio) to ``other_px`` than to the tip's expected radius."""
         return abs(math.log(radius_px / other_px)) < abs(math.log(radius_px / self.r_expected))
+
+    def _level(self, fit: SpotFit) -> float:
+        """How bright the tip is: its amplitude above a flat background; in a recording (the sphere fitted in
+        front of the scene) its own level, which does not change with what passes behind it."""
+        if self.shape == "sphere" and not self.camera.sensor_known:
+            return fit.amplitude_adu + fit.background_adu
+        return fit.amplitude_adu
 
     def _as_bright(self, fit: SpotFit) -> bool:
         """The fit's amplitude within :data:`AMPLITUDE_CHANGE` of the tip's running median (True without one)."""
         if len(self.amplitudes) < 3:
             return True
         a0 = float(np.median(self.amplitudes))
-        return AMPLITUDE_CHANGE[0] * a0 <= fit.amplitude_adu <= AMPLITUDE_CHANGE[1] * a0
+        return AMPLITUDE_CHANGE[0] * a0 <= self._level(fit) <= AMPLITUDE_CHANGE[1] * a0
 
     def _looks_like_tip(self, fit: SpotFit) -> bool:
         """The shape and size test for a fit whose position is already the tip's (see the module docstring)."""
@@ -358,7 +365,7 @@ class TipFollower:
         reach = ACQUIRE_REACH * self.r_expected + 5.0
         pairs = [(abs(math.log(f.radius_px / self.r_expected)), math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
                  for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
-                 if AMPLITUDE_CHANGE[0] <= f.amplitude_adu / g.amplitude_adu <= AMPLITUDE_CHANGE[1]]
+                 if AMPLITUDE_CHANGE[0] <= self._level(f) / self._level(g) <= AMPLITUDE_CHANGE[1]]
         pairs = [p for p in pairs if p[1] <= reach]
         near = pairs
         if pairs:
@@ -434,7 +441,7 @@ class TipFollower:
         self.last.append((fit.x_px, fit.y_px))
         self.last_r = fit.radius_px
         self.radii.append(fit.radius_px)
-        self.amplitudes.append(fit.amplitude_adu)
+        self.amplitudes.append(self._level(fit))
         self.chi2s.append(fit.chi2_own)
         self.misses = 0
         self.had_lock = True
