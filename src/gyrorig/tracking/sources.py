@@ -101,9 +101,9 @@ class VideoFile:
             raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
         return h.hexdigest()
 
-    def median_interval_s(self) -> float:
-        """The median interval between the stream's presentation times [s], read from its packets without
-        decoding them (NaN when the stream has no times)."""
+    def frame_interval_s(self) -> float:
+        """The interval between the stream's frames [s] from its packets' presentation times, read without
+        decoding them (:func:`_grid_interval`; NaN when the stream has no times)."""
         import av
 
         try:
@@ -113,7 +113,7 @@ class VideoFile:
                 base = stream.time_base
         except (av.FFmpegError, IndexError, ValueError, OSError) as exc:
             raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
-        return _median_interval(np.sort(np.asarray(pts, float)) * float(base)) if base else math.nan
+        return _grid_interval(np.sort(np.asarray(pts, float)) * float(base)) if base else math.nan
 
     def open(self, *, colour: bool = False) -> Frames:
         import av
@@ -137,7 +137,10 @@ class VideoFile:
         rate = stream.average_rate or stream.guessed_rate or stream.base_rate
         fps = float(rate) if rate else math.nan
         lossy = ctx.name not in LOSSLESS_CODECS
-        return Frames(int(ctx.width), int(ctx.height), fps, int(stream.frames or 0),
+        count = int(stream.frames or 0)
+        if not count and stream.duration and stream.time_base and math.isfinite(fps):  # Matroska states no count
+            count = int(round(float(stream.duration * stream.time_base) * fps))
+        return Frames(int(ctx.width), int(ctx.height), fps, count,
                       _decoded_frames(container, stream, colour), lossy=lossy, bit_depth=bits)
 
 
@@ -176,9 +179,9 @@ class FrameArrays:
         """Frames in memory have no recording to recognise later."""
         return None
 
-    def median_interval_s(self) -> float:
-        """The median interval between the frames' times [s] (NaN without times)."""
-        return _median_interval(self.t_s) if self.t_s is not None else math.nan
+    def frame_interval_s(self) -> float:
+        """The interval between the frames [s] from their times (:func:`_grid_interval`; NaN without times)."""
+        return _grid_interval(self.t_s) if self.t_s is not None else math.nan
 
     def open(self, *, colour: bool = False) -> Frames:
         h, w = np.shape(self.frames[0])[:2]
@@ -242,9 +245,9 @@ class ImageFolder:
             h.update(np.asarray(self.t_s, float).tobytes())
         return h.hexdigest()
 
-    def median_interval_s(self) -> float:
-        """The median interval between the frames' times [s] (NaN without timestamps)."""
-        return _median_interval(self.t_s) if self.t_s is not None else math.nan
+    def frame_interval_s(self) -> float:
+        """The interval between the frames [s] from their times (:func:`_grid_interval`; NaN without timestamps)."""
+        return _grid_interval(self.t_s) if self.t_s is not None else math.nan
 
     def _read(self, k: int) -> np.ndarray:
         image = cv2.imread(str(self.files[k]), cv2.IMREAD_UNCHANGED)
@@ -270,7 +273,7 @@ class ImageFolder:
         return Frames(int(w), int(h), math.nan, len(self.files), items())
 
 
-def _median_interval(t_s) -> float:
+def _grid_interval(t_s) -> float:
     """The frames' interval: the slope of their times against their grid numbers (numbered by the median
     interval over ever longer stretches, so that jitter and dropped frames neither bias it nor make a late
     frame's number slip by one), NaN for fewer than two frames."""

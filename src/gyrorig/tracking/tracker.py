@@ -436,10 +436,10 @@ class _FrameClock:
 
 def _timing(camera: TrackingCamera, frames, source) -> tuple[TrackingCamera, float]:
     """The camera with its frame rate settled, and the factor from the file's times to real times: a capture rate
-    stated apart from the file's (slow motion) scales the file's times so that their median interval is one
-    capture interval."""
+    stated apart from the file's (slow motion) scales the file's times so that their interval (the slope of the
+    times against their grid numbers) is one capture interval."""
     if math.isfinite(camera.capture_fps):
-        interval = source.median_interval_s() if hasattr(source, "median_interval_s") else math.nan
+        interval = source.frame_interval_s() if hasattr(source, "frame_interval_s") else math.nan
         if not (math.isfinite(interval) and interval > 0):
             raise BadInputError(f"{source}: a capture rate of {camera.capture_fps:g} fps is given, but the file has no "
                                 "frame times to scale")
