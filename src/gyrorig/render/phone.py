@@ -188,11 +188,11 @@ def render_phone_video(scene: Mapping[str, Any], out_dir: str | Path, *, style: 
             electrons = rng.poisson(np.clip(linear, 0.0, 1.0) * style.full_well_e).astype(np.float32)
             electrons += rng.normal(0.0, style.read_noise_e, electrons.shape).astype(np.float32)
             value = np.clip(electrons / style.full_well_e, 0.0, 1.0) ** (1.0 / style.gamma)
-            frame_rgb = np.round(value * top).astype(np.uint16 if ten else np.uint8)
-            frame = av.VideoFrame.from_ndarray(frame_rgb, format="rgb48le" if ten else "rgb24")
-            if ten:  # rgb48le holds 16-bit values: scale 10-bit ones up to the full range
-                frame = av.VideoFrame.from_ndarray((frame_rgb.astype(np.uint32) * 65535 // top).astype(np.uint16),
-                                                   format="rgb48le")
+            quantised = np.round(value * top)
+            if ten:  # quantised to 10 bits, given as rgb48le (16-bit values: scaled up to its full range)
+                frame = av.VideoFrame.from_ndarray((quantised * (65535 / top)).astype(np.uint16), format="rgb48le")
+            else:
+                frame = av.VideoFrame.from_ndarray(quantised.astype(np.uint8), format="rgb24")
             frame.pts = int(round(stored[k] * 90000))
             frame.time_base = clock
             for packet in stream.encode(frame):

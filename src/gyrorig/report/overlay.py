@@ -104,16 +104,14 @@ def write_overlay(video, angles: pd.DataFrame, markers: pd.DataFrame, path: str 
     return path
 
 
-#: colours of the first look's verdicts (the rest grey)
-_VERDICT_COLOURS = {"taken for the tip": "lime", "moved with the scene": "orange",
-                    "not found again in the next frame": "yellow", "fitted, not the tip's shape or size": "red",
-                    "fitted, unlike the tip before it was lost": "red", "no spot fit": "magenta",
-                    "not the tip's size": "cyan", "out of the tip's reach": "deepskyblue", "a lab marker": "white"}
-
-
 def write_first_look(look, path: str | Path, title: str = "") -> Path:
     """The first frame the tracker searched, every spot that stood out in it circled in the colour of what
     became of it (legend: the verdicts and their counts), written atomically to ``path`` (PNG)."""
+    from ..tracking.follow import Verdict
+
+    colours = {Verdict.TAKEN: "lime", Verdict.WITH_SCENE: "orange", Verdict.UNCONFIRMED: "yellow", Verdict.SHAPE: "red",
+               Verdict.NOT_ALIKE: "red", Verdict.NO_FIT: "magenta", Verdict.SIZE: "cyan",
+               Verdict.OFF_SPHERE: "deepskyblue", Verdict.LAB_MARKER: "white"}  # the rest grey
     fig = Figure(figsize=(10, 10 * look.frame.shape[0] / look.frame.shape[1] + 0.8), dpi=100)
     ax = fig.add_subplot(1, 1, 1)
     image = np.asarray(look.frame, float)
@@ -121,7 +119,7 @@ def write_first_look(look, path: str | Path, title: str = "") -> Path:
     ax.imshow(image, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1, interpolation="nearest")
     seen = {}
     for c in look.candidates:
-        colour = _VERDICT_COLOURS.get(c.verdict.value, "0.6")
+        colour = colours.get(c.verdict, "0.6")
         ax.add_patch(Ellipse((c.x_px, c.y_px), 2 * c.radius_px + 6, 2 * c.radius_px + 6, fill=False, lw=1.2,
                              ec=colour))
         seen[c.verdict.value] = (colour, seen.get(c.verdict.value, (colour, 0))[1] + 1)

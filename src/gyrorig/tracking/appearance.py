@@ -20,15 +20,14 @@ import numpy as np
 from ..markers import Marker
 from .camera_file import TrackingCamera
 
-__all__ = ["MarkerImage", "marker_image"]
+__all__ = ["MarkerImage"]
 
 _CHANNEL = {"red": 0, "green": 1, "blue": 2}
 
 
 class MarkerImage:
-    """Turns decoded frames into the tracker's image (module docstring): ``colour`` says whether frames must
-    be decoded as RGB; calling it maps one decoded frame; ``keeps_sensor_model`` whether the sensor's noise model
-    still describes the result."""
+    """Turns decoded frames (RGB for a coloured marker) into the tracker's image (module docstring); calling it
+    maps one decoded frame; ``keeps_sensor_model`` whether the sensor's noise model still describes the result."""
 
     def __init__(self, marker: Marker, camera: TrackingCamera):
         self.colour = marker.colour != "any"
@@ -64,7 +63,3 @@ def _linearizer(camera: TrackingCamera) -> Callable[[np.ndarray], np.ndarray] | 
     table = (top * (np.arange(camera.max_adu + 1) / top) ** camera.gamma).astype(np.float32)
     return lambda frame: table[np.minimum(frame, camera.max_adu)]
 
-
-def marker_image(marker: Marker, camera: TrackingCamera) -> MarkerImage:
-    """The :class:`MarkerImage` for a marker seen by a camera."""
-    return MarkerImage(marker, camera)

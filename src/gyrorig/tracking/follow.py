@@ -72,7 +72,7 @@ SCENE_MOTION_PX = 0.5
 #: correlation's peak holds at least this much of the response
 REGISTER_WIDTH_PX = 480
 REGISTER_MIN_RESPONSE = 0.08
-#: a reacquired tip lies within this many expected radii of where it was lost, plus this many times its fastest
+#: a reacquired tip lies within this many expected radii of where it was lost, plus this many times its median
 #: motion per frame before the loss for every frame since
 REACQUIRE_RADII = 3.0
 REACQUIRE_SPEEDS = 2.0
@@ -212,18 +212,19 @@ class TipFollower:
         self.had_lock = False
         #: the first frame searched: every spot that stood out and what became of it
         self.first_look: FirstLook | None = None
-        self.lost_at: tuple[float, float, float] | None = None  # where the tip was lost (x, y), its median speed [px/frame]
+        #: where the tip was lost (x, y) and its median speed before [px/frame]
+        self.lost_at: tuple[float, float, float] | None = None
         self.since_lost = 0  # frames since
 
     # ------------------------------------------------------------------------------- checks
     def _appearance_ok(self, fit: SpotFit) -> bool:
         if len(self.radii) < 3:
             return True
-        r0, a0 = float(np.median(self.radii)), float(np.median(self.amplitudes))
+        r0 = float(np.median(self.radii))
         # a disc's size changes with its view (its shape gate follows that); a sphere's and a blob's do not
         radius_ok = self.disc is not None or RADIUS_CHANGE[0] * r0 <= fit.radius_px <= RADIUS_CHANGE[1] * r0
         # the limit follows the chi-square's own scatter so far (on a log scale): steady on a flat background,
-        # wide where the scene behind the tip or a codec's artefacts change from frame to frame
+        # wider where the fit's quality varies from frame to frame
         logs = np.log(np.maximum(np.array(self.chi2s), 1e-12))
         med = float(np.median(logs))
         spread = 1.4826 * float(np.median(np.abs(logs - med)))
@@ -231,7 +232,7 @@ class TipFollower:
         # a recording's sphere is fitted in front of the scene (gyrorig.tracking.scene_spot), whose residuals
         # follow the codec's quality from frame to frame; another spot's light is left out there by its sectors
         chi2_ok = fit.chi2_own <= limit or (self.shape == "sphere" and not self.camera.sensor_known)
-        return radius_ok and chi2_ok and AMPLITUDE_CHANGE[0] * a0 <= self._level(fit) <= AMPLITUDE_CHANGE[1] * a0
+        return radius_ok and chi2_ok and self._as_bright(fit)
 
     def _nearer_size(self, radius_px: float, other_px: float) -> bool:
         """Whether a spot of ``radius_px`` is nearer (in ratio) to ``other_px`` than to the tip's expected radius."""
@@ -245,7 +246,8 @@ class TipFollower:
         return fit.amplitude_adu
 
     def _as_bright(self, fit: SpotFit) -> bool:
-        """The fit's amplitude within :data:`AMPLITUDE_CHANGE` of the tip's running median (True without one)."""
+        """The fit's level (:meth:`_level`) within :data:`AMPLITUDE_CHANGE` of the tip's running median (True
+        without one)."""
         if len(self.amplitudes) < 3:
             return True
         a0 = float(np.median(self.amplitudes))
@@ -293,13 +295,13 @@ class TipFollower:
         h, w = frame.shape
         # a tilted disc's inscribed circle is its minor semi-axis: accept down to a steep view of it
         lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
-        small = None if refused is not None else lo - 1.0  # a first look records the small ones too
+        smallest = 0.0 if refused is not None else max(lo - 1.0, 0.0)  # a first look records the small ones too
         if centre is None:
-            blobs = find_blobs(frame, 0, 0, w, h, threshold, min_radius_px=small or 0.0)
+            blobs = find_blobs(frame, 0, 0, w, h, threshold, min_radius_px=smallest)
         else:
             x0, y0 = max(int(centre[0]) - reach, 0), max(int(centre[1]) - reach, 0)
             blobs = find_blobs(frame, x0, y0, min(int(centre[0]) + reach, w), min(int(centre[1]) + reach, h),
-                               threshold, min_radius_px=small or 0.0)
+                               threshold, min_radius_px=smallest)
         out = []
         for c in blobs:
             if not lo <= c.r <= 1.6 * self.r_expected:

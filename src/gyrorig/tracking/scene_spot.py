@@ -28,7 +28,7 @@ import numpy as np
 from scipy.special import erfc
 
 from .camera_file import TrackingCamera
-from .spot import SpotFit, fit_spot
+from .spot import SpotFit, fit_spot, spot_window
 
 __all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "ANGLE_BINS", "RING_WIDTH_PX"]
 
@@ -205,14 +205,12 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
     sigma = cam.psf_sigma_px
     sigma_max = MAX_BLUR * sigma + 1.0
     half = int(math.ceil(1.3 * r0 + RING_GAP_SIGMAS * sigma_max + RING_WIDTH_PX + 2))
-    xi, yi = int(round(x0)), int(round(y0))
-    h, w = image.shape
-    if xi - half < 0 or yi - half < 0 or xi + half >= w or yi + half >= h:
+    window = spot_window(image, x0, y0, half, cam)
+    if window is None:
         return None
-    win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    allowed = win < cam.max_adu
-    start = np.array([x0, y0, r0, float(np.percentile(win, 99)), sigma])
+    win, xx, yy, saturated, _, background, amplitude = window
+    allowed = ~saturated
+    start = np.array([x0, y0, r0, background + amplitude, sigma])
     sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations)
     if sol is None:
         return None
@@ -240,7 +238,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
            + _scene_covariance(xx, yy, sol, finv))[:2, :2]
     chi2 = float(np.sum(sol.resid[use] ** 2 * sol.weight[use])) / max(int(use.sum()) - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
-                   bool((win >= cam.max_adu).any()), sol.converged, blended, chi2_own=chi2)
+                   bool(saturated.any()), sol.converged, blended, chi2_own=chi2)
 
 
 def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,

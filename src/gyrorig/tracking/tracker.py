@@ -40,7 +40,7 @@ from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count, camera_mode_prior_column
 from .camera_file import TrackingCamera
 from .detect import Detection, detection_threshold, opening_size_px
-from .appearance import marker_image
+from .appearance import MarkerImage
 from .follow import SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
@@ -323,8 +323,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     pose_info = None
     if not camera.has_pose:
         camera, pose_info = estimate_pose(source, camera, protocol)
-    appearance = marker_image(tip, camera)
-    with source.open(colour=appearance.colour) as frames:
+    with source.open(colour=tip.colour != "any") as frames:
         camera, time_scale = _timing(camera, frames, source)
         if frames.bit_depth is not None and frames.bit_depth < 16 and (1 << frames.bit_depth) - 1 != camera.max_adu:
             logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
@@ -334,10 +333,10 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                                 f"{frames.width_px} x {frames.height_px}")
         lossy = frames.lossy
+        appearance = MarkerImage(tip, camera)
         if (lossy or not appearance.keeps_sensor_model) and camera.sensor_known:
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = replace(camera, gain_e_per_adu=math.nan)
-        appearance = marker_image(tip, camera)
         follower = TipFollower(camera, tip, parse_markers(protocol).fiducials())
         dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
