@@ -76,6 +76,24 @@ def test_scatter_check_per_class_and_across_gaps():
         assert n > 300 and abs(f / truth - 1) < 4 * se, (label, f)
 
 
+def test_scatter_check_finds_an_error_common_to_every_frame():
+    """A lossy codec moves the whole spot by an error no frame's own fit reports: here 0.05 px on every frame beside
+    reported errors of 0.005-0.02 px (clear) and 0.03-0.06 px (blended), both right.  The floor comes out within 4
+    of its standard errors, and the classes' factors (held at 1 or above) at 1."""
+    rng = np.random.default_rng(7)
+    t, frames, xy = _path(2000)
+    blended = (frames % 4) == 0
+    sigma = np.where(blended, rng.uniform(0.03, 0.06, len(t)), rng.uniform(0.005, 0.02, len(t)))
+    floor = 0.05
+    noisy = xy + rng.normal(0, 1, xy.shape) * np.hypot(sigma, floor)[:, None]
+    check = check_sigmas(t, frames, noisy, np.repeat(sigma[:, None] ** 2, 2, axis=1),
+                         np.where(blended, "blended", "clear"), floor=True, min_factor=1.0)
+    assert abs(check.floor_px - floor) < 4 * check.floor_px_se
+    for label in ("blended", "clear"):
+        f, se, n = check.by_class[label]
+        assert f >= 1.0 and (f - 1.0) <= 4 * max(se, 0.02), (label, f, se)
+
+
 def _camera():
     """1280x720, f = 1000 px, a lens with k1, k2, k3, looking down at the pivot from 0.7 m, 10 deg off
     vertical."""

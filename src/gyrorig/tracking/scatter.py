@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import lsq_linear
 
 __all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN"]
 
@@ -52,13 +53,18 @@ class SigmaCheck:
     #: the factor each class's errors were multiplied by
     applied_factors: dict = field(default_factory=dict)
     reason: str = ""
+    #: an error the same for every frame, independent from frame to frame, beside the reported ones (per axis) [px],
+    #: and its standard error; 0 when not looked for
+    floor_px: float = 0.0
+    floor_px_se: float = 0.0
 
     def as_dict(self) -> dict:
         return {"factor": self.factor, "factor_se": self.factor_se, "coordinates": self.coordinates,
                 "outliers": len(self.outliers),
                 "by_class": {k: {"factor": f, "factor_se": se, "coordinates": n}
                              for k, (f, se, n) in self.by_class.items()},
-                "applied": self.applied, "applied_factors": self.applied_factors, "reason": self.reason}
+                "applied": self.applied, "applied_factors": self.applied_factors, "reason": self.reason,
+                "floor_px": self.floor_px, "floor_px_se": self.floor_px_se}
 
 
 def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -120,47 +126,58 @@ def neighbour_positions(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray) -> 
     return pred
 
 
-def _class_factors(t_s, frames, xy, var, active, labels) -> dict:
-    """Each class's factor, solved jointly: a residual's expected square is linear in the classes' squared
-    factors (``E r^2 = sum_c f_c^2 A_c``, ``A_c`` the reported variances of the stencil's frames of class
-    ``c`` times their squared weights), so they follow from weighted least squares of ``r^2`` on ``A``
-    (weights ``1 / (2 (E r^2)^2)``, found in two passes).  Returns ``{class: (factor, se, coordinates)}``."""
+def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_factor: float) -> tuple[dict, float, float]:
+    """Each class's factor and, with ``floor``, an error added to every frame, solved jointly: a residual's expected
+    square is linear in the classes' squared factors and the floor's variance (``E r^2 = sum_c f_c^2 A_c + tau^2 B``,
+    ``A_c`` the reported variances of the stencil's frames of class ``c`` times their squared weights, ``B`` the
+    stencil's squared weights summed, 1 for the frame itself), so they follow from weighted least squares of
+    ``r^2`` (weights ``1 / (2 (E r^2)^2)``, found in passes).  Factors below ``min_factor`` are held there and the
+    rest solved again.  Returns ``({class: (factor, se, coordinates)}, tau^2, its se)``; ``({}, nan, nan)`` when
+    the check has too few frames."""
     idx, nb, w = _stencils(t_s, frames, active)
     if len(idx) == 0:
-        return {}
+        return {}, math.nan, math.nan
     classes = sorted(set(labels[idx]) | set(labels[nb].ravel()))
     pred = np.einsum("mj,mjk->mk", w, xy[nb])
     r2 = ((xy[idx] - pred) ** 2).ravel()
-    design = np.zeros((len(idx), 2, len(classes)))
-    for c, label in enumerate(classes):
-        design[:, :, c] += np.where((labels[idx] == label)[:, None], var[idx], 0.0)
-        design[:, :, c] += np.einsum("mj,mjk->mk", w * w * (labels[nb] == label), var[nb])
-    design = design.reshape(-1, len(classes))
-    f2 = np.ones(len(classes))
-    cov = None
-    for _ in range(3):
-        expected = np.maximum(design @ f2, 1e-300)
-        wt = 1.0 / (2.0 * expected * expected)
-        normal = design.T @ (design * wt[:, None])
-        try:
-            cov = np.linalg.inv(normal)
-        except np.linalg.LinAlgError:
-            return {}
-        f2 = np.maximum(cov @ (design.T @ (wt * r2)), 1e-12)
+    columns = []
+    for label in classes:
+        col = np.where((labels[idx] == label)[:, None], var[idx], 0.0)
+        columns.append((col + np.einsum("mj,mjk->mk", w * w * (labels[nb] == label), var[nb])).ravel())
+    if floor:
+        columns.append(np.repeat(1.0 + np.sum(w * w, axis=1), 2))
+    design = np.column_stack(columns)
+    k = len(classes)
+    lower = np.array([min_factor**2] * k + [0.0] * (design.shape[1] - k))
+    x = np.maximum(np.r_[np.ones(k), np.zeros(design.shape[1] - k)], lower)
+    for _ in range(4):  # reweighting passes; bounded least squares (the floor and a class's factor are told apart
+        # only by how the reported errors vary within the class: where they do not, any split gives the same errors)
+        expected = np.maximum(design @ x, 1e-300)
+        sw = 1.0 / (math.sqrt(2.0) * expected)
+        scale = np.maximum(np.abs(design * sw[:, None]).max(axis=0), 1e-300)
+        fit = lsq_linear(design * sw[:, None] / scale, r2 * sw, bounds=(lower * scale, np.inf))
+        x = fit.x / scale
+    a = design * sw[:, None]
+    cov = np.linalg.pinv(a.T @ a)
+    active = x > lower * (1 + 1e-9) + 1e-300  # a value at its bound has no error of its own
+    full = np.where(np.outer(active, active), cov, 0.0)
     out = {}
     for c, label in enumerate(classes):
-        n_c = 2 * int(np.sum(labels[idx] == label))
-        f = math.sqrt(f2[c])
-        out[str(label)] = (f, math.sqrt(cov[c, c]) / (2 * f), n_c)
-    return out
+        f = math.sqrt(max(x[c], 1e-12))
+        out[str(label)] = (f, math.sqrt(max(full[c, c], 0.0)) / (2 * f), 2 * int(np.sum(labels[idx] == label)))
+    if floor:
+        return out, float(x[-1]), math.sqrt(max(full[-1, -1], 0.0))
+    return out, 0.0, 0.0
 
 
-def check_sigmas(t_s, frames, xy, var, classes=None) -> SigmaCheck:
+def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min_factor: float = 0.0) -> SigmaCheck:
     """Compare the reported errors with the scatter about the path (module docstring); outliers removed
     one at a time (the worst first, since its residual also reaches its neighbours' predictions).
 
     ``classes`` (n,), optional: a label per frame (e.g. its quality flag); the factor is then also found
-    per label, from the residuals of the frames that carry it."""
+    per label, from the residuals of the frames that carry it.  With ``floor`` an error the same for every
+    frame and independent from frame to frame (a lossy codec's) is found beside the factors
+    (:attr:`SigmaCheck.floor_px`), and the factors are held at ``min_factor`` or above."""
     t_s, frames = np.asarray(t_s, float), np.asarray(frames, int)
     xy, var = np.asarray(xy, float), np.asarray(var, float)
     active = np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(var) & (var > 0), axis=1)
@@ -177,8 +194,11 @@ def check_sigmas(t_s, frames, xy, var, classes=None) -> SigmaCheck:
             break
         active[centres[k]] = False
         outliers.append(int(centres[k]))
-    by_class = {}
-    if classes is not None:
-        by_class = _class_factors(t_s, frames, xy, var, active, np.asarray(classes).astype(str))
+    by_class, tau2, tau2_se = {}, 0.0, 0.0
+    if classes is not None or floor:
+        labels = np.asarray(classes).astype(str) if classes is not None else np.full(len(t_s), "all")
+        by_class, tau2, tau2_se = _variance_model(t_s, frames, xy, var, active, labels, floor, min_factor)
     factor = math.sqrt(float(np.mean(z * z)))
-    return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class)
+    floor_px = math.sqrt(tau2) if tau2 > 0 else 0.0
+    return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
+                      floor_px=floor_px, floor_px_se=tau2_se / (2 * floor_px) if floor_px > 0 else tau2_se)

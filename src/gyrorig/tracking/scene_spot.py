@@ -52,6 +52,10 @@ MIN_INNER_PIXELS = 8
 #: of the marker's contrast, holds another spot's light
 FOREIGN_Z = 5.0
 FOREIGN_CONTRAST = 0.1
+#: the edge's departures from a circle are read from its harmonics up to this order (:func:`_edge_roughness`)
+EDGE_HARMONICS = 5
+#: ... where at least this fraction of the bins has an edge point
+MIN_ARC_FRACTION = 0.5
 
 
 #: the spatial kernel of :func:`sandwich_covariance`: Bartlett weights over a 5 x 5 neighbourhood (a positive-definite
@@ -136,6 +140,54 @@ def _foreign_bins(bins: np.ndarray, marker_level: float) -> np.ndarray:
     return bins > med + max(FOREIGN_Z * sd, FOREIGN_CONTRAST * (marker_level - med))
 
 
+_BIN_ANGLES = -math.pi + (np.arange(ANGLE_BINS) + 0.5) * (2 * math.pi / ANGLE_BINS)
+
+
+def _edge_radii(win: np.ndarray, cx: float, cy: float, sol: "_Solution") -> np.ndarray:
+    """Where the edge lies in each angular bin: along the ray from the window's point ``(cx, cy)`` through the
+    bin's centre angle, the first radius at which the image falls below half-way between the marker's level and
+    that bin's ring (bilinear samples 0.25 px apart, from ``r - 4 sigma`` out to the ring's outer edge; linear
+    between samples).  ``+inf`` where it never falls that far (light beyond the disc), ``-inf`` where it starts
+    below (something in front of the disc)."""
+    r, blur = sol.p[2], sol.p[4]
+    radii = np.arange(max(r - 4.0 * blur, 0.3 * r), r + RING_GAP_SIGMAS * blur + RING_WIDTH_PX, 0.25)
+    mx = (cx + np.cos(_BIN_ANGLES)[:, None] * radii[None, :]).astype(np.float32)
+    my = (cy + np.sin(_BIN_ANGLES)[:, None] * radii[None, :]).astype(np.float32)
+    prof = cv2.remap(win.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    level = 0.5 * (sol.p[3] + sol.bins)[:, None]
+    below = prof < level
+    first = np.argmax(below, axis=1)
+    out = np.full(ANGLE_BINS, np.inf)
+    out[below[:, 0]] = -np.inf
+    inside = below.any(axis=1) & ~below[:, 0]
+    k = np.flatnonzero(inside)
+    j = first[k]
+    v0, v1 = prof[k, j - 1], prof[k, j]
+    frac = (v0 - level[k, 0]) / np.maximum(v0 - v1, 1e-12)
+    out[k] = radii[j - 1] + 0.25 * frac
+    return out
+
+
+def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution") -> float:
+    """The variance [px^2] per axis of the centre that the edge's own departures from a circle imply: the edge
+    points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a shift of the centre and is
+    therefore absorbed by the fit; its unseen power is taken as the mean power per coefficient of harmonics
+    2 to :data:`EDGE_HARMONICS`.  Noise independent from bin to bin gives ``2 var / bins`` (what the pixels' own
+    covariance already holds); a bump of another spot's light merged with the edge, a bulge of texture under it
+    or something in front of the disc spread over neighbouring harmonics and give what they shift the centre by.
+    NaN when fewer than half the bins have an edge point."""
+    x0, y0 = float(xx[0, 0]), float(yy[0, 0])
+    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol)
+    good = np.isfinite(radii)
+    if np.count_nonzero(good) < MIN_ARC_FRACTION * ANGLE_BINS:
+        return math.nan
+    ang = _BIN_ANGLES[good]
+    basis = np.column_stack([np.ones(len(ang))] + [f(n * ang) for n in range(1, EDGE_HARMONICS + 1)
+                                                    for f in (np.cos, np.sin)])
+    coef = np.linalg.lstsq(basis, radii[good], rcond=None)[0]
+    return float(np.mean(coef[3:] ** 2))
+
+
 def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int) -> _Solution | None:
     """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring, the ring taken
     again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured."""
@@ -160,8 +212,8 @@ def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, i
         resid = win - (scene * (1.0 - c) + p[3] * c)
         var_out = max(spread * spread, 1.0 / 12.0)
         inner = use & (c > 0.99)
-        if int(inner.sum()) >= MIN_INNER_PIXELS:
-            var_in = max(float(np.median(resid[inner] ** 2)) / 0.4549, 1.0 / 12.0)
+        if it < RING_PASSES and int(inner.sum()) >= MIN_INNER_PIXELS:  # held with the ring (a median's jumps
+            var_in = max(float(np.median(resid[inner] ** 2)) / 0.4549, 1.0 / 12.0)  # would make the steps cycle)
         var = var_out * (1.0 - c) + (var_in if var_in is not None else var_out) * c
         weight = np.where(use, 1.0 / var, 0.0)
         wj = jac * weight[:, :, None]
@@ -234,8 +286,11 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
         finv = np.linalg.inv(sol.fisher)
     except np.linalg.LinAlgError:
         return None
+    rough = _edge_roughness(win, xx, yy, sol)
+    if not math.isfinite(rough):
+        return None
     cov = (sandwich_covariance(sol.jac, sol.weight, sol.resid, finv)
-           + _scene_covariance(xx, yy, sol, finv))[:2, :2]
+           + _scene_covariance(xx, yy, sol, finv))[:2, :2] + rough * np.eye(2)
     chi2 = float(np.sum(sol.resid[use] ** 2 * sol.weight[use])) / max(int(use.sum()) - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
                    bool(saturated.any()), sol.converged, blended, chi2_own=chi2)

@@ -154,7 +154,7 @@ class _Tables:
         self.angles: list[tuple] = []
         self.markers: list[tuple] = []
         self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
-        self.tip_var: dict[int, tuple[float, float]] = {}  # angle row -> its variances in x and y [px^2]
+        self.tip_cov: dict[int, np.ndarray] = {}  # angle row -> its covariance in (x, y) [px^2]
         self.psi: dict[int, tuple[float, float]] = {}
         self.last_frame: tuple[int, float, float] | None = None  # (index, t_frame, threshold) of the last frame
 
@@ -194,7 +194,7 @@ class _Tables:
             self.angles[row] = angle_row
         if geo is not None:
             self.tip_px[row] = (fit.x_px, fit.y_px)
-            self.tip_var[row] = (float(fit.cov_xy[0, 0]), float(fit.cov_xy[1, 1]))
+            self.tip_cov[row] = np.asarray(fit.cov_xy, float)
             if dots is not None:
                 psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
                 self.psi[row] = (psi, psi_sigma)
@@ -232,20 +232,29 @@ def _sensor_doubts(camera: TrackingCamera, lossy: bool, follower: TipFollower) -
     return "; ".join(doubts)
 
 
-def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, tip_name: str
-                     ) -> SigmaCheck:
+def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, lossy: bool,
+                     tip_name: str, camera: TrackingCamera, length_m: float) -> SigmaCheck:
     """Check the tip's errors against its scatter about its path (:mod:`gyrorig.tracking.scatter`), for
-    blended frames and the rest apart; scale a class's errors by its factor when the models are in doubt,
-    or when they are evidently too small (a class whose factor is not known well enough,
-    :data:`MIN_CLASS_COORDINATES` and :data:`MAX_CLASS_RELATIVE_SE`, takes the overall factor); turn the outliers into ``outlier`` rows without angles."""
+    blended frames and the rest apart, and correct them where the check shows them wrong; turn the outliers into
+    ``outlier`` rows without angles.
+
+    When the models are in doubt (``doubts``: a recording, a lossy codec, an approximate marker model) each
+    class's errors are scaled by its factor, never down (the path sees only what changes from frame to frame;
+    what the scene or the codec does to several frames alike it cannot see); for a ``lossy`` codec an error the
+    same for every frame is found beside the factors and added (the codec's displacement of the whole spot,
+    which no single frame shows).  Otherwise a
+    class's errors are scaled only when evidently too small (by :data:`SIGMA_CHECK_Z` of the check's standard
+    errors).  A class whose factor is not known well enough (:data:`MIN_CLASS_COORDINATES`,
+    :data:`MAX_CLASS_RELATIVE_SE`) takes the overall factor."""
     index = np.array(sorted(rows.tip_px))
     if len(index) == 0:
         return SigmaCheck(math.nan, math.nan, 0, ())
     blended = angles.quality.to_numpy()[index].astype(str)
     classes = np.where(np.char.find(blended, "blended") >= 0, "blended", "clear")
+    var = np.array([np.diag(rows.tip_cov[r]) for r in index])
     check = check_sigmas(angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index],
-                         np.array([rows.tip_px[r] for r in index]), np.array([rows.tip_var[r] for r in index]),
-                         classes)
+                         np.array([rows.tip_px[r] for r in index]), var, classes, floor=lossy,
+                         min_factor=1.0 if doubts else 0.0)
     if not math.isfinite(check.factor):
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
     factors, reasons = {}, []
@@ -254,21 +263,32 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
         if n < MIN_CLASS_COORDINATES or not se < MAX_CLASS_RELATIVE_SE * f:
             f, se = check.factor, check.factor_se
         if doubts:
-            # interleaved classes are told apart imprecisely: when the models are in doubt, a class is never
-            # given narrower errors than the record as a whole shows
-            f = max(f, check.factor)
+            # interleaved classes are told apart imprecisely: a class is never given narrower errors than the record
+            # as a whole shows (without a floor, which the overall factor would count again), nor scaled down
+            f = max(f, 1.0) if lossy else max(f, check.factor, 1.0)
         if doubts or f > 1.0 + SIGMA_CHECK_Z * se:
             factors[label] = f
             if not doubts:
                 reasons.append(f"{label} frames' errors are smaller than their scatter")
     reason = doubts or "; ".join(reasons) or "sensor and spot models hold"
+    tau2 = check.floor_px**2
     tip_rows = markers.marker == tip_name
+    cols = ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]
     for label, f in factors.items():
         rows_c = index[classes == label]
-        for col in ("theta_sigma_rad", "phi_sigma_rad"):
-            angles.loc[rows_c, col] *= f
+        for r in rows_c:
+            cov = f * f * rows.tip_cov[r] + tau2 * np.eye(2)
+            geo = angles_with_covariance(*rows.tip_px[r], cov, camera, length_m)
+            if geo is None:
+                continue
+            rows.tip_cov[r] = cov
+            c = geo[3]
+            sth, sph = math.sqrt(c[0, 0]), math.sqrt(c[1, 1])
+            angles.loc[r, cols] = (sth, sph, c[0, 1] / (sth * sph))
         frames_c = angles.frame.to_numpy()[rows_c]
-        markers.loc[tip_rows & markers.frame.isin(frames_c), ["sigma_x_px", "sigma_y_px"]] *= f
+        sel = tip_rows & markers.frame.isin(frames_c)
+        for col in ("sigma_x_px", "sigma_y_px"):
+            markers.loc[sel, col] = np.sqrt(f * f * markers.loc[sel, col] ** 2 + tau2)
     bad = index[list(check.outliers)]
     if len(bad):
         cols = [c for c in ("theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
@@ -382,7 +402,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             f"{n} {reason}" for reason, n in look.reasons().items()) or "no spot stood out from its surroundings")
         raise TrackingError(f"{source}: the tip marker was never found in {k} frames{why}", first_look=look)
     doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
-    check = _check_and_scale(angles, markers, rows, doubts, tip.name)
+    check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2])
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
                                      pose_info or camera.pose_points, own_pose)
