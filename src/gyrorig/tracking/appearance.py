@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 
 from ..markers import Marker
@@ -61,5 +62,7 @@ def _linearizer(camera: TrackingCamera) -> Callable[[np.ndarray], np.ndarray] | 
         return None
     top = float(camera.max_adu)
     table = (top * (np.arange(camera.max_adu + 1) / top) ** camera.gamma).astype(np.float32)
+    if camera.max_adu == 255:
+        return lambda frame: cv2.LUT(frame, table) if frame.dtype == np.uint8 else table[np.minimum(frame, 255)]
     return lambda frame: table[np.minimum(frame, camera.max_adu)]
 

@@ -10,7 +10,7 @@ import numpy as np
 from ..geometry import angles_from_tip, ray_sphere_distances
 from .camera_file import TrackingCamera
 
-__all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "angles_with_covariance"]
+__all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "angles_with_covariance", "angle_covariances"]
 
 
 def pixel_rays(xy_px: np.ndarray, cam: TrackingCamera) -> np.ndarray:
@@ -39,7 +39,18 @@ def tip_from_pixel(x_px: float, y_px: float, cam: TrackingCamera, radius_m: floa
 def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: TrackingCamera, radius_m: float
                            ) -> tuple[float, float, np.ndarray, np.ndarray] | None:
     """``theta, phi``, the unit tip and the 2x2 covariance of ``(theta, phi)`` of a spot at ``(x, y)``
-    with pixel covariance ``cov_xy``.
+    with pixel covariance ``cov_xy`` (:func:`angle_covariances` for one spot).  None when the ray (or a
+    neighbouring one) misses the tip's sphere."""
+    th, ph, tip, cov = angle_covariances(np.array([[x, y]]), np.asarray(cov_xy, float)[None], cam, radius_m)
+    if not np.isfinite(th[0]):
+        return None
+    return float(th[0]), float(ph[0]), tip[0], cov[0]
+
+
+def angle_covariances(xy_px: np.ndarray, cov_xy: np.ndarray, cam: TrackingCamera, radius_m: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``theta, phi`` (n,), the unit tips (n, 3) and the covariances of ``(theta, phi)`` (n, 2, 2) of spots at
+    ``xy_px`` (n, 2) with pixel covariances ``cov_xy`` (n, 2, 2).
 
     The tip vector is smooth in the pixel position everywhere, the angles are not (at the poles ``phi`` is
     undefined and ``theta`` has a cone): so the pixel covariance goes to the tip vector first (numerical
@@ -47,18 +58,21 @@ def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: Tracking
     ``d phi = e_phi . dn / sin(theta)``.  Near a pole ``theta``'s error stays the tip's angular error and
     ``phi``'s grows as ``1 / sin(theta)``: a sleeping top's azimuth is honestly unknown.
 
-    None when the ray (or a neighbouring one) misses the tip's sphere.
+    NaN where the ray (or a neighbouring one) misses the tip's sphere.
     """
     eps = 0.05
-    xy = np.array([[x, y], [x + eps, y], [x - eps, y], [x, y + eps], [x, y - eps]])
-    tips = tips_from_pixels(xy, cam, radius_m)
-    if not np.all(np.isfinite(tips)):
-        return None
-    jac_n = np.column_stack([(tips[1] - tips[2]) / (2 * eps), (tips[3] - tips[4]) / (2 * eps)])  # 3 x 2
-    cov_n = jac_n @ cov_xy @ jac_n.T
-    th, ph = angles_from_tip(tips[:1])
-    th, ph = float(th[0]), float(ph[0])
-    e_theta = np.array([math.cos(th) * math.sin(ph), -math.cos(th) * math.cos(ph), -math.sin(th)])
-    e_phi = np.array([math.cos(ph), math.sin(ph), 0.0])
-    proj = np.vstack([e_theta, e_phi / max(math.sin(th), 1e-12)])
-    return th, ph, tips[0], proj @ cov_n @ proj.T
+    xy = np.asarray(xy_px, float).reshape(-1, 2)
+    n = len(xy)
+    steps = np.array([[0, 0], [eps, 0], [-eps, 0], [0, eps], [0, -eps]])
+    tips = tips_from_pixels((xy[:, None, :] + steps).reshape(-1, 2), cam, radius_m).reshape(n, 5, 3)
+    jac_n = np.stack([(tips[:, 1] - tips[:, 2]) / (2 * eps), (tips[:, 3] - tips[:, 4]) / (2 * eps)], axis=2)
+    th, ph = angles_from_tip(tips[:, 0])
+    th, ph = np.asarray(th, float), np.asarray(ph, float)
+    e_theta = np.stack([np.cos(th) * np.sin(ph), -np.cos(th) * np.cos(ph), -np.sin(th)], axis=1)
+    e_phi = np.stack([np.cos(ph), np.sin(ph), np.zeros(n)], axis=1) / np.maximum(np.sin(th), 1e-12)[:, None]
+    proj = np.stack([e_theta, e_phi], axis=1) @ jac_n  # (n, 2, 2): pixels -> angles
+    cov = proj @ np.asarray(cov_xy, float).reshape(n, 2, 2) @ np.transpose(proj, (0, 2, 1))
+    bad = ~np.all(np.isfinite(tips), axis=(1, 2))
+    th[bad], ph[bad] = np.nan, np.nan
+    cov[bad] = np.nan
+    return th, ph, tips[:, 0], cov

@@ -114,8 +114,9 @@ def _scene_covariance(xx, yy, sol: "_Solution", fisher_inv: np.ndarray) -> np.nd
     var_bin = float(np.mean((np.roll(sol.bins, lag) - sol.bins) ** 2))
     th = np.arctan2(yy - p[1], xx - p[0])
     sector = ((th + math.pi) / (2 * math.pi) * ANGLE_BINS).astype(int) % ANGLE_BINS
-    u = sol.jac * (sol.weight * (1.0 - sol.coverage))[:, :, None]
-    v = np.stack([u[sector == k].sum(axis=0) for k in range(ANGLE_BINS)])  # each bin's effect per unit error
+    u = (sol.jac * (sol.weight * (1.0 - sol.coverage))[:, :, None]).reshape(-1, sol.jac.shape[2])
+    v = np.column_stack([np.bincount(sector.ravel(), u[:, k], ANGLE_BINS)  # each bin's effect per unit error
+                         for k in range(u.shape[1])])
     return fisher_inv @ (var_bin * v.T @ v) @ fisher_inv
 
 
@@ -190,38 +191,41 @@ def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solu
 
 def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int) -> _Solution | None:
     """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring, the ring taken
-    again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured."""
+    again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  The
+    passes work on the fitted pixels alone; the solution's arrays are the window's (0 off those pixels)."""
     converged = False
     var_in = None  # the residuals' variance on the marker (unknown before the first pass)
     for it in range(iterations):
-        dx, dy = xx - p[0], yy - p[1]
-        rho = np.hypot(dx, dy) + 1e-12
         if it < RING_PASSES:  # then the ring and the fitted pixels stay put: their edges would make the steps flip
+            dx, dy = xx - p[0], yy - p[1]
+            rho = np.hypot(dx, dy) + 1e-12
             gap = RING_GAP_SIGMAS * p[4]
-            bins, scene, spread = _ring(win, np.arctan2(dy, dx), rho, p[2] + gap)
+            bins, scene_all, spread = _ring(win, np.arctan2(dy, dx), rho, p[2] + gap)
             if bins is None:
                 return None
             use = (rho < p[2] + gap) & allowed
+            pick = np.flatnonzero(use)
+            xs, ys, values, scene = xx.ravel()[pick], yy.ravel()[pick], win.ravel()[pick], scene_all.ravel()[pick]
+            var_out = max(spread * spread, 1.0 / 12.0)
+        dx, dy = xs - p[0], ys - p[1]
+        rho = np.hypot(dx, dy) + 1e-12
         arg = (rho - p[2]) / (math.sqrt(2.0) * p[4])
         c = 0.5 * erfc(arg)
         gauss = np.exp(-arg * arg) / (math.sqrt(2.0 * math.pi) * p[4])
         level = p[3] - scene
         edge = -level * gauss  # d mu / d rho
-        jac = np.stack([edge * (-dx / rho), edge * (-dy / rho), -edge, c, level * gauss * (rho - p[2]) / p[4]],
-                       axis=-1)
-        resid = win - (scene * (1.0 - c) + p[3] * c)
-        var_out = max(spread * spread, 1.0 / 12.0)
-        inner = use & (c > 0.99)
+        jac = np.column_stack([edge * (-dx / rho), edge * (-dy / rho), -edge, c, level * gauss * (rho - p[2]) / p[4]])
+        resid = values - (scene * (1.0 - c) + p[3] * c)
+        inner = c > 0.99
         if it < RING_PASSES and int(inner.sum()) >= MIN_INNER_PIXELS:  # held with the ring (a median's jumps
             var_in = max(float(np.median(resid[inner] ** 2)) / 0.4549, 1.0 / 12.0)  # would make the steps cycle)
-        var = var_out * (1.0 - c) + (var_in if var_in is not None else var_out) * c
-        weight = np.where(use, 1.0 / var, 0.0)
-        wj = jac * weight[:, :, None]
-        fisher = np.einsum("ijk,ijl->kl", wj, jac)
+        weight = 1.0 / (var_out * (1.0 - c) + (var_in if var_in is not None else var_out) * c)
+        wj = jac * weight[:, None]
+        fisher = wj.T @ jac
         if converged:
             break
         try:
-            step = np.linalg.solve(fisher, np.einsum("ijk,ij->k", wj, resid))
+            step = np.linalg.solve(fisher, wj.T @ resid)
         except np.linalg.LinAlgError:
             return None
         if not np.all(np.isfinite(step)):
@@ -240,7 +244,13 @@ def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, i
         p = p + step
     if not converged:
         return None
-    return _Solution(p, converged, use, weight, jac, resid, fisher, bins, c)
+
+    def window(v: np.ndarray) -> np.ndarray:
+        out = np.zeros(win.shape + v.shape[1:])
+        out.reshape((-1,) + v.shape[1:])[pick] = v
+        return out
+
+    return _Solution(p, converged, use, window(weight), window(jac), window(resid), fisher, bins, window(c))
 
 
 def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,

@@ -45,7 +45,7 @@ from .follow import SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .pose import camera_modes_by_source, estimate_pose
-from .rays import angles_with_covariance
+from .rays import angle_covariances, angles_with_covariance
 from .scatter import SigmaCheck, check_sigmas, neighbour_positions
 from .sources import as_source, fingerprint
 from .spot import SpotFit
@@ -276,15 +276,12 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     cols = ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]
     for label, f in factors.items():
         rows_c = index[classes == label]
-        for r in rows_c:
-            cov = f * f * rows.tip_cov[r] + tau2 * np.eye(2)
-            geo = angles_with_covariance(*rows.tip_px[r], cov, camera, length_m)
-            if geo is None:
-                continue
+        covs = f * f * np.array([rows.tip_cov[r] for r in rows_c]).reshape(-1, 2, 2) + tau2 * np.eye(2)
+        c = angle_covariances(np.array([rows.tip_px[r] for r in rows_c]).reshape(-1, 2), covs, camera, length_m)[3]
+        sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
+        angles.loc[rows_c, cols] = np.column_stack([sth, sph, c[:, 0, 1] / (sth * sph)])
+        for r, cov in zip(rows_c, covs):
             rows.tip_cov[r] = cov
-            c = geo[3]
-            sth, sph = math.sqrt(c[0, 0]), math.sqrt(c[1, 1])
-            angles.loc[r, cols] = (sth, sph, c[0, 1] / (sth * sph))
         frames_c = angles.frame.to_numpy()[rows_c]
         sel = tip_rows & markers.frame.isin(frames_c)
         for col in ("sigma_x_px", "sigma_y_px"):
