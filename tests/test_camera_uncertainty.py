@@ -139,7 +139,7 @@ def test_a_pose_found_from_the_same_frames_gives_error_bars_that_cover_its_error
     draws the pulls of the precession rate, nutation frequency and amplitude have an RMS within
     1 +- 3 / sqrt(2 N) and a mean within 3 / sqrt(N).  Taking the pose's covariance as independent of the
     frames (``cam_k_prior`` 1) makes the error bars too small; modes evaluated at the measured positions
-    carry each frame's noise into its own correction and bias the amplitude (README, Fit: camera modes)."""
+    carry each frame's noise into its own correction and bias the amplitude (docs/methods.md, Fit: camera modes)."""
     text = (PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
     text = text.replace("position_m = [0.0, 0.0, 0.75]", "position_m = [0.0, -0.2, 0.75]")
     (tmp_path / "oblique.toml").write_text(text.replace("up_hint = [0.0, 1.0, 0.0]", "up_hint = [0.0, 0.0, 1.0]"))

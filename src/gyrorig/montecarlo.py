@@ -27,6 +27,7 @@ from .pipeline import analyze
 from .plan import plan_experiment
 from .protocols import BUNDLED_PROTOCOL_DIR, Protocol, load_protocol
 from .render import render_video
+from .render.phone import PhoneStyle, render_phone_video
 from .tables import tip_truth
 from .theory import predict
 
@@ -47,8 +48,12 @@ def scene_protocol(scene: str | Protocol) -> Protocol:
 
 def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
                         camera_size: tuple[int, int] | None = (640, 480), prediction: dict | None = None,
-                        terms="planned") -> list[dict]:
+                        terms="planned", phone: PhoneStyle | None = None) -> list[dict]:
     """One run of the full chain (render -> track -> smooth -> fit) with the truth unseen.
+
+    ``phone``: the video is recorded as a phone would (:func:`gyrorig.render.phone.render_phone_video`: in front of
+    a photograph, gamma, a lossy codec, jittered times and dropped frames, a camera file without sensor numbers)
+    instead of through the sensor model.
 
     Returns one row per fitted quantity (:data:`RUN_COLUMNS`): value, standard error, the truth
     (the same model fitted to the simulator's noiseless angles), pull.  A failure is returned as a
@@ -65,9 +70,12 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
         terms = plan_fit_terms(p, duration_s, prediction=prediction)
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            render_video(p, f"{tmp}/v", seed=seed, duration_s=duration_s, calibration_views=0)
+            if phone is None:
+                video = render_video(p, f"{tmp}/v", seed=seed, duration_s=duration_s, calibration_views=0)["video"]
+            else:
+                video = render_phone_video(p, f"{tmp}/v", style=phone, seed=seed, duration_s=duration_s)["video"]
             truth = tip_truth(pd.read_csv(f"{tmp}/v/truth.csv"))
-            res = analyze(f"{tmp}/v/video.mkv", f"{tmp}/v/camera.json", p, truth=truth, prediction=prediction,
+            res = analyze(video, f"{tmp}/v/camera.json", p, truth=truth, prediction=prediction,
                           terms=terms, rng=np.random.default_rng(seed))
     except Exception as exc:  # reported in the table, not hidden
         return [{"scene": scene, "seed": seed, "duration_s": duration_s, "error": f"{type(exc).__name__}: {exc}"}]
@@ -126,14 +134,15 @@ def _run_jobs(jobs, submit, completed, progress) -> list[dict]:
 def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: int = 40, duration_s: float = 2.0,
                     workers: int | None = None, progress=None, scheduler: str | None = None,
                     camera_size: tuple[int, int] | None = (640, 480), first_seed: int = 0,
-                    terms: str = "planned") -> pd.DataFrame:
+                    terms: str = "planned", phone: PhoneStyle | None = None) -> pd.DataFrame:
     """The fit benchmark: many seeds per scene, in parallel; one row per quantity and run.
 
     Runs in local processes, or on a Dask cluster when ``scheduler`` is its address
     (``pip install 'gyrorig[dask]'``).  Scenes are bundled protocol names or protocols.
     ``terms="planned"``: each scene's fit model is chosen once, before the runs, by
     :func:`gyrorig.expectation.plan_fit_terms` for this record length and camera; ``"data"``: each
-    run chooses its own by chi-square tests.
+    run chooses its own by chi-square tests.  ``phone``: every video recorded as a phone would
+    (:func:`fit_monte_carlo_run`).
     """
     protos = [scene_protocol(s) for s in scenes]
     preds = [predict(p, simulate_damping=False) for p in protos]
@@ -142,7 +151,7 @@ def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: 
                  for p, pr in zip(protos, preds)]
     else:
         plans = [terms] * len(protos)
-    jobs = [(protos[i], seed, duration_s, camera_size, preds[i], plans[i])
+    jobs = [(protos[i], seed, duration_s, camera_size, preds[i], plans[i], phone)
             for i in range(len(protos)) for seed in range(first_seed, first_seed + seeds)]
     if scheduler is not None:
         try:

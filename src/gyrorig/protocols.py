@@ -7,7 +7,7 @@ undamped, one without ``acceleration_m_s2`` has a pivot at rest.
 
 Every problem is reported as a :class:`ProtocolError` naming the key, the value
 found and the range allowed.  The full format, with every key and unit, is
-documented in ``README.md`` (section "Protocol format").
+documented in ``docs/user-guide.md`` (section "Protocol format").
 """
 
 from __future__ import annotations

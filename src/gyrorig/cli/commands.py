@@ -296,11 +296,19 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
             raise ValueError(f"--seeds {seeds}: at least 1 run per scene")
         number("", "--duration", args.duration, lo=0.0, lo_open=True)
         start = time.perf_counter()
+        phone = None
+        if args.phone is not None:
+            from ..render.phone import PhoneStyle
+
+            phone = PhoneStyle(photo=args.phone)
+            phone.check()
         runs = fit_monte_carlo(scenes, seeds=seeds, duration_s=args.duration, workers=args.workers,
-                               progress=progress_printer("runs"), first_seed=args.first_seed, terms=args.terms)
+                               progress=progress_printer("runs"), first_seed=args.first_seed, terms=args.terms,
+                               phone=phone)
         table = summarize_fit_monte_carlo(runs)
+        how = f"recorded like a phone in front of {args.phone}" if phone else "through the sensor model"
         print(f"{len(scenes)} scene(s) x {seeds} seeds (from {args.first_seed}), {args.duration:g} s of 640x480 "
-              f"video each, model terms {args.terms}, {time.perf_counter() - start:.0f} s")
+              f"video each ({how}), model terms {args.terms}, {time.perf_counter() - start:.0f} s")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if table.attrs.get("failed_runs"):
         print(f"{table.attrs['failed_runs']} run(s) failed: see runs.csv")

@@ -121,6 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="'planned' (default): each scene's model terms are chosen once by the plan for the "
                          "record length, before the runs; 'data': by chi-square tests in each run")
     bf.add_argument("--quick", action="store_true", help="one scene, 4 seeds")
+    bf.add_argument("--phone", default=None, metavar="PHOTO",
+                    help="record each video as a phone would, in front of this scikit-image photograph (coffee, "
+                         "brick, astronaut, camera, rocket, gravel, chelsea): gamma 2.2, HEVC, jittered times, "
+                         "dropped frames, no sensor numbers (needs scikit-image)")
     bf.add_argument("--out", default=None, help="also write runs.csv and fit.csv here")
     bf.add_argument("--combine", nargs="+", default=None, metavar="DIR",
                     help="run nothing: summarise the runs.csv of earlier --out batches together "

@@ -18,7 +18,7 @@ import copy
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
@@ -103,15 +103,18 @@ def photo_background(name: str | None, width_px: int, height_px: int, margin_px:
     return np.clip(img[:h, :w], 0.0, 1.0) ** 2.2
 
 
-def _coverage_protocol(scene: Mapping[str, Any]) -> Protocol:
-    """The scene with every dot of one brightness and no background: the render is each pixel's coverage."""
-    d = copy.deepcopy(dict(scene))
+def _coverage_protocol(scene: Mapping[str, Any] | Protocol) -> Protocol:
+    """The scene (a protocol, or its dict) with every dot of one brightness and no background: the render is each
+    pixel's coverage."""
+    d = copy.deepcopy(dict(scene.extra if isinstance(scene, Protocol) else scene))
     for m in d["markers"].values():
         if m.get("kind", "dot") != "occluder":
             m["brightness_e_per_s"] = _COVERAGE_E_PER_S
-    sensor = d["camera"].setdefault("sensor", {})
-    sensor["background_e_per_s"] = 0.0
+    d["camera"] = dict(d["camera"])
+    d["camera"]["sensor"] = {**d["camera"].get("sensor", {}), "background_e_per_s": 0.0}
     d["camera"]["illumination_drift_fraction"] = 0.0
+    if isinstance(scene, Protocol):
+        return replace(scene, extra={**scene.extra, "markers": d["markers"], "camera": d["camera"]})
     return parse_protocol(d)
 
 
@@ -130,9 +133,9 @@ def _frame_times(n: int, fps: float, style: PhoneStyle, rng: np.random.Generator
     return k, t
 
 
-def render_phone_video(scene: Mapping[str, Any], out_dir: str | Path, *, style: PhoneStyle = PhoneStyle(),
+def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path, *, style: PhoneStyle = PhoneStyle(),
                        seed: int = 0, duration_s: float | None = None) -> dict:
-    """Render the scene (a protocol dict with ``[camera]`` and ``[markers]``) as a phone recording.
+    """Render the scene (a protocol, or its dict, with ``[camera]`` and ``[markers]``) as a phone recording.
 
     Writes ``video.mp4`` (or ``video.mkv`` for FFV1), ``truth.csv`` (the renderer's, every capture frame) and
     ``camera.json`` (what a user knows: intrinsics, pose, capture fps, exposure, gamma; no sensor numbers),

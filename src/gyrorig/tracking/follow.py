@@ -15,9 +15,11 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
 - **lab markers**: a spot where one of the protocol's lab-fixed markers appears, and nearer its size than the
   tip's, is never the tip;
 - **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
-  only when the next frame confirms it nearby (of the confirmed ones, the nearest to the tip's
-  expected size): dots on the spinning rotor jump by a large fraction of a turn between frames, a
-  static spot of the wrong size fails the size test.
+  only when the next frame confirms it nearby and it has moved unlike the scene since the search began
+  (of those, the nearest to the tip's expected size): dots on the spinning rotor jump by a large fraction
+  of a turn between frames, a static spot of the wrong size fails the size test, and one of the right size
+  (a highlight, a screw head) never moves.  The frames searched meanwhile get the tip's positions back once
+  it is taken.  A sleeping top's tip, at the pole, need not move.
 
 A sphere's spot fitted jointly with a neighbour (``blended``) that fails these is fitted again with the
 neighbour's light masked out (a whirling dot is a streak, not a disc); if that fails too, the frame
@@ -84,16 +86,21 @@ ACQUIRE_CANDIDATES = 16
 ACQUIRE_FITS = 8
 #: frames the follower coasts on its prediction after a rejected frame before it searches anew
 COAST_FRAMES = 3
+#: a spot within this tilt of the vertical is a sleeping top's tip, taken without moving [rad]
+SLEEPING_TILT_RAD = 0.05
+#: a search's anchor frame (:meth:`TipFollower._moved_since_anchor`) is renewed after this many frames searched
+ANCHOR_FRAMES = 240
 
 
 @dataclass(frozen=True)
 class Located:
-    """The follower's verdict on one frame: the tip's fit (None: missing), its quality flag, and the fit of
-    the previous frame when this frame confirmed an acquisition started there."""
+    """The follower's verdict on one frame: the tip's fit (None: missing), its quality flag, and, when this frame
+    completed an acquisition, the tip's fits in the frames searched before it (the latest first), which were
+    left missing while the tip could not yet be told from the scene."""
 
     fit: SpotFit | None
     quality: str
-    previous: SpotFit | None = None
+    earlier: tuple[SpotFit, ...] = ()
 
 
 def _lab_images(camera: TrackingCamera, markers: tuple[Marker, ...]) -> list[tuple[float, float, float]]:
@@ -208,6 +215,11 @@ class TipFollower:
         self.misses = 0
         self.pending: list[SpotFit] = []  # the last frame's candidates, when searching
         self.pending_frame: np.ndarray | None = None  # ... and that frame
+        #: the first frame of the current search and its candidates: several spots alike in a quiet scene are told
+        #: apart by how far each has moved unlike the scene since then
+        self.anchor: tuple[np.ndarray, list[SpotFit], int] | None = None
+        self.history: list[list[SpotFit]] = []  # each searched frame's candidates since the anchor
+        self.earlier: tuple[SpotFit, ...] = ()  # the acquired tip's fits in the frames searched before
         self.confirmed: SpotFit | None = None  # the candidate of the last frame that this frame confirmed
         self.had_lock = False
         #: the first frame searched: every spot that stood out and what became of it
@@ -215,6 +227,7 @@ class TipFollower:
         #: where the tip was lost (x, y) and its median speed before [px/frame]
         self.lost_at: tuple[float, float, float] | None = None
         self.since_lost = 0  # frames since
+        self.searched = 0  # frames searched so far
 
     # ------------------------------------------------------------------------------- checks
     def _appearance_ok(self, fit: SpotFit) -> bool:
@@ -372,6 +385,8 @@ class TipFollower:
         near = pairs
         if pairs:
             pairs = self._unlike_the_scene(pairs, scene_shift(self.pending_frame, frame), busy)
+        if pairs:  # a top's tip moves: a spot of the scene (a highlight, a screw head) of its size does not
+            pairs = self._moved_since_anchor(pairs, frame)
         best = min(pairs, key=lambda p: p[:3]) if pairs else None  # the confirmed one nearest the tip's size
         if self.first_look is not None and not self.first_look.settled:
             self.first_look.settle(self.pending, near, [best] if best else [])
@@ -379,9 +394,58 @@ class TipFollower:
             self.first_look = FirstLook(np.array(frame, copy=True), threshold, record, self.r_expected)
         if best is not None:
             _, _, _, fit, self.confirmed = best
+            self.earlier = self._trace_back(self.confirmed)
+            self.anchor, self.history = None, []
             return fit
         self.pending, self.pending_frame = fits, frame
+        if self.anchor is None or self.searched - self.anchor[2] > ANCHOR_FRAMES:
+            self.anchor, self.history = (frame, fits, self.searched), []
+        self.history.append(fits)
         return None
+
+    def _trace_back(self, confirmed: SpotFit) -> tuple[SpotFit, ...]:
+        """The tip's fits in the frames searched before the acquisition, the latest first: from the candidate the
+        acquiring frame confirmed, each earlier frame's candidate nearest the one after it (within
+        :data:`ACQUIRE_REACH`), as far back as the chain holds."""
+        chain = [confirmed]
+        reach = ACQUIRE_REACH * self.r_expected + 5.0
+        for fits in reversed(self.history[:-1]):
+            last = chain[-1]
+            near = [f for f in fits if math.hypot(f.x_px - last.x_px, f.y_px - last.y_px) <= reach]
+            if not near:
+                break
+            chain.append(min(near, key=lambda f: math.hypot(f.x_px - last.x_px, f.y_px - last.y_px)))
+        return tuple(chain)
+
+    def _moved_since_anchor(self, pairs: list, frame: np.ndarray) -> list:
+        """The confirmed spots that moved unlike the scene since the search began (the anchor frame): by more than
+        :data:`SCENE_MOTION_PX` and 5 of the two fits' combined SDs from the anchor's candidate nearest them, the
+        scene's own motion since then taken off.  A top released from rest barely moves in its first frames, and a
+        highlight in the scene of the tip's size and shape never does; until the tip has moved, nothing is taken
+        (those frames get their positions back when it is: :meth:`_trace_back`).  A spot where a sleeping top's tip
+        would be passes unmoved (:meth:`_at_the_pole`)."""
+        if self.anchor is None:
+            return []
+        before, anchors, _ = self.anchor
+        if not anchors:
+            return []
+        shift = scene_shift(before, frame)
+        shift = np.zeros(2) if shift is None else shift
+        out = []
+        for p in pairs:
+            f = p[3]
+            a = min(anchors, key=lambda g: math.hypot(f.x_px - g.x_px, f.y_px - g.y_px))
+            moved = math.hypot(f.x_px - a.x_px - shift[0], f.y_px - a.y_px - shift[1])
+            noise = math.sqrt(max(np.trace(f.cov_xy) + np.trace(a.cov_xy), 0.0))
+            if moved > max(SCENE_MOTION_PX, 5.0 * noise) or self._at_the_pole(f):
+                out.append(p)
+        return out
+
+    def _at_the_pole(self, fit: SpotFit) -> bool:
+        """Whether the spot is where a sleeping top's tip is (tilt below :data:`SLEEPING_TILT_RAD`), which need not
+        move."""
+        tip = tip_from_pixel(fit.x_px, fit.y_px, self.camera, self.length_m)
+        return tip is not None and float(tip[2]) > math.cos(SLEEPING_TILT_RAD)
 
     def _unlike_the_scene(self, pairs: list, shift: np.ndarray | None, busy: bool) -> list:
         """The confirmed candidates that moved unlike the scene between the two frames: a spot of a textured
@@ -421,14 +485,16 @@ class TipFollower:
                 self._lose()
             return Located(None, "missing")
         self.since_lost += 1
+        self.searched += 1
         fit = self._acquire(frame, threshold)
         if fit is None:
             return Located(None, "missing")
-        previous, self.pending, self.confirmed = self.confirmed, [], None
+        earlier, self.pending, self.confirmed, self.earlier = self.earlier, [], None, ()
         quality = "reacquired" if self.had_lock else "ok"
-        self._accept(previous)
+        for f in reversed(earlier):
+            self._accept(f)
         self._accept(fit)
-        return Located(fit, quality, previous)
+        return Located(fit, quality, earlier)
 
     def _lose(self) -> None:
         """Forget the track; remember where it ended and how fast the tip moved (a reacquisition's reach)."""

@@ -16,6 +16,8 @@ __all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "angles_with_cova
 def pixel_rays(xy_px: np.ndarray, cam: TrackingCamera) -> np.ndarray:
     """Unit directions in the lab (n, 3) of the rays through pixels (n, 2) (distortion removed)."""
     xy = np.asarray(xy_px, dtype=np.float64).reshape(-1, 1, 2)
+    if len(xy) == 0:
+        return np.empty((0, 3))
     n = cv2.undistortPoints(xy, cam.camera_matrix, cam.dist_coeffs).reshape(-1, 2)
     d = np.column_stack([n, np.ones(len(n))]) @ cam.rotation
     return d / np.linalg.norm(d, axis=1, keepdims=True)

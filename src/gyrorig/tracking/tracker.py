@@ -41,7 +41,7 @@ from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_
 from .camera_file import TrackingCamera
 from .detect import Detection, detection_threshold, opening_size_px
 from .appearance import MarkerImage
-from .follow import SIZE_RANGE, TipFollower
+from .follow import ANCHOR_FRAMES, SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .pose import camera_modes_by_source, estimate_pose
@@ -156,17 +156,17 @@ class _Tables:
         self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
         self.tip_cov: dict[int, np.ndarray] = {}  # angle row -> its covariance in (x, y) [px^2]
         self.psi: dict[int, tuple[float, float]] = {}
-        self.last_frame: tuple[int, float, float] | None = None  # (index, t_frame, threshold) of the last frame
+        #: the frames the follower saw since the last duplicate, latest last: (row, index, t_frame, threshold)
+        self.seen: list[tuple[int, int, float, Detection]] = []
 
     def frame(self, camera: TrackingCamera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
         located = follower.locate(frame, threshold)
-        if located.previous is not None and self.last_frame is not None:
-            # this frame confirmed the tip found in the previous one: that frame gets its position back
-            self._tip_rows(camera, tip, follower, None, None, *self.last_frame, located.previous, located.quality,
-                           row=len(self.angles) - 1)
-        self.last_frame = (index, t_frame, threshold)
+        for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
+            # this frame completed an acquisition: the frames searched before it get the tip's positions back
+            self._tip_rows(camera, tip, follower, None, None, *seen, fit, located.quality, row=row)
+        self.seen = self.seen[-ANCHOR_FRAMES:] + [(len(self.angles), index, t_frame, threshold)]
         if located.fit is None:
             self.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "missing"))
             return
@@ -377,7 +377,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             digest = hash(frame[::7, ::7].tobytes())
             if digest == prev_hash:
                 rows.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
-                rows.last_frame = None
+                rows.seen = []
                 k += 1
                 continue
             prev_hash = digest
