@@ -187,6 +187,30 @@ def test_a_highlight_of_the_tips_size_is_not_taken_for_it(tmp_path):
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 
+def test_the_tip_is_found_again_after_it_was_hidden(tmp_path):
+    """The tip hidden for 8 frames (painted over with the photograph's level around it) in a phone clip: the search
+    that follows starts from frames without a candidate, and the tip, moving, is taken again once it shows (the
+    search once held to its first frame's candidates, none, and never took it again)."""
+    scene, user, _ = variant_protocols("sphere", 0.5)
+    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
+                                                                   drop_fraction=0.0), seed=1)
+    truth = pd.read_csv(rendered["truth"])
+    tip = truth[truth.marker == "tip"].set_index("frame")
+    with VideoFile(rendered["video"]).open() as source:
+        frames = [np.array(f) for f, _ in source]
+        t_s = np.arange(len(frames)) / 200.0
+    for k in range(40, 48):
+        x, y = tip.loc[k, ["x_px", "y_px"]]
+        yy, xx = np.mgrid[0:frames[k].shape[0], 0:frames[k].shape[1]]
+        cover = np.hypot(xx - x, yy - y) < 14
+        frames[k][cover] = np.median(frames[k][(np.hypot(xx - x, yy - y) < 20) & ~cover])
+    res = track(FrameArrays(frames, t_s), load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+    m, found, e_th, e_ph = _pulls(res, truth)
+    after = m[m.frame >= 55]
+    assert after.theta_rad.notna().mean() >= 0.9
+    assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
+
+
 def test_dropped_frames_are_gaps_and_times_are_the_capture_grid(phone_clip):
     """Frames the phone dropped are missing numbers, not renumbered neighbours; every frame's time is its
     number's on the camera's grid (the 90 kHz jitter of 5 % of a frame removed)."""

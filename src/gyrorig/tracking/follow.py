@@ -88,7 +88,9 @@ ACQUIRE_FITS = 8
 COAST_FRAMES = 3
 #: a spot within this tilt of the vertical is a sleeping top's tip, taken without moving [rad]
 SLEEPING_TILT_RAD = 0.05
-#: a search's anchor frame (:meth:`TipFollower._moved_since_anchor`) is renewed after this many frames searched
+#: while searching, a candidate's anchor (where it was first seen, :meth:`TipFollower._anchor_of`) is the nearest one
+#: within this many expected radii, and is forgotten after this many frames searched
+ANCHOR_REACH_RADII = 4.0
 ANCHOR_FRAMES = 240
 
 
@@ -215,10 +217,10 @@ class TipFollower:
         self.misses = 0
         self.pending: list[SpotFit] = []  # the last frame's candidates, when searching
         self.pending_frame: np.ndarray | None = None  # ... and that frame
-        #: the first frame of the current search and its candidates: several spots alike in a quiet scene are told
-        #: apart by how far each has moved unlike the scene since then
-        self.anchor: tuple[np.ndarray, list[SpotFit], int] | None = None
-        self.history: list[list[SpotFit]] = []  # each searched frame's candidates since the anchor
+        #: while searching, where each candidate was first seen (its fit, that frame, the search count then): a
+        #: candidate is taken once it has moved unlike the scene since then
+        self.anchors: list[tuple[SpotFit, np.ndarray, int]] = []
+        self.history: list[list[SpotFit]] = []  # each searched frame's candidates, the latest last
         self.earlier: tuple[SpotFit, ...] = ()  # the acquired tip's fits in the frames searched before
         self.confirmed: SpotFit | None = None  # the candidate of the last frame that this frame confirmed
         self.had_lock = False
@@ -395,13 +397,22 @@ class TipFollower:
         if best is not None:
             _, _, _, fit, self.confirmed = best
             self.earlier = self._trace_back(self.confirmed)
-            self.anchor, self.history = None, []
+            self.anchors, self.history = [], []
             return fit
         self.pending, self.pending_frame = fits, frame
-        if self.anchor is None or self.searched - self.anchor[2] > ANCHOR_FRAMES:
-            self.anchor, self.history = (frame, fits, self.searched), []
-        self.history.append(fits)
+        self.anchors = [a for a in self.anchors if self.searched - a[2] <= ANCHOR_FRAMES]
+        for f in fits:
+            if self._anchor_of(f) is None:
+                self.anchors.append((f, frame, self.searched))
+        self.history = [*self.history[-ANCHOR_FRAMES:], fits]
         return None
+
+    def _anchor_of(self, fit: SpotFit) -> tuple[SpotFit, np.ndarray, int] | None:
+        """The anchor nearest the fit within :data:`ANCHOR_REACH_RADII` expected radii (None: a spot not seen
+        before)."""
+        reach = ANCHOR_REACH_RADII * self.r_expected
+        near = [a for a in self.anchors if math.hypot(fit.x_px - a[0].x_px, fit.y_px - a[0].y_px) <= reach]
+        return min(near, key=lambda a: math.hypot(fit.x_px - a[0].x_px, fit.y_px - a[0].y_px)) if near else None
 
     def _trace_back(self, confirmed: SpotFit) -> tuple[SpotFit, ...]:
         """The tip's fits in the frames searched before the acquisition, the latest first: from the candidate the
@@ -418,23 +429,25 @@ class TipFollower:
         return tuple(chain)
 
     def _moved_since_anchor(self, pairs: list, frame: np.ndarray) -> list:
-        """The confirmed spots that moved unlike the scene since the search began (the anchor frame): by more than
-        :data:`SCENE_MOTION_PX` and 5 of the two fits' combined SDs from the anchor's candidate nearest them, the
-        scene's own motion since then taken off.  A top released from rest barely moves in its first frames, and a
+        """The confirmed spots that moved unlike the scene since they were first seen in this search (their anchor,
+        :meth:`_anchor_of`): by more than :data:`SCENE_MOTION_PX` and 5 of the two fits' combined SDs, the scene's
+        own motion since then taken off.  A top released from rest barely moves in its first frames, and a
         highlight in the scene of the tip's size and shape never does; until the tip has moved, nothing is taken
         (those frames get their positions back when it is: :meth:`_trace_back`).  A spot where a sleeping top's tip
         would be passes unmoved (:meth:`_at_the_pole`)."""
-        if self.anchor is None:
-            return []
-        before, anchors, _ = self.anchor
-        if not anchors:
-            return []
-        shift = scene_shift(before, frame)
-        shift = np.zeros(2) if shift is None else shift
-        out = []
+        out, shifts = [], {}
         for p in pairs:
             f = p[3]
-            a = min(anchors, key=lambda g: math.hypot(f.x_px - g.x_px, f.y_px - g.y_px))
+            anchor = self._anchor_of(f)
+            if anchor is None:
+                if self._at_the_pole(f):
+                    out.append(p)
+                continue
+            a, before, _ = anchor
+            if id(before) not in shifts:
+                shift = scene_shift(before, frame)
+                shifts[id(before)] = np.zeros(2) if shift is None else shift
+            shift = shifts[id(before)]
             moved = math.hypot(f.x_px - a.x_px - shift[0], f.y_px - a.y_px - shift[1])
             noise = math.sqrt(max(np.trace(f.cov_xy) + np.trace(a.cov_xy), 0.0))
             if moved > max(SCENE_MOTION_PX, 5.0 * noise) or self._at_the_pole(f):
