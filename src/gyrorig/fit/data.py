@@ -14,8 +14,8 @@ from .constraints import Constraints
 
 __all__ = ["FitError", "FitConvergenceError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
 
-#: columns the fit needs of an angle table (``theta_phi_corr``, ``frame``, ``exposure_s`` and the camera
-#: modes are used when present)
+#: columns the fit needs of an angle table (``theta_phi_corr``, ``frame``, ``exposure_s``, ``frame_type`` and the
+#: camera modes are used when present)
 FIT_REQUIRED = ("t_s", "theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad")
 
 
@@ -53,6 +53,16 @@ class FitData:
     exposure_s: np.ndarray | None = None
     #: parameters held fixed or given priors (outside information about the record's parameters)
     constraints: Constraints = Constraints()
+    #: (n,) frames a lossy codec coded as bi-predicted (B) pictures, from the table's ``frame_type``; None when the
+    #: table does not say, or when the record lacks either kind (:data:`MIN_PICTURES` of each)
+    b_frame: np.ndarray | None = None
+    #: the table's ``frame_type`` shows predicted (P or B) pictures: a lossy codec coded most frames from others
+    inter_coded: bool = False
+
+    @property
+    def b_frames(self) -> bool:
+        """Whether the record has B pictures beside others (their fast motion's shrink can be fitted)."""
+        return self.b_frame is not None
 
     @property
     def camera_modes(self) -> int:
@@ -128,6 +138,21 @@ def _exposures(a: pd.DataFrame, t: np.ndarray) -> np.ndarray | None:
     return exposure
 
 
+#: a record's B pictures are told from its others (their shrink fitted) with at least this many of each kind
+MIN_PICTURES = 10
+
+
+def _picture_types(a: pd.DataFrame) -> tuple[np.ndarray | None, bool]:
+    """The B pictures (None unless there are :data:`MIN_PICTURES` of them and of the others), and whether any frame
+    is a predicted (P or B) picture."""
+    if "frame_type" not in a.columns:
+        return None, False
+    kind = a["frame_type"].astype(str).str.strip().str.upper().to_numpy()
+    b = kind == "B"
+    inter = bool(np.any(b | (kind == "P")))
+    return (b if MIN_PICTURES <= int(b.sum()) <= len(b) - MIN_PICTURES else None), inter
+
+
 def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None,
                          precession_hint_rad_s: float | None = None, constraints: Constraints | None = None) -> FitData:
     """The measured frames of an angle table (:mod:`gyrorig.tables`), minus ``exclude`` (e.g. the
@@ -155,7 +180,9 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
     if precession_hint_rad_s is not None and precession_hint_rad_s != 0:
         half_period = math.pi / abs(precession_hint_rad_s)
         segment = np.concatenate([[0], np.cumsum(np.diff(t) > half_period)])
+    b_frame, inter_coded = _picture_types(a)
     return FitData(frame=frame, t_s=t, theta_rad=a["theta_rad"].to_numpy(float), phi_rad=a["phi_rad"].to_numpy(float),
                    cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]), camera_shift=_camera_shifts(a),
                    camera_prior=_camera_priors(a, camera_mode_count(a.columns)),
-                   exposure_s=_exposures(a, t), constraints=constraints or Constraints())
+                   exposure_s=_exposures(a, t), constraints=constraints or Constraints(), b_frame=b_frame,
+                   inter_coded=inter_coded)

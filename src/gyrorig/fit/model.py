@@ -19,7 +19,7 @@ from ..geometry import angles_from_tip, axis_rotation, tip_from_angles, wrap_ang
 from ..protocols import Protocol
 from .data import FitData, FitError
 from .spec import ModelSpec
-from .terms import TERMS
+from .terms import TERMS, BFrameShrink
 
 __all__ = ["FitModel", "Residuals", "SceneModel", "model_for_scene", "whitener"]
 
@@ -32,6 +32,8 @@ class FitModel:
         self.names = spec.names()
         self.index = {n: i for i, n in enumerate(self.names)}
         self._terms = [t for t in TERMS if t.present(spec)]
+        #: the B pictures' shrink parameter's place in the vector (None: the model has none)
+        self.shrink_index = self.index.get(BFrameShrink.NAME)
 
     def vector(self, values: dict[str, float]) -> np.ndarray:
         """The parameter vector from named values (0 for a name not given)."""
@@ -52,19 +54,42 @@ class FitModel:
             psi = psi + 0.5 * p[self.index["nutation_chirp_rad_s2"]] * tau**2
         return psi
 
-    def axis_frame(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
-        """theta', phi' in the axis frame."""
+    def _fast_part(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+        """theta', phi' in the axis frame, and the part of them the fast terms make."""
         th, ph = np.zeros_like(tau), np.zeros_like(tau)
+        fth, fph = np.zeros_like(tau), np.zeros_like(tau)
         for term in self._terms:
-            th, ph = term.add(self, p, tau, segment, th, ph)
+            th1, ph1 = term.add(self, p, tau, segment, th, ph)
+            if term.fast:
+                fth, fph = fth + (th1 - th), fph + (ph1 - ph)
+            th, ph = th1, ph1
+        return th, ph, fth, fph
+
+    def axis_frame(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray, b_rows: np.ndarray | None = None):
+        """theta', phi' in the axis frame; ``b_rows`` (a lossy codec's bi-predicted pictures) with their fast part
+        shrunk by the model's ``b_frame_shrink``."""
+        th, ph, fth, fph = self._fast_part(p, tau, segment)
+        if b_rows is not None and self.shrink_index is not None:
+            g = p[self.shrink_index] * b_rows
+            th, ph = th - g * fth, ph - g * fph
         return th, ph
 
-    def axis_frame_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+    def axis_frame_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray,
+                            b_rows: np.ndarray | None = None):
         """d(theta')/dp and d(phi')/dp, each (n, P), analytic (axis columns zero)."""
+        shrink = b_rows is not None and self.shrink_index is not None
         dth = np.zeros((len(tau), len(p)))
         dph = np.zeros((len(tau), len(p)))
-        for term in self._terms:
-            term.jacobian(self, p, tau, segment, dth, dph)
+        fast = (np.zeros_like(dth), np.zeros_like(dph)) if shrink else (dth, dph)
+        for term in self._terms:  # a term fills its own columns and adds to shared ones: the two parts can be summed
+            term.jacobian(self, p, tau, segment, *(fast if term.fast else (dth, dph)))
+        if shrink:
+            _, _, fth, fph = self._fast_part(p, tau, segment)
+            g = 1.0 - p[self.shrink_index] * b_rows
+            dth += g[:, None] * fast[0]
+            dph += g[:, None] * fast[1]
+            dth[:, self.shrink_index] = -b_rows * fth
+            dph[:, self.shrink_index] = -b_rows * fph
         return dth, dph
 
     def rotation(self, p: np.ndarray) -> np.ndarray | None:
@@ -73,19 +98,19 @@ class FitModel:
             return None
         return axis_rotation(p[self.index["axis_tilt_rad"]], p[self.index["axis_azimuth_rad"]])
 
-    def lab(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
-        """theta, phi in the lab."""
-        th, ph = self.axis_frame(p, tau, segment)
+    def lab(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray, b_rows: np.ndarray | None = None):
+        """theta, phi in the lab (``b_rows``: see :meth:`axis_frame`)."""
+        th, ph = self.axis_frame(p, tau, segment, b_rows)
         R = self.rotation(p)
         return (th, ph) if R is None else angles_from_tip(tip_from_angles(th, ph) @ R.T)
 
-    def lab_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
+    def lab_jacobian(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray, b_rows: np.ndarray | None = None):
         """d(theta, phi)_lab / dp, each (n, P): analytic in the axis frame, chain rule to the lab."""
-        dth, dph = self.axis_frame_jacobian(p, tau, segment)
+        dth, dph = self.axis_frame_jacobian(p, tau, segment, b_rows)
         if not self.spec.fit_axis:
             return dth, dph
         ix = self.index
-        th, ph = self.axis_frame(p, tau, segment)
+        th, ph = self.axis_frame(p, tau, segment, b_rows)
         a, b = p[ix["axis_tilt_rad"]], p[ix["axis_azimuth_rad"]]
 
         def conv(t_, p_, a_=a, b_=b):
@@ -147,6 +172,9 @@ class Residuals:
             raise FitError(f"the model has {m} camera modes, the data {data.camera_modes}")
         self.model, self.data, self.modes = model, data, m
         self.tau = data.tau
+        if model.shrink_index is not None and data.b_frame is None:
+            raise FitError("the model fits the B pictures' shrink, but the data do not say which frames are B pictures")
+        self.b_rows = data.b_frame.astype(float) if model.shrink_index is not None else None
         self.W = whitener(data.cov)
         self.shift = data.camera_shift if m else None
         root = data.camera_prior_root if m else None
@@ -189,17 +217,17 @@ class Residuals:
         return x
 
     def lab(self, p: np.ndarray):
-        seg = self.data.segment
+        seg, b = self.data.segment, self.b_rows
         if self.taus is None:
-            return self.model.lab(p, self.tau, seg)
-        (t1, p1), (t2, p2) = (self.model.lab(p, tt, seg) for tt in self.taus)
+            return self.model.lab(p, self.tau, seg, b)
+        (t1, p1), (t2, p2) = (self.model.lab(p, tt, seg, b) for tt in self.taus)
         return 0.5 * (t1 + t2), p1 + 0.5 * wrap_angle(p2 - p1)
 
     def lab_jacobian(self, p: np.ndarray):
-        seg = self.data.segment
+        seg, b = self.data.segment, self.b_rows
         if self.taus is None:
-            return self.model.lab_jacobian(p, self.tau, seg)
-        (a1, b1), (a2, b2) = (self.model.lab_jacobian(p, tt, seg) for tt in self.taus)
+            return self.model.lab_jacobian(p, self.tau, seg, b)
+        (a1, b1), (a2, b2) = (self.model.lab_jacobian(p, tt, seg, b) for tt in self.taus)
         return 0.5 * (a1 + a2), 0.5 * (b1 + b2)
 
     def raw(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

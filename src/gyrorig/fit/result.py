@@ -99,6 +99,8 @@ class NoteKind(StrEnum):
     CAMERA_MODES = "camera-modes"
     #: parameters held fixed or given priors by the user
     CONSTRAINED = "constrained"
+    #: the frames come from an inter-coded video (P, B pictures): its motion compensation can smooth fast motion
+    CODEC_SMOOTHING = "codec-smoothing"
 
 
 @dataclass(frozen=True)

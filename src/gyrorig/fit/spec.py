@@ -33,6 +33,9 @@ class ModelSpec:
     shape_drift: bool = False
     #: nuisance parameters for the camera model's uncertainty (one per mode, unit prior)
     camera_modes: int = 0
+    #: the record has a lossy codec's bi-predicted pictures beside others: their fast motion's shrink is fitted
+    #: (:class:`~gyrorig.fit.terms.BFrameShrink`)
+    b_frames: bool = False
 
     def names(self) -> list[str]:
         """The model's parameter names, in the order of its parameter vector."""
@@ -44,6 +47,7 @@ class ModelSpec:
                "azimuth_segments": self.segments}
         out.update({term.summary_key: bool(getattr(self, term.flag)) for term in OPTIONAL.values()})
         out["camera_modes"] = self.camera_modes
+        out["b_frame_shrink"] = self.b_frames and self.harmonics > 0
         return out
 
 

@@ -54,6 +54,9 @@ class Frames:
     items: Iterator[tuple[np.ndarray, float]]
     lossy: bool = False
     bit_depth: int | None = None
+    #: each frame's picture type as the codec coded it (``I``, ``P``, ``B`` ...), filled as the frames are read;
+    #: None when the source has none (image files, frames in memory)
+    frame_types: list[str] | None = None
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -140,8 +143,9 @@ class VideoFile:
         count = int(stream.frames or 0)
         if not count and stream.duration and stream.time_base and math.isfinite(fps):  # Matroska states no count
             count = int(round(float(stream.duration * stream.time_base) * fps))
-        return Frames(int(ctx.width), int(ctx.height), fps, count,
-                      _decoded_frames(container, stream, colour), lossy=lossy, bit_depth=bits)
+        types: list[str] = []
+        return Frames(int(ctx.width), int(ctx.height), fps, count, _decoded_frames(container, stream, colour, types),
+                      lossy=lossy, bit_depth=bits, frame_types=types)
 
 
 def _plane_image(frame, colour: bool) -> np.ndarray:
@@ -331,9 +335,15 @@ def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
     raise TypeError(f"expected a video path or a frame source, got {type(video).__name__}")
 
 
-def _decoded_frames(container, stream, colour: bool, depth: int = 8) -> Iterator[tuple[np.ndarray, float]]:
+#: FFmpeg's picture types (``AVPictureType``), as the angle table's ``frame_type`` names them
+PICTURE_TYPES = {1: "I", 2: "P", 3: "B", 4: "S", 5: "SI", 6: "SP", 7: "BI"}
+
+
+def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8
+                    ) -> Iterator[tuple[np.ndarray, float]]:
     """Yield ``(frame, start time s)``, decoding in a background thread (decoding the next frames overlaps
-    with tracking this one: two cores give the slower of the two, not their sum).
+    with tracking this one: two cores give the slower of the two, not their sum); each yielded frame's
+    picture type (:data:`PICTURE_TYPES`, '' when the codec does not say) is appended to ``types`` first.
 
     Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
     then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there.
@@ -355,7 +365,7 @@ def _decoded_frames(container, stream, colour: bool, depth: int = 8) -> Iterator
                 else:
                     first = frame.pts if first is None else first
                     t = float((frame.pts - first) * base)
-                q.put((_plane_image(frame, colour), t))
+                q.put((_plane_image(frame, colour), t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
         except (av.FFmpegError, ValueError, MemoryError):
             pass  # a truncated or damaged stream: the frames decoded so far stand
         finally:
@@ -368,7 +378,8 @@ def _decoded_frames(container, stream, colour: bool, depth: int = 8) -> Iterator
             item = q.get()
             if item is None:
                 return
-            yield item
+            types.append(item[2])
+            yield item[:2]
     finally:
         stop.set()
         while thread.is_alive():  # unblock a reader waiting on a full queue

@@ -72,8 +72,9 @@ class TrackResult:
     """What :func:`track` found.
 
     ``angles``: one row per decoded frame, :data:`gyrorig.tables.ANGLE_COLUMNS`, then ``psi_rad,
-    psi_sigma_rad`` (with frame dots), ``exposure_s`` and ``theta_cam_k_rad, phi_cam_k_rad`` per
-    camera mode.  ``markers``: one row per detected marker, :data:`gyrorig.tables.MARKER_COLUMNS`.
+    psi_sigma_rad`` (with frame dots), ``exposure_s``, ``theta_cam_k_rad, phi_cam_k_rad`` per
+    camera mode and, from a video file, ``frame_type`` (the picture type the codec coded it as:
+    ``I``, ``P``, ``B`` ...).  ``markers``: one row per detected marker, :data:`gyrorig.tables.MARKER_COLUMNS`.
     """
 
     angles: pd.DataFrame
@@ -360,6 +361,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
         scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
         rows = _Tables()
+        frame_types: dict[int, str] = {}  # frame number -> picture type (video files)
         prev_hash = None
         clock = _FrameClock(camera.fps, time_scale, source)
         k = 0
@@ -374,6 +376,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
                 break
             frame, t_frame = item
             index, t_frame = clock.number(t_frame, k)
+            if frames.frame_types is not None:
+                frame_types[index] = frames.frame_types[k]
             digest = hash(frame[::7, ::7].tobytes())
             if digest == prev_hash:
                 rows.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
@@ -393,6 +397,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         raise TrackingError(f"{source}: no frame could be decoded (unreadable or truncated video)")
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
     angles, markers = rows.tables(camera, dots is not None)
+    if frame_types:
+        angles["frame_type"] = angles.frame.map(frame_types).fillna("")
     if not angles.theta_rad.notna().any():
         look = follower.first_look
         why = "" if look is None else "; in the first frame searched " + (", ".join(
