@@ -40,7 +40,7 @@ from .markers import Marker, Occluder, parse_markers
 from ._validate import ProtocolError, check_keys, number, vector3
 from .protocols import Protocol
 
-__all__ = ["Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose", "with_image_size"]
+__all__ = ["placement_pose", "Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose", "with_image_size"]
 
 
 @dataclass(frozen=True)
@@ -147,6 +147,22 @@ def look_at_pose(position: np.ndarray, target: np.ndarray, up_hint: np.ndarray) 
     return rvec, -rot @ position
 
 
+def placement_pose(t: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV ``rvec, tvec`` of the camera placement a ``[camera]`` table states: ``position_m`` (required),
+    ``look_at_m`` (default the pivot), ``up_hint`` (default +y).  Reads nothing else: analysing a recording needs
+    only a rough placement (``gyrorig pose --video`` starts from it), not the renderer's sensor numbers."""
+    s = "camera"
+    if "position_m" not in t:
+        raise ProtocolError("[camera] is missing required key(s) position_m (the camera centre in the lab, pivot at "
+                            "the origin)")
+    position = np.array(vector3(s, "position_m", t["position_m"]))
+    target = np.array(vector3(s, "look_at_m", t.get("look_at_m", [0.0, 0.0, 0.0])))
+    if np.linalg.norm(target - position) == 0:
+        raise ProtocolError("camera.position_m equals camera.look_at_m")
+    up = np.array(vector3(s, "up_hint", t.get("up_hint", [0.0, 1.0, 0.0])))
+    return look_at_pose(position, target, up)
+
+
 def _parse_sensor(t: Mapping[str, Any]) -> Sensor:
     s = "camera.sensor"
     check_keys(s, t, {"bit_depth", "full_well_e", "read_noise_e", "gain_e_per_adu", "background_e_per_s"}, {"gamma"})
@@ -206,12 +222,7 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
         readout = number(s, "readout_time_s", t["readout_time_s"], lo=0.0, lo_open=True, hi=1.0 / fps)
     elif "readout_time_s" in t:
         raise ProtocolError("camera.readout_time_s is only meaningful with shutter = 'rolling'")
-    position = np.array(vector3(s, "position_m", t["position_m"]))
-    target = np.array(vector3(s, "look_at_m", t.get("look_at_m", [0.0, 0.0, 0.0])))
-    if np.linalg.norm(target - position) == 0:
-        raise ProtocolError("camera.position_m equals camera.look_at_m")
-    up = np.array(vector3(s, "up_hint", t.get("up_hint", [0.0, 1.0, 0.0])))
-    rvec, tvec = look_at_pose(position, target, up)
+    rvec, tvec = placement_pose(t)
     k = np.array([[fx, 0.0, cx], [0.0, fx, cy], [0.0, 0.0, 1.0]])
     sigma = number(s, "psf_sigma_px", t.get("psf_sigma_px", 0.8), lo=0.3, hi=20.0)
     nsub = int(number(s, "motion_blur_samples", t.get("motion_blur_samples", 8), lo=1, hi=256))

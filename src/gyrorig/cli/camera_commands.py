@@ -161,7 +161,7 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
     """``gyrorig pose --video``: the rough pose from the protocol's camera placement, then the fit."""
     from dataclasses import replace
 
-    from ..camera import camera_setup
+    from ..camera import placement_pose
     from ..protocols import load_protocol
     from ..tracking.motion_pose import fix_azimuth, pose_from_motion
     from .printing import progress_printer
@@ -173,9 +173,8 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
     if "camera" not in protocol.extra:
         raise ValueError(f"{args.protocol}: no [camera] section; its position_m and look_at_m give the rough pose the "
                          "fit starts from")
-    rough = camera_setup(protocol).camera
-    pose = pose_from_motion(args.video, replace(cam, rvec=rough.rvec, tvec=rough.tvec), protocol,
-                               progress=progress_printer("pose"))
+    rvec, tvec = placement_pose(protocol.extra["camera"])
+    pose = pose_from_motion(args.video, replace(cam, rvec=rvec, tvec=tvec), protocol, progress=progress_printer("pose"))
     if mark is not None:
         pose = fix_azimuth(pose, cam, mark)
     sd = np.sqrt(np.diag(pose.covariance))
