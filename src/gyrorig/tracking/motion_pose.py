@@ -19,8 +19,10 @@ this assumes, and what it fixes:
 - **the depth scale** comes from the nutation: the tip's nodding moves it along the sphere's
   meridian, whose direction in the image depends on the distance; a pure precession (no
   nutation), or a camera on the vertical (the nod runs along the line of sight), leaves it
-  nearly free, and then the linearised covariance cannot be trusted: a distance known worse
-  than :data:`MAX_DEPTH_SCALE_SD_REL` is refused.
+  nearly free: the tilt and the distance then trade off along a flat valley that the linearised
+  covariance does not see, so the distance's sd is also read from the fit's profile (the
+  distance held 5 % either side, the rest refitted), and a distance known worse than
+  :data:`MAX_DEPTH_SCALE_SD_REL` is refused.
 - **the azimuth origin** is free: ``phi``'s slow part is 0 at the first tracked frame (the fit
   has no constant in ``phi``).
 
@@ -56,6 +58,8 @@ HARMONICS = 6
 #: the largest relative sd of the camera's distance accepted: beyond it the fit's valley is too flat for its
 #: linearised covariance (a camera straight above the pivot: 3.5 % sd, the error 4 of them)
 MAX_DEPTH_SCALE_SD_REL = 0.01
+#: the distance's profile is taken this far (relative) either side of the fitted one
+PROFILE_STEP = 0.05
 
 
 @dataclass(frozen=True)
@@ -202,14 +206,40 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
     sol = least_squares(resid, p0, method="lm", x_scale="jac", max_nfev=4000)
     if not sol.success or not np.all(np.isfinite(sol.x)):
         raise TrackingError(f"the pose from the motion did not converge ({sol.message})")
+    if not np.linalg.norm(sol.x[3:6]) > 1.5 * length_m or sol.x[5] <= 0:
+        raise TrackingError(f"the pose from the motion put the camera {np.linalg.norm(sol.x[3:6]) * 1e3:.4g} mm from the "
+                            f"pivot (the tip is {length_m * 1e3:.4g} mm from it): not a pose of this rig; the motion does "
+                            "not fix the pose (use a board at a known place or lab fiducials)")
     dof = max(2 * len(t) - len(sol.x), 1)
-    chi2_red = float(sol.fun @ sol.fun) / dof
+    chi2 = float(sol.fun @ sol.fun)
+    chi2_red = chi2 / dof
     cov = np.linalg.pinv(sol.jac.T @ sol.jac, hermitian=True) * max(1.0, chi2_red)
     cov_pose = 0.5 * (cov[:6, :6] + cov[:6, :6].T)
     dist = float(np.linalg.norm(sol.x[3:6]))
     depth_sd = float(np.sqrt(sol.x[3:6] @ cov_pose[3:, 3:] @ sol.x[3:6])) / dist / dist
+    depth_sd = max(depth_sd, _profile_depth_sd(resid, sol.x, chi2, max(1.0, chi2_red)))
     return MotionPose(sol.x[:3].copy(), sol.x[3:6].copy(), cov_pose, chi2_red, len(t),
                       float(abs(model.split(sol.x)[4])), slow_terms, depth_sd)
+
+
+def _profile_depth_sd(resid, x: np.ndarray, chi2: float, scale: float) -> float:
+    """The camera distance's relative sd from the fit's profile: the distance held at ``1 +- PROFILE_STEP`` of the
+    fitted one (the pivot's position in the camera scaled), everything else refitted; the chi-square's rise
+    (over ``scale``, the reduced chi-square when above 1) on the flatter side read as a parabola.  Where the tilt and the distance
+    trade off (a camera near the vertical: the precession's circle looks the same from nearer at a smaller tilt)
+    the rise is small and this sd large, whatever the linearised covariance says; inf when a profile fit fails."""
+    rises = []
+    for f in (1.0 - PROFILE_STEP, 1.0 + PROFILE_STEP):
+        tvec = f * x[3:6]
+
+        def held(q, tvec=tvec):
+            return resid(np.concatenate([q[:3], tvec, q[3:]]))
+
+        sol = least_squares(held, np.delete(x, [3, 4, 5]), method="lm", x_scale="jac", max_nfev=2000)
+        if not np.all(np.isfinite(sol.fun)):
+            return math.inf
+        rises.append(max(float(sol.fun @ sol.fun) - chi2, 0.0) / scale)
+    return PROFILE_STEP / math.sqrt(max(min(rises), 1e-12))  # the flatter side: a valley may end in a wall
 
 
 def _rot_z(a: float) -> np.ndarray:
@@ -238,13 +268,13 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
         pose = fit_pose_to_track(rows.t_s.to_numpy(), rows[["x_px", "y_px"]].to_numpy(),
                                  rows[["sigma_x_px", "sigma_y_px"]].to_numpy(), result.camera, float(tip.position_m[2]),
                                  slow_terms=protocol.is_damped)
+        if pose.depth_scale_sd_rel > MAX_DEPTH_SCALE_SD_REL:  # before tracking again with a pose that may be far off
+            raise TrackingError(
+                f"the tip's motion fixes the camera's distance only to {pose.depth_scale_sd_rel:.1%} (limit "
+                f"{MAX_DEPTH_SCALE_SD_REL:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or "
+                "the nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a "
+                "known place or lab fiducials")
         camera = replace(camera, rvec=pose.rvec, tvec=pose.tvec)
-    if pose.depth_scale_sd_rel > MAX_DEPTH_SCALE_SD_REL:
-        raise TrackingError(
-            f"the tip's motion fixes the camera's distance only to {pose.depth_scale_sd_rel:.1%} (limit "
-            f"{MAX_DEPTH_SCALE_SD_REL:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or the "
-            "nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a known "
-            "place or lab fiducials")
     return replace(pose, video_fingerprint=fingerprint(video))
 
 

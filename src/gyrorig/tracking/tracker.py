@@ -55,6 +55,9 @@ __all__ = ["TrackResult", "track", "track_video", "tip_marker", "frame_interval_
 Progress = Callable[[int, int], None]
 logger = logging.getLogger(__name__)
 
+#: a tip whose expected image radius exceeds this fraction of the image's smaller side is refused (a camera pose or a
+#: tip size far off: the detection's opening would take minutes per frame)
+MAX_TIP_IMAGE_FRACTION = 0.25
 #: a container time within this many frame intervals of a frame's nominal time is that frame's (rounded)
 TIME_SNAP_FRAMES = 0.3
 #: errors the sensor and spot models give are scaled up when the scatter exceeds them by this many standard
@@ -320,6 +323,16 @@ def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera
     return [float("nan"), float("nan")]
 
 
+def _follower(camera: TrackingCamera, tip: Marker, protocol: Protocol, source) -> TipFollower:
+    """The tip's follower, refusing a tip that would fill the image (:data:`MAX_TIP_IMAGE_FRACTION`)."""
+    follower = TipFollower(camera, tip, parse_markers(protocol).fiducials())
+    if not follower.r_expected < MAX_TIP_IMAGE_FRACTION * min(camera.width_px, camera.height_px):
+        raise BadInputError(f"{source}: with this camera the tip (markers.{tip.name}.radius_m = {tip.radius_m:g}) would "
+                            f"appear {2 * follower.r_expected:.0f} px wide in a {camera.width_px} x {camera.height_px} "
+                            "image; check the tip's radius and the camera's pose and focal length")
+    return follower
+
+
 def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progress | None = None,
           frame_dots: bool = True) -> TrackResult:
     """Track the tip marker through a video (a path, or a frame source of :mod:`gyrorig.tracking.sources`).
@@ -355,7 +368,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         if (lossy or not appearance.keeps_sensor_model) and camera.sensor_known:
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = replace(camera, gain_e_per_adu=math.nan)
-        follower = TipFollower(camera, tip, parse_markers(protocol).fiducials())
+        follower = _follower(camera, tip, protocol, source)
         dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
