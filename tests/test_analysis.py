@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
@@ -79,9 +80,37 @@ def test_batch_skips_an_unreadable_video_and_summarises(rendered, tmp_path, caps
     assert np.isfinite(s.precession_rate_rad_s[0]) and "b_broken" in s.video[1]
     assert isinstance(s.error[1], str) and s.error[1]
     # the batch analyses a video as the single command does
-    single = json.loads((root / "an" / "fit.json").read_text())["quantities"]
+    assert main(["-q", "analyze", str(root / "video" / "video.mkv"), "--camera", str(root / "video" / "camera.json"),
+                 "--protocol", str(proto), "--out", str(tmp_path / "single")]) == 0
+    single = json.loads((tmp_path / "single" / "fit.json").read_text())["quantities"]
     assert s.precession_rate_rad_s[0] == pytest.approx(single["precession_rate_rad_s"]["value"], rel=1e-12)
     assert "precession_rate_rad_s" in (tmp_path / "batch" / "a_good" / "report.html").read_text()
+
+
+def test_batch_rows_get_their_own_folders_inside_out_and_inert_cells(rendered, tmp_path, monkeypatch):
+    """Issue 33: manifest rows a/take.mkv and b/take.mkv shared one result folder (the second won), a row sub/..
+    wrote into the folder above --out, and a video named like a spreadsheet formula reached summary.csv as one."""
+    root, proto = rendered
+    for sub in ("a", "b", "sub"):
+        (tmp_path / sub).mkdir()
+    (tmp_path / "a" / "take.mkv").symlink_to(root / "video" / "video.mkv")
+    (tmp_path / "b" / "take.mkv").symlink_to(root / "video" / "video.mkv")
+    (tmp_path / "=HYPERLINK(1).mkv").write_bytes(b"not a video")
+    rows = ["a/take.mkv", "b/take.mkv", "sub/..", "=HYPERLINK(1).mkv"]
+    manifest = tmp_path / "manifest.csv"
+    manifest.write_text("video,protocol,camera\n" + "".join(f"{v},{proto},{root / 'video' / 'camera.json'}\n"
+                                                            for v in rows))
+    out = tmp_path / "batch"
+    monkeypatch.chdir(tmp_path)  # the manifest named relative to the working folder, as a user types it
+    assert main(["analyze", "manifest.csv", "--out", "batch"]) == 3  # two rows cannot be analysed
+    s = pd.read_csv(out / "summary.csv")
+    assert list(s.status) == ["ok", "ok", "failed", "failed"]
+    folders = [(tmp_path / p).resolve() for p in s.out]
+    assert len(set(folders)) == 4 and all(f.parent == out.resolve() for f in folders)
+    assert all((f / "fit.json").is_file() for f in folders[:2])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["a", "b", "sub", "=HYPERLINK(1).mkv", "manifest.csv",
+                                                                 "batch"])  # nothing written beside --out
+    assert not any(str(v).startswith("=") for v in s.video)
 
 
 def _analyze_rendered(tmp_path, name: str, duration: float, seed: int = 5):

@@ -24,7 +24,7 @@ def test_simulate_writes_trajectory_and_manifest(tmp_path, capsys):
     assert manifest["simulation"]["method"] == "gyro"
     assert manifest["protocol"]["name"] == "air-cushion-heavy-top"
     assert manifest["versions"]["gyrorig"]
-    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "trajectory.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [".gyrorig-output", "manifest.json", "trajectory.csv"]
     assert "51 rows" in capsys.readouterr().out
 
 

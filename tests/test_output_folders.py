@@ -87,7 +87,7 @@ def test_concurrent_runs_get_their_own_temporary_folders_and_the_rule_holds_at_t
     assert (final / "x.txt").read_text() == "b"
     with _io.output_folder(final, overwrite=True) as c:
         (c / "y.txt").write_text("c")
-    assert sorted(p.name for p in final.iterdir()) == ["y.txt"]  # replaced whole
+    assert sorted(p.name for p in final.iterdir()) == sorted([_io.OUTPUT_MARKER, "y.txt"])  # replaced whole
     assert _no_leftovers(tmp_path)
 
 
@@ -98,9 +98,39 @@ def test_calibrate_refuses_an_existing_camera_file(tmp_path):
     assert json.loads(cam.read_text()) == {"keep": True}
 
 
-def test_ctrl_c_while_tracking_exits_130_and_leaves_nothing(tmp_path):
+def test_overwrite_never_removes_what_gyrorig_did_not_write(tmp_path, monkeypatch):
+    """Issue 33: an input reached through a symbolic link inside --out passed the 'holds an input' check and was
+    deleted with --overwrite; --out . and --out .. replaced the working folder; a folder of the user's own files
+    was replaced whole.  Now each is refused (exit 2) and nothing is touched."""
+    work = tmp_path / "proj"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["simulate", AIR, "--out", "sim", "--duration", "0.1"]) == 0
+    link = tmp_path / "link"
+    link.symlink_to(work / "sim")
+    angles = link / "trajectory.csv"
+    before = angles.read_bytes()
+    assert main(["smooth", str(angles), "--out", str(work / "sim"), "--overwrite"]) == 2
+    assert angles.read_bytes() == before
+    (work / "notes.txt").write_text("mine")
+    for out in (".", "..", str(tmp_path)):
+        assert main(["simulate", AIR, "--out", out, "--duration", "0.1", "--overwrite"]) == 2
+    assert (work / "notes.txt").read_text() == "mine" and (work / "sim" / "trajectory.csv").exists()
+    mine = work / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("years of work")
+    assert main(["simulate", AIR, "--out", str(mine), "--duration", "0.1", "--overwrite"]) == 2
+    assert (mine / "thesis.tex").read_text() == "years of work"
+    # a folder gyrorig wrote is replaced as before
+    assert main(["simulate", AIR, "--out", "sim", "--duration", "0.1", "--overwrite"]) == 0
+    assert (work / "sim" / _io.OUTPUT_MARKER).is_file() and _no_leftovers(work)
+
+
+@pytest.mark.parametrize("signame, code", [("SIGINT", 130), ("SIGTERM", 143), ("SIGHUP", 129)])
+def test_a_signal_while_tracking_leaves_nothing(tmp_path, signame, code):
     """Ctrl-C while the decoding thread reads the video (issue 23: SIGABRT 'exception not rethrown' in 2 of 3
-    tries): exit 130, one line, no output folder, no temporary folder."""
+    tries), and SIGTERM or SIGHUP (issue 33: they left the temporary folder behind): exit 128 + the signal, one
+    line, no output folder, no temporary folder."""
     import signal
     import subprocess
     import sys
@@ -121,10 +151,10 @@ def test_ctrl_c_while_tracking_exits_130_and_leaves_nothing(tmp_path):
             break
     assert proc.poll() is None, "tracking finished before the interrupt: the test needs a longer video"
     time.sleep(0.3)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(getattr(signal, signame))
     _, rest = proc.communicate(timeout=30)
     err = "".join(seen) + rest
-    assert proc.returncode == 130, err
+    assert proc.returncode == code, err
     assert err.strip().splitlines()[-1].startswith("gyrorig:") and "Traceback" not in err
     assert not out.exists() and _no_leftovers(tmp_path)
 

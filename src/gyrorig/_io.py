@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["atomic_path", "output_folder", "OutputExistsError", "write_csv", "write_json", "json_safe", "versions"]
+__all__ = ["atomic_path", "output_folder", "OutputExistsError", "OUTPUT_MARKER", "write_csv", "write_json", "json_safe", "versions"]
 
 #: text files whose contents may name their folder (rewritten from the temporary folder's name to the final one)
 _TEXT_SUFFIXES = {".json", ".csv", ".html", ".md", ".toml", ".txt"}
@@ -25,22 +25,44 @@ class OutputExistsError(ValueError):
     """The output folder (or file) exists and holds something: refused without ``--overwrite`` (bad input)."""
 
 
+#: every output folder gyrorig writes holds this file: ``--overwrite`` replaces only such a folder
+OUTPUT_MARKER = ".gyrorig-output"
+
+
 def _claim(final: Path, overwrite: bool) -> None:
     if final.is_symlink() or (final.exists() and not final.is_dir()):
         if final.is_dir() or not overwrite:
             raise OutputExistsError(f"{final}: exists and is not a folder; give another --out (or --overwrite to "
                                     "replace it)")
-    elif final.is_dir() and any(final.iterdir()) and not overwrite:
-        raise OutputExistsError(f"{final}: the output folder exists and is not empty; give a new --out, or "
-                                "--overwrite to replace it whole")
+    elif final.is_dir() and any(final.iterdir()):
+        if not overwrite:
+            raise OutputExistsError(f"{final}: the output folder exists and is not empty; give a new --out, or "
+                                    "--overwrite to replace it whole")
+        if not (final / OUTPUT_MARKER).is_file():
+            raise OutputExistsError(f"{final}: holds files gyrorig did not write (no {OUTPUT_MARKER} in it): "
+                                    "--overwrite replaces only a folder gyrorig wrote; give another --out")
+
+
+def _check_place(final: Path, keep: tuple[str | Path, ...]) -> None:
+    """Refuse an output folder that is, or lies above, the working folder or one of the inputs (real paths:
+    symbolic links followed), where replacing it would remove them."""
+    real = final.resolve()
+    here = Path.cwd().resolve()
+    if real == here or real in here.parents:
+        raise OutputExistsError(f"{final}: is the working folder or lies above it; give an --out inside it")
+    for k in keep:
+        kp = Path(k).resolve()
+        if kp == real or real in kp.parents:
+            raise OutputExistsError(f"{final}: the output folder holds an input ({k}); give another --out")
 
 
 @contextmanager
 def output_folder(final: str | Path, overwrite: bool = False, keep: tuple[str | Path, ...] = ()) -> Iterator[Path]:
     """Yield a fresh temporary folder beside ``final``; on success it replaces ``final`` whole.
 
-    An existing non-empty ``final`` is refused (:class:`OutputExistsError`) unless ``overwrite``; a
-    path in ``keep`` (the command's inputs) inside ``final`` is refused even then.  The temporary
+    An existing non-empty ``final`` is refused (:class:`OutputExistsError`) unless ``overwrite``, and even then
+    unless gyrorig wrote it (:data:`OUTPUT_MARKER` in it); a ``final`` that is or lies above the working folder or
+    a path in ``keep`` (the command's inputs), real paths compared, is refused always.  The temporary
     name is unique to the process and the call, so concurrent runs never share it.  Text files
     naming the temporary folder are rewritten to name ``final``.  On any error (Ctrl-C included)
     the temporary folder is removed and ``final`` is left as it was.
@@ -49,15 +71,13 @@ def output_folder(final: str | Path, overwrite: bool = False, keep: tuple[str | 
     import shutil
 
     final = Path(final).absolute()
+    _check_place(final, keep)
     _claim(final, overwrite)
-    for k in keep:
-        kp = Path(k).absolute()
-        if kp == final or final in kp.parents:
-            raise OutputExistsError(f"{final}: the output folder holds an input ({k}); give another --out")
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = final.parent / f".{final.name}.partial-{os.getpid()}-{secrets.token_hex(4)}"
     tmp.mkdir()
     try:
+        (tmp / OUTPUT_MARKER).write_text("written by gyrorig: --overwrite may replace this folder whole\n")
         yield tmp
         for f in tmp.rglob("*"):
             if f.suffix.lower() in _TEXT_SUFFIXES and f.is_file():
@@ -106,8 +126,28 @@ def _write(path: str | Path, writer: Callable[[Path], None]) -> Path:
     return Path(path)
 
 
+#: a text cell starting with one of these is a formula to a spreadsheet (``=HYPERLINK(...)``): written with a ``'``
+_FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def _inert(value: Any) -> Any:
+    """A text cell a spreadsheet will not run as a formula: ``'`` before one that starts like one (a number
+    written as text, ``-1.5``, is left as it is)."""
+    if not isinstance(value, str) or not value.startswith(_FORMULA_STARTS):
+        return value
+    try:
+        float(value)
+        return value
+    except ValueError:
+        return "'" + value
+
+
 def write_csv(df: pd.DataFrame, path: str | Path) -> Path:
-    """Write a DataFrame as CSV (full float precision, no index), atomically."""
+    """Write a DataFrame as CSV (full float precision, no index), atomically; text cells that a spreadsheet would
+    take for a formula start with ``'``."""
+    text = [c for c in df.columns if df[c].dtype == object or pd.api.types.is_string_dtype(df[c].dtype)]
+    if text:
+        df = df.assign(**{c: df[c].map(_inert) for c in text})
     return _write(path, lambda p: df.to_csv(p, index=False, float_format="%.17g"))
 
 

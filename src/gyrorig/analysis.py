@@ -17,6 +17,7 @@ Every file is written under a temporary name and renamed when complete.
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -182,6 +183,25 @@ def _batch_jobs(source: Path, camera, protocol: Protocol | None) -> list[tuple[P
     return jobs
 
 
+def _result_name(video: Path, base: Path, taken: set[str]) -> str:
+    """A video's result folder name inside the batch's ``--out``, unique within the batch: its path relative to the
+    batch's folder (or its name) without the suffix, the folders joined by ``__``, characters other than letters,
+    digits, ``.``, ``_`` and ``-`` replaced by ``_``, no ``.`` or ``..`` parts (a manifest row ``sub/..`` must not
+    write outside ``--out``); ``-2``, ``-3`` ... when taken."""
+    try:
+        rel = video.relative_to(base)
+    except ValueError:
+        rel = Path(video.name)
+    parts = [re.sub(r"[^A-Za-z0-9._-]", "_", p) for p in rel.with_suffix("").parts]
+    name = "__".join(p for p in parts if p.strip(".")) or "video"
+    unique, k = name, 1
+    while unique.lower() in taken or unique.lower() == "summary.csv":
+        k += 1
+        unique = f"{name}-{k}"
+    taken.add(unique.lower())
+    return unique
+
+
 def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | None = None,
                   protocol: Protocol | None = None, progress_line: Callable[[str], None] | None = None,
                   terms: FitTerms | str = "data") -> pd.DataFrame:
@@ -189,18 +209,16 @@ def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | N
 
     The manifest has columns ``video, protocol[, camera]`` (paths relative to the manifest).
     A video that fails is reported in the summary and skipped; the batch goes on.  Writes
-    ``out/<video stem>/...`` per video and ``out/summary.csv`` (one row per video: status,
+    ``out/<video>/...`` per video (:func:`_result_name`: its path relative to the batch, unique) and ``out/summary.csv`` (one row per video: status,
     error, and value/standard error of each quantity).
     """
     source, out = Path(source), Path(out)
     jobs = _batch_jobs(source, camera, protocol)
+    base = source if source.is_dir() else source.parent
     rows = []
-    stems: dict[str, int] = {}
+    taken: set[str] = set()
     for i, (video, cam, prot) in enumerate(jobs):
-        stem = video.stem
-        stems[stem] = stems.get(stem, 0) + 1
-        if stems[stem] > 1:
-            stem = f"{stem}-{stems[stem]}"
+        stem = _result_name(video, base, taken)
         row: dict = {"video": str(video), "out": str(out / stem)}
         try:
             p = prot if isinstance(prot, Protocol) else load_protocol(prot)

@@ -14,6 +14,7 @@ import io
 import logging
 import re
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -92,15 +93,15 @@ def _output(args):
             yield
 
 
-def _interrupted(exc: BaseException) -> bool:
-    """Whether a KeyboardInterrupt is in the exception's chain (its cause or context)."""
+def _interruption(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt (Ctrl-C, or :class:`Terminated`) in the exception's chain (its cause or context)."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
-            return True
+            return exc
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
-    return False
+    return None
 
 
 def _show_first_look(exc, out) -> str | None:
@@ -119,13 +120,35 @@ def _show_first_look(exc, out) -> str | None:
         return None
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP: unwound like Ctrl-C (temporary folders removed, earlier outputs kept)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated(signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code."""
+    """Run the command line; returns the exit code (128 + the signal's number for SIGTERM and SIGHUP)."""
+    import signal
+
+    handled = [s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s is not None]
+    before = {}
+    if threading.current_thread() is threading.main_thread():
+        before = {s: signal.signal(s, _terminate) for s in handled}
     try:
         return _main(argv)
-    except KeyboardInterrupt:  # anywhere: while the modules load, in a command, or inside compiled code
-        print("gyrorig: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # anywhere: while the modules load, in a command, or inside compiled code
+        signum = exc.signum if isinstance(exc, Terminated) else None
+        print("gyrorig: interrupted" if signum is None else f"gyrorig: terminated (signal {signum})", file=sys.stderr)
+        return EXIT_INTERRUPTED if signum is None else 128 + signum
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
 
 
 #: options whose value is a comma-separated list of numbers (argparse takes "-80,50,-50" for an option)
@@ -183,8 +206,9 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"gyrorig: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as exc:  # noqa: BLE001 - the last net: one line, never a traceback (unless --debug)
-        if _interrupted(exc):  # Ctrl-C inside compiled code comes back as a SystemError around it
-            raise KeyboardInterrupt from None
+        interruption = _interruption(exc)
+        if interruption is not None:  # Ctrl-C inside compiled code comes back as a SystemError around it
+            raise interruption from None
         if args.debug:
             raise
         one_line = " ".join(str(exc).split())  # OpenCV's messages span lines
