@@ -171,10 +171,12 @@ def identify_pulls(rig_name: str, draws: int, folder: Path, seed: int = 0, fast_
             if n in truth:
                 rows.append({"rig": rig_name, "draw": d, "parameter": n, "value": v, "standard_error": e,
                              "truth": truth[n], "pull": (v - truth[n]) / e, "chi2_red": ident.chi2_red,
-                             "damping_law": ident.damping_law, "fast_top": fast_top})
+                             "lack_of_fit": ident.lack_of_fit, "damping_law": ident.damping_law,
+                             "fast_top": fast_top})
         for k, (v, e) in ident.derived(prior).items():
             if k in truth_derived:
                 rows.append({"rig": rig_name, "draw": d, "parameter": k, "value": v, "standard_error": e,
                              "truth": truth_derived[k], "pull": (v - truth_derived[k]) / e,
-                             "chi2_red": ident.chi2_red, "damping_law": ident.damping_law, "fast_top": fast_top})
+                             "chi2_red": ident.chi2_red, "lack_of_fit": ident.lack_of_fit,
+                             "damping_law": ident.damping_law, "fast_top": fast_top})
     return pd.DataFrame(rows)

@@ -4,10 +4,11 @@ Free parameters: the rig's ``inertia_axial_kg_m2``, ``inertia_transverse_kg_m2``
 ``com_distance_m`` where the prior gives them a standard deviation (their priors, with the
 prior's correlations, enter as whitened residuals; a number without one is known and held),
 and, with spin-down tables, the viscous rate ``k``, the constant friction ``f`` (only when the
-data need it: a chi-square gain above the 1 % point of chi-square with one degree of freedom) and
-each table's initial spin.  Residuals are ``(y - model) / sd_eff`` with the conditions' errors
+data need it: a chi-square gain above the 1 % point of chi-square with one degree of freedom, or with
+errors from the scatter an F-test at 1 %) and each table's initial spin.  Residuals are ``(y - model) / sd_eff`` with the conditions' errors
 carried in as effective variance; a kind whose rows give no standard deviation gets one from
-its scatter (iterated with the fit).  The covariance is ``(J^T J)^-1``.
+its scatter (iterated with the fit).  The covariance is ``(J^T J)^-1``, scaled by the reduced chi-square when
+the chi-square's p-value is below :data:`LACK_OF_FIT_P` (flagged and noted).
 """
 
 from __future__ import annotations
@@ -18,16 +19,21 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
+from scipy.stats import f as f_dist
 
 from ..protocols import Protocol, ProtocolError, checked_rig
 from .observations import FORMULAS, Observation
 from .tables import IdentifyInputError
 
-__all__ = ["Identification", "identify_parameters", "prior_rig_values", "RIG_PARAMETERS", "FRICTION_P_VALUE"]
+__all__ = ["Identification", "identify_parameters", "prior_rig_values", "RIG_PARAMETERS", "FRICTION_P_VALUE",
+           "LACK_OF_FIT_P"]
 
 RIG_PARAMETERS = ("rig.inertia_axial_kg_m2", "rig.inertia_transverse_kg_m2", "rig.com_distance_m")
-#: the constant friction is kept when dropping it raises the chi-square by more than this quantile's value
+#: the constant friction is kept when dropping it raises the chi-square by more than this quantile's value (stated
+#: errors), or when the F-test of the two laws gives a p-value below it (errors from the scatter)
 FRICTION_P_VALUE = 0.01
+#: a chi-square whose p-value is below this says the data, their stated errors and the model disagree
+LACK_OF_FIT_P = 1e-3
 
 
 def prior_rig_values(prior: Protocol) -> dict[str, float]:
@@ -55,6 +61,10 @@ class Identification:
     #: parameters with priors: the rig's (from the prior protocol) and each video's spin
     prior_names: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
+    #: the chi-square's p-value (the probability of a chi-square at least this large if model and errors are right)
+    p_value: float = math.nan
+    #: the p-value is below :data:`LACK_OF_FIT_P`: the covariance is scaled by the reduced chi-square (noted)
+    lack_of_fit: bool = False
 
     @property
     def standard_errors(self) -> np.ndarray:
@@ -214,11 +224,18 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
                 scatter[kind] = float(np.sqrt(np.sum(resid ** 2) / max(len(rows) - n_par, 1)))
         solutions[law] = (names, x, cov, chi2, sd_eff, scatter)
     law, gain = "", None
+    notes = []
     if spin_tables:
         gain = solutions["viscous"][3] - solutions["viscous+friction"][3]
-        law = "viscous+friction" if gain > chi2_dist.isf(FRICTION_P_VALUE, 1) else "viscous"
+        if "spin_down" in no_sd:
+            # the rows' errors come from their scatter about each law's own fit, so both chi-squares sit near their
+            # degrees of freedom: compare the laws by the F-test on the spin-down rows' residual sums of squares
+            law, f_stat, p_f = _spin_down_f_test(obs, prior, solutions, len(spin_tables), fast_top)
+            notes.append(f"spin-down law by the F-test (the rows have no stated errors): F = {f_stat:.4g}, p = "
+                         f"{p_f:.3g} for the constant friction")
+        else:
+            law = "viscous+friction" if gain > chi2_dist.isf(FRICTION_P_VALUE, 1) else "viscous"
     names, x, cov, chi2, sd_eff, scatter = solutions[law or "viscous"]
-    notes = []
     try:
         checked_rig(replace(prior.rig, **{n.split(".")[1]: v for n, v in zip(names, x) if n.startswith("rig.")}))
     except ProtocolError as exc:
@@ -227,8 +244,39 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
     if no_sd:
         notes.append("no standard deviations given for " + ", ".join(sorted(no_sd)) + ": taken from the scatter of "
                      "those rows about the fit (their errors are then not checked by the chi-square)")
-    return Identification(tuple(names), x, cov, chi2, n_res - len(names), tuple(obs), sd_eff,
-                          tuple(sorted(no_sd)), law, gain, fast_top, tuple(rig_names + video_spins), tuple(notes))
+    dof = n_res - len(names)
+    p_value = float(chi2_dist.sf(chi2, max(dof, 1)))
+    lack_of_fit = p_value < LACK_OF_FIT_P
+    if lack_of_fit:
+        chi2_red = chi2 / max(dof, 1)
+        cov = cov * chi2_red
+        notes.append(f"the data and their stated errors disagree with the model (chi-square {chi2:.4g} for {dof} degrees "
+                     f"of freedom, p = {p_value:.2g}): the standard errors are scaled by sqrt(chi2_red) = "
+                     f"{math.sqrt(chi2_red):.3g}, which holds only if the errors are too small by one factor; check the "
+                     "units in the column names (a rate in Hz under _rad_s is 2 pi off, a period in ms under _s 1000x), "
+                     "the stated errors, and whether the rig is the model's (a fixed pivot, one transverse inertia)")
+    return Identification(tuple(names), x, cov, chi2, dof, tuple(obs), sd_eff,
+                          tuple(sorted(no_sd)), law, gain, fast_top, tuple(rig_names + video_spins), tuple(notes),
+                          p_value, lack_of_fit)
+
+
+def _spin_down_f_test(obs: list[Observation], prior: Protocol, solutions: dict, tables: int, fast: bool
+                      ) -> tuple[str, float, float]:
+    """The spin-down law chosen by the F-test of the nested laws on the spin-down rows' residual sums of squares:
+    ``F = (RSS_v - RSS_vf) / (RSS_vf / (n - p_vf))`` with one degree of freedom over ``n - p_vf`` (``p_vf``: each
+    table's initial spin, the viscous rate and the friction).  Returns the law, F and its p-value."""
+    rows = [o for o in obs if o.kind == "spin_down"]
+    rss = {}
+    for law in ("viscous", "viscous+friction"):
+        names, x = solutions[law][0], solutions[law][1]
+        p = {**prior_rig_values(prior), **dict(zip(names, x))}
+        rss[law] = float(sum((o.y - o.predict(p, fast=fast)) ** 2 for o in rows))
+    dof = len(rows) - (tables + 2)
+    if dof < 1 or rss["viscous+friction"] <= 0:
+        return "viscous", math.nan, math.nan
+    f_stat = max(rss["viscous"] - rss["viscous+friction"], 0.0) / (rss["viscous+friction"] / dof)
+    p_f = float(f_dist.sf(f_stat, 1, dof))
+    return ("viscous+friction" if p_f < FRICTION_P_VALUE else "viscous"), f_stat, p_f
 
 
 def formulas_used(ident: Identification) -> dict[str, str]:

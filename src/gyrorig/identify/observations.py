@@ -198,8 +198,14 @@ def observations_from_fit(path: str, doc: dict, prior: Protocol) -> list[Observa
     if pivot.get("damping") or pivot.get("acceleration"):
         raise IdentifyInputError(f"{path}: a damped or accelerated scene: its precession and nutation drift, and "
                                  "identify models only a fixed, undamped pivot")
+    fields = summary["launch"] if isinstance(summary["launch"], dict) else {}
+    for key, value in fields.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise IdentifyInputError(f"{path}: protocol_summary.launch.{key} = {value!r}: not a finite number")
+    if not 0.0 <= fields.get("tilt_rad", 0.0) <= math.pi:
+        raise IdentifyInputError(f"{path}: protocol_summary.launch.tilt_rad = {fields['tilt_rad']!r}: outside [0, pi]")
     try:
-        launch = Launch(**summary["launch"])
+        launch = Launch(**fields)
     except TypeError as exc:
         raise IdentifyInputError(f"{path}: protocol_summary.launch: {exc}") from None
     out = []

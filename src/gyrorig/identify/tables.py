@@ -42,6 +42,10 @@ KINDS = {
 }
 #: columns whose values must be > 0
 POSITIVE = ("precession_period", "nutation_period", "nutation_frequency", "spin", "spin_start", "spin_end")
+#: the physical range of other columns (SI): ``(low, high, what it is)``
+RANGES = {"tilt": (0.0, math.pi, "the tilt's range [0, 180] deg (from the vertical)"),
+          "t": (0.0, math.inf, "times from the start, >= 0"),
+          "added_mass": (0.0, math.inf, "an added mass, >= 0")}
 
 
 @dataclass(frozen=True)
@@ -154,8 +158,17 @@ def read_table(path: str | Path) -> Table:
             if len(neg):
                 raise IdentifyInputError(f"{path}, line {neg[0] + 2}, column {units[name]!r}: must be > 0; got "
                                          f"{frame[units[name]].iloc[neg[0]]!r}")
+    for name, (lo, hi, what) in RANGES.items():
+        if name in values:
+            off = np.flatnonzero(~((values[name] >= lo) & (values[name] <= hi)))
+            if len(off):
+                raise IdentifyInputError(f"{path}, line {off[0] + 2}, column {units[name]!r}: "
+                                         f"{frame[units[name]].iloc[off[0]]!r} is outside {what}")
     if len(frame) == 0:
         raise IdentifyInputError(f"{path}: no rows")
+    if kind == "spin_down" and len(frame) >= 3 and np.ptp(values["t"]) <= 0:
+        raise IdentifyInputError(f"{path}, column {units['t']!r}: every row has the same time: a spin-down needs "
+                                 "readings at different times")
     if kind == "spin_down" and len(frame) < 3:
         raise IdentifyInputError(f"{path}: a spin-down table has {len(frame)} row(s); it needs at least 3 (its "
                                  "initial spin, the viscous rate and the friction are fitted)")
