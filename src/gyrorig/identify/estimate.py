@@ -187,7 +187,7 @@ def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool
     J = res.jac
     cov = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
     r = res.fun
-    return x, cov, float(r @ r), sd_eff
+    return x, cov, float(r @ r), sd_eff, J[:len(obs)]
 
 
 def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bool = False) -> Identification:
@@ -213,7 +213,7 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
     for law, names in laws.items():
         scatter = dict(sd_scatter)
         for _ in range(4 if no_sd else 1):
-            x, cov, chi2, sd_eff = _solve(obs, prior, names, fast_top, scatter)
+            x, cov, chi2, sd_eff, jac = _solve(obs, prior, names, fast_top, scatter)
             if not no_sd:
                 break
             p = {**prior_rig_values(prior), **dict(zip(names, x))}
@@ -222,7 +222,7 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
                 resid = np.array([o.y - o.predict(p, fast=fast_top) for o in rows])
                 n_par = sum(1 for n in names if n.startswith("spin_down")) if kind == "spin_down" else 0
                 scatter[kind] = float(np.sqrt(np.sum(resid ** 2) / max(len(rows) - n_par, 1)))
-        solutions[law] = (names, x, cov, chi2, sd_eff, scatter)
+        solutions[law] = (names, x, cov, chi2, sd_eff, scatter, jac)
     law, gain = "", None
     notes = []
     if spin_tables:
@@ -235,7 +235,8 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
                          f"{p_f:.3g} for the constant friction")
         else:
             law = "viscous+friction" if gain > chi2_dist.isf(FRICTION_P_VALUE, 1) else "viscous"
-    names, x, cov, chi2, sd_eff, scatter = solutions[law or "viscous"]
+    names, x, cov, chi2, sd_eff, scatter, jac = solutions[law or "viscous"]
+    _check_informative(obs, jac, cov)
     try:
         checked_rig(replace(prior.rig, **{n.split(".")[1]: v for n, v in zip(names, x) if n.startswith("rig.")}))
     except ProtocolError as exc:
@@ -258,6 +259,22 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
     return Identification(tuple(names), x, cov, chi2, dof, tuple(obs), sd_eff,
                           tuple(sorted(no_sd)), law, gain, fast_top, tuple(rig_names + video_spins), tuple(notes),
                           p_value, lack_of_fit)
+
+
+def _check_informative(obs: list[Observation], jac: np.ndarray, cov: np.ndarray) -> None:
+    """Refuse a kind of observation whose rows say nothing about any parameter (their predictions do not move when
+    a parameter moves by its standard error): the fit would silently return the prior."""
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    for kind in sorted({o.kind for o in obs}):
+        rows = [i for i, o in enumerate(obs) if o.kind == kind]
+        if float(np.max(np.abs(jac[rows] * se))) < 1e-6:
+            first = obs[rows[0]]
+            raise IdentifyInputError(
+                f"{first.source}: the {kind} rows carry no information about the rig (the model predicts the same "
+                "whatever its parameters)"
+                + (": a balanced rig (com_distance_m = 0) released from rest does not nutate; its nutation is set "
+                   "off by a kick, which the model takes as torque-free when com_distance_m is exactly 0 and held"
+                   if kind == "nutation" else ""))
 
 
 def _spin_down_f_test(obs: list[Observation], prior: Protocol, solutions: dict, tables: int, fast: bool

@@ -13,7 +13,9 @@ mass ``m`` at ``l`` along the axis (``M' = M + m``, ``M' h' = M h + m l``, ``I' 
   tilt (``Mgh' = phi' (Io omega_o - I' phi' cos theta)``, ``omega_o = Omega + phi' cos theta``;
   horizontal when no tilt is given); fast top: ``2 pi Io Omega / (M' g h')``;
 * nutation frequency: the elliptic solution's, for a release from rest at the tilt (the protocol's
-  launch tilt when none is given); fast top: ``Io Omega / I'``;
+  launch tilt when none is given); for a balanced rig (``M h = 0``: no torque, the nutation set off by a kick)
+  the rate at which the axis circles the angular momentum, ``L / I = Io Omega / (I cos theta_c)`` with
+  ``theta_c`` the cone angle (a ``cone_angle`` column; 0 when not given); fast top: ``Io Omega / I'``;
 * a video's fit.json: its mean precession rate and nutation frequency from the elliptic solution of
   its protocol's launch; fast top: ``Mgh / (Io Omega)`` and ``Io Omega / I``;
 * spin-down: ``omega(t) = omega_0 exp(-k t) - f (1 - exp(-k t)) / k`` (``d omega / dt = -k omega - f``).
@@ -38,7 +40,8 @@ __all__ = ["Observation", "observations_from_table", "observations_from_fit", "r
 #: which formula serves each kind of observation
 FORMULAS = {
     "precession": "exact steady precession at the finite tilt (slow root; Goldstein eq. 5.76)",
-    "nutation": "exact elliptic solution of the heavy top released from rest at the tilt",
+    "nutation": "exact elliptic solution of the heavy top released from rest at the tilt; a balanced rig's "
+                "torque-free nutation L / I",
     "fit_precession": "exact elliptic solution's mean precession rate for the video's launch",
     "fit_nutation": "exact elliptic solution's nutation frequency for the video's launch",
     "spin_down": "d omega/dt = -k omega - f (viscous, plus constant friction when the data need it)",
@@ -134,6 +137,9 @@ def _released(prior: Protocol, params: dict, x: dict, launch=None):
 
 def _nutation(prior: Protocol):
     def exact(params, x):
+        mgh, i_t, i_o = _mgh_inertias(prior, params, x)
+        if mgh == 0.0:  # balanced: no torque; a kick sets the axis circling the angular momentum at L / I
+            return i_o * x["spin"] / (i_t * math.cos(x.get("cone_angle", 0.0)))
         return _released(prior, params, x).nutation_frequency_rad_s
 
     def fast(params, x):

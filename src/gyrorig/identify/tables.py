@@ -31,19 +31,20 @@ UNITS = {"_rev_per_min": ("rate", 2 * math.pi / 60), "_rad_s": ("rate", 1.0), "_
 #: what each column measures
 COLUMNS = {"t": "time", "spin": "rate", "spin_start": "rate", "spin_end": "rate", "precession_period": "time",
            "added_mass": "mass", "lever_arm": "length", "tilt": "angle", "nutation_frequency": "rate",
-           "nutation_period": "time"}
+           "nutation_period": "time", "cone_angle": "angle"}
 #: the kinds, with their required columns (alternatives as tuples) and optional ones
 KINDS = {
     "spin_down": {"required": ("t", "spin"), "optional": ()},
     "precession": {"required": (("spin", ("spin_start", "spin_end")), "precession_period"),
                    "optional": ("added_mass", "lever_arm", "tilt")},
     "nutation": {"required": ("spin", ("nutation_frequency", "nutation_period")),
-                 "optional": ("added_mass", "lever_arm", "tilt")},
+                 "optional": ("added_mass", "lever_arm", "tilt", "cone_angle")},
 }
 #: columns whose values must be > 0
 POSITIVE = ("precession_period", "nutation_period", "nutation_frequency", "spin", "spin_start", "spin_end")
 #: the physical range of other columns (SI): ``(low, high, what it is)``
 RANGES = {"tilt": (0.0, math.pi, "the tilt's range [0, 180] deg (from the vertical)"),
+          "cone_angle": (0.0, 0.5 * math.pi, "a nutation cone's half-angle, [0, 90) deg"),
           "t": (0.0, math.inf, "times from the start, >= 0"),
           "added_mass": (0.0, math.inf, "an added mass, >= 0")}
 
