@@ -369,3 +369,26 @@ def test_a_balanced_gyros_nutation_identifies_its_transverse_inertia(tmp_path):
     par = json.loads((out / "identify.json").read_text())["parameters"]["rig.inertia_transverse_kg_m2"]
     assert par["standard_error"] < 0.05 * par["value"]  # the rows, not the prior, fix it
     assert abs(par["value"] - truth.rig.inertia_transverse_kg_m2) < 4 * par["standard_error"]
+
+
+def test_identified_toml_round_trips_and_serves_as_the_next_prior(tmp_path):
+    """Issue 32: identified.toml was made by editing the prior's lines: a prior with dotted keys kept its old values,
+    a description holding "[rig]" broke the file, and fed back as the next prior it was invalid TOML.  Now it is
+    written from the data: it loads with the identified values, and the next identification runs from it."""
+    text = _prior(tmp_path).read_text()
+    text = text.replace('description = "', 'description = "a [rig] with \\"quotes\\" and a # sign; ', 1)
+    text = text.replace("inertia_axial_kg_m2 = { value = 5.0e-4, sd = 1.0e-4 }",
+                        "inertia_axial_kg_m2.value = 5.0e-4\ninertia_axial_kg_m2.sd = 1.0e-4")
+    prior = tmp_path / "dotted.toml"
+    prior.write_text(text)
+    files = _tables(tmp_path)
+    first, second = tmp_path / "first", tmp_path / "second"
+    assert main(["identify", *map(str, files), "--protocol", str(prior), "--out", str(first)]) == 0
+    doc = json.loads((first / "identify.json").read_text())
+    identified = load_protocol(first / "identified.toml")
+    assert "[rig]" in identified.description
+    for name, par in doc["parameters"].items():
+        if name.startswith("rig."):
+            assert getattr(identified.rig, name.split(".")[1]) == pytest.approx(par["value"], rel=1e-12)
+    assert main(["identify", *map(str, files), "--protocol", str(first / "identified.toml"), "--out", str(second)]) == 0
+    tomllib.loads((second / "identified.toml").read_text())

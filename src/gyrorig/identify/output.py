@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import json
 import math
-import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 from .. import _io
 from ..protocols import Protocol, ProtocolError, load_protocol
@@ -38,47 +39,29 @@ def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observa
     return obs
 
 
-def _toml_number(v: float) -> str:
-    return repr(float(v))
-
-
-def identified_toml(prior_text: str, ident: Identification, prior: Protocol) -> str:
-    """The prior protocol's text with each identified ``[rig]`` value as ``{ value = ..., sd = ... }`` and
-    their correlations in ``[uncertainty]`` (comments and everything else kept)."""
+def identified_toml(prior_text: str, ident: Identification, prior: Protocol, inputs: list[str] | None = None) -> str:
+    """The prior protocol (parsed from its text) with each identified ``[rig]`` value as ``{ value, sd }`` and their
+    correlations in ``[uncertainty]``, written by a TOML serialiser (tomli-w): it loads as a protocol, and serves
+    again as a prior.  Comments of the prior are not kept; a header says where the values come from."""
+    data = tomllib.loads(prior_text)
     se = ident.standard_errors
-    rig = {n.split(".")[1]: (ident.values[i], se[i]) for i, n in enumerate(ident.names) if n.startswith("rig.")}
-    lines = prior_text.splitlines()
-    out, section, done = [], "", set()
-    for line in lines:
-        head = re.match(r"\s*\[+\s*([^\]]+?)\s*\]+", line)
-        if head:
-            if section == "rig":
-                out += [f"{k} = {{ value = {_toml_number(v)}, sd = {_toml_number(s)} }}   # identified"
-                        for k, (v, s) in rig.items() if k not in done]
-            section = head.group(1)
-            if section == "uncertainty":
-                section = "skip"
-                continue
-        elif section == "skip":
-            continue
-        m = re.match(r"\s*([A-Za-z0-9_]+)\s*=", line)
-        if section == "rig" and m and m.group(1) in rig:
-            k = m.group(1)
-            v, s = rig[k]
-            out.append(f"{k} = {{ value = {_toml_number(v)}, sd = {_toml_number(s)} }}   # identified")
-            done.add(k)
-            continue
-        out.append(line)
+    rig = dict(data.get("rig", {}))
+    for i, n in enumerate(ident.names):
+        if n.startswith("rig."):
+            rig[n.split(".", 1)[1]] = {"value": float(ident.values[i]), "sd": float(se[i])}
+    data["rig"] = rig
     rig_names = [n for n in ident.names if n.startswith("rig.")]
     corr = ident.correlation
-    pairs = [(a, b, corr[ident.names.index(a), ident.names.index(b)]) for i, a in enumerate(rig_names)
-             for b in rig_names[i + 1:]]
-    pairs = [(a, b, r) for a, b, r in pairs if np.isfinite(r) and abs(r) > 1e-6]
+    pairs = [[a, b, float(max(-0.999999, min(0.999999, corr[ident.names.index(a), ident.names.index(b)])))]
+             for i, a in enumerate(rig_names) for b in rig_names[i + 1:]]
+    pairs = [p for p in pairs if math.isfinite(p[2]) and abs(p[2]) > 1e-6]
+    data.pop("uncertainty", None)
     if pairs:
-        out += ["", "# correlations of the identified parameters (gyrorig identify)", "[uncertainty]",
-                "correlations = ["] + [f'  ["{a}", "{b}", {max(-0.999999, min(0.999999, r)):.6f}],'
-                                      for a, b, r in pairs] + ["]"]
-    return "\n".join(out) + "\n"
+        data["uncertainty"] = {"correlations": pairs}
+    header = (f"# {prior.name}: the rig identified by gyrorig identify"
+              + (f" from {', '.join(map(str, inputs))}" if inputs else "") + "\n"
+              "# the identified [rig] values are { value, sd }; their correlations are in [uncertainty]\n\n")
+    return header + tomli_w.dumps(data)
 
 
 def identify_document(ident: Identification, prior: Protocol, inputs: list[str]) -> dict:
@@ -156,7 +139,7 @@ def identify_files(inputs: list[str | Path], prior_path: str | Path, out: str | 
     if not all(math.isfinite(v) for v in ident.standard_errors):
         raise IdentifyInputError("the inputs do not determine every parameter (infinite standard error)")
     out = Path(out)
-    text = identified_toml(Path(prior_path).read_text(), ident, prior)
+    text = identified_toml(Path(prior_path).read_text(), ident, prior, [str(i) for i in inputs])
     with _io.atomic_path(out / "identified.toml") as tmp:
         Path(tmp).write_text(text)
     _io.write_json(identify_document(ident, prior, [str(i) for i in inputs]), out / "identify.json")
