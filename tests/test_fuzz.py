@@ -3,7 +3,8 @@ through the command line in-process.
 
 Every case must end with an exit code in {0, 2, 3}, no traceback, nothing under the final --out after a
 failure, and the inputs unchanged.  The cases come from a seeded generator (a table of mutations per input
-kind): ``-m slow`` runs 360 of them, the default suite a fixed sample of 40.
+kind, issue 33's among them: inputs nested too deep, output folders that would replace the user's files, lab
+tables): ``-m slow`` runs 560 of them, the default suite a fixed sample of 40.
 """
 
 from __future__ import annotations
@@ -253,6 +254,8 @@ OPTION_CASES = [
     ["plan", str(AIR), "--duration", "{bad}", "--draws", "0"],
     ["plan", str(AIR), "--draws", "{bad}", "--duration", "0.5"],
     ["plan", str(AIR), "--sweep", "camera.fps={bad}:100:2", "--duration", "0.5", "--draws", "0"],
+    ["plan", str(AIR), "--sweep", "camera.fps=50:100:{bad}", "--duration", "0.5", "--draws", "0"],
+    ["plan", str(AIR), "--sweep", "camera.fps=50:100:100000000", "--duration", "0.5", "--draws", "0"],
     ["demo", "--video-duration", "{bad}", "--out", "{out}"],
     ["calibrate", "{dir}", "--board", "{bad}x6", "--square-mm", "20", "--out", "{out}"],
     ["calibrate", "{dir}", "--board", "9x6", "--square-mm", "{bad}", "--out", "{out}"],
@@ -271,14 +274,77 @@ def _option_case(rng, base: Path, case_dir: Path):
     return argv, [], out if "{out}" in template else None
 
 
-FAMILIES = [_protocol_case, _camera_case, _angles_case, _manifest_case, _video_case, _option_case]
+def _nesting_case(rng, base: Path, case_dir: Path):
+    """A protocol or camera file nested thousands of levels deep (the parsers recurse: RecursionError, exit 3)."""
+    depth = int(rng.integers(2000, 20000))
+    if rng.integers(2):
+        proto = case_dir / "deep.toml"
+        proto.write_text(AIR.read_text() + "\n[deep]\nx = " + "[" * depth + "]" * depth + "\n")
+        return ["theory", str(proto), "--no-simulate"], [proto], None
+    camera = case_dir / "deep.json"
+    camera.write_text('{"a": ' * depth + "1" + "}" * depth)
+    out = case_dir / "out"
+    return (["track", str(base / "render" / "video.mkv"), "--camera", str(camera), "--protocol", str(base / "b2.toml"),
+             "--out", str(out), "--tip-only"], [camera], out)
 
 
-def _run_case(k: int, base: Path, tmp: Path, capsys):
+def _place_case(rng, base: Path, case_dir: Path):
+    """--out where replacing it would remove what gyrorig did not write: the working folder (the case's folder),
+    a folder above it, a folder of the user's own files, a folder holding an input reached through a symbolic
+    link; with --overwrite or without."""
+    mine = case_dir / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("the user's")
+    (case_dir / "keep.txt").write_text("the user's too")
+    link = case_dir / "link"
+    link.symlink_to(mine)
+    how = int(rng.integers(4))
+    out = [".", "..", str(mine), str(mine)][how]
+    if how == 3:
+        argv = ["smooth", str(link / "notes.txt"), "--out", out]
+    else:
+        argv = ["simulate", str(AIR), "--out", out, "--duration", "0.02", "--rate", "100"]
+    if rng.integers(4):
+        argv.append("--overwrite")
+    return argv, [mine, case_dir / "keep.txt"], None
+
+
+def _table_case(rng, base: Path, case_dir: Path):
+    """A lab table for identify with a unit, a range or a cell made wrong."""
+    rows = ["spin_rev_per_min,precession_period_s,tilt_deg,added_mass_g", "3000,3.1,90,0", "3500,2.7,90,20",
+            "4000,2.4,80,0", "4500,2.1,85,20"]
+    how = int(rng.integers(6))
+    if how == 0:
+        rows[0] = rows[0].replace("_rev_per_min", ["_furlongs", "_s", "_kg", ""][rng.integers(4)])
+    elif how == 1:
+        rows[2] = rows[2].replace(",90,", f",{['200', '-30', 'nan', 'inf', 'ninety'][rng.integers(5)]},")
+    elif how == 2:
+        rows = rows[: int(rng.integers(1, 2))]
+    elif how == 3:
+        rows[1] = rows[1].replace("3.1", ["0", "-1", "", "1e308"][rng.integers(4)])
+    elif how == 4:
+        rows[0] += ",added_mass_g"
+    table = case_dir / "precession.csv"
+    table.write_text("\n".join(rows) + "\n")
+    prior = case_dir / "prior.toml"
+    prior.write_text(AIR.read_text().replace("inertia_transverse_kg_m2 = 3.839e-3",
+                                             "inertia_transverse_kg_m2 = { value = 4.0e-3, sd = 1.0e-3 }"))
+    out = case_dir / "out"
+    return ["identify", str(table), "--protocol", str(prior), "--out", str(out)], [table, prior], out
+
+
+FAMILIES = [_protocol_case, _camera_case, _angles_case, _manifest_case, _video_case, _option_case, _nesting_case,
+            _place_case, _table_case]
+#: families whose every case is bad input: exit 2
+BAD_INPUT_FAMILIES = (_nesting_case, _place_case)
+
+
+def _run_case(k: int, base: Path, tmp: Path, capsys, monkeypatch):
     rng = np.random.default_rng(1000 + k)
     family = FAMILIES[k % len(FAMILIES)]
     case_dir = tmp / f"case{k}"
     case_dir.mkdir()
+    monkeypatch.chdir(case_dir)  # the working folder a case may name (--out .)
     argv, inputs, out = family(rng, base, case_dir)
     before = _hash(inputs)
     capsys.readouterr()
@@ -290,9 +356,11 @@ def _run_case(k: int, base: Path, tmp: Path, capsys):
             code = exc.code
     err = capsys.readouterr().err
     assert code in (0, 2, 3), (family.__name__, argv, code, err)
+    if family in BAD_INPUT_FAMILIES:  # these are the user's input, never a failed computation
+        assert code == 2, (family.__name__, argv, code, err)
     assert "Traceback" not in err, (family.__name__, argv, err)
     if code != 0:
-        assert err.strip() or argv[0] == "analyze", (family.__name__, argv)  # a failure says why
+        assert err.strip(), (family.__name__, argv)  # a failure says why, on stderr (-q shows nothing else)
         if out is not None and argv[0] == "analyze" and code == 3 and out.exists():
             # a batch keeps what it analysed: its summary names each failed video and why
             summary = pd.read_csv(out / "summary.csv")
@@ -304,12 +372,16 @@ def _run_case(k: int, base: Path, tmp: Path, capsys):
     assert not leftovers, (family.__name__, argv, leftovers)
 
 
-@pytest.mark.parametrize("k", range(0, 360, 9))
-def test_fuzz_sample(k, base, tmp_path, capsys):
-    _run_case(k, base, tmp_path, capsys)
+#: the cases: -m slow runs them all, the default suite every 14th (40)
+CASES = 560
+
+
+@pytest.mark.parametrize("k", range(0, CASES, 14))
+def test_fuzz_sample(k, base, tmp_path, capsys, monkeypatch):
+    _run_case(k, base, tmp_path, capsys, monkeypatch)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("k", [k for k in range(360) if k % 9])
-def test_fuzz_all(k, base, tmp_path, capsys):
-    _run_case(k, base, tmp_path, capsys)
+@pytest.mark.parametrize("k", [k for k in range(CASES) if k % 14])
+def test_fuzz_all(k, base, tmp_path, capsys, monkeypatch):
+    _run_case(k, base, tmp_path, capsys, monkeypatch)

@@ -487,17 +487,25 @@ def _damping_advice(protocol: Protocol, pred: dict) -> list[str]:
 
 
 # ------------------------------------------------------------------------------------------- sweeps
+#: the most points a sweep takes (each is a full plan)
+MAX_SWEEP_POINTS = 200
+
+
 def parse_sweep(spec: str) -> tuple[str, np.ndarray]:
-    """``KEY=START:STOP:N`` (KEY a dotted protocol path, e.g. ``launch.spin_rate_rad_s``)."""
+    """``KEY=START:STOP:N`` (KEY a dotted protocol path, e.g. ``launch.spin_rate_rad_s``); N in
+    [2, :data:`MAX_SWEEP_POINTS`], START and STOP finite."""
     try:
         key, rng = spec.split("=", 1)
         a, b, n = rng.split(":")
-        values = np.linspace(float(a), float(b), int(n))
+        start, stop, count = float(a), float(b), int(n)
     except ValueError:
         raise ValueError(f"--sweep {spec!r}: expected KEY=START:STOP:N, e.g. camera.fps=100:400:7") from None
-    if int(n) < 2:
-        raise ValueError(f"--sweep {spec!r}: N must be >= 2")
-    return key.strip(), values
+    if not 2 <= count <= MAX_SWEEP_POINTS:
+        raise ValueError(f"--sweep {spec!r}: N must be in [2, {MAX_SWEEP_POINTS}] (each point is a full plan, a few "
+                         "seconds)")
+    if not (math.isfinite(start) and math.isfinite(stop)):
+        raise ValueError(f"--sweep {spec!r}: START and STOP must be finite numbers")
+    return key.strip(), np.linspace(start, stop, count)
 
 
 def _set_key(data: dict, key: str, value: float) -> None:

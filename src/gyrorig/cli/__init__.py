@@ -200,6 +200,10 @@ def _main(argv: Sequence[str] | None) -> int:
     except SimulationError as exc:
         print(f"gyrorig: simulation failed: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    except RecursionError:  # the parsers (TOML, JSON) recurse per level of nesting
+        print("gyrorig: error: an input file is nested too deeply to read (arrays or tables inside each other "
+              "thousands of levels deep)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except OSError as exc:  # a file or folder that cannot be written or read
         if args.debug:
             raise

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -356,8 +357,12 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     doc = _io.json_safe(plan)
     if out:
         _io.write_json(doc, out / "plan.json")
-    # a camera that never sees the tip measures nothing: the plan says so, and the exit code too
+    # a camera that never sees the tip measures nothing: the plan says so, and the exit code too (and stderr: with -q
+    # it is all the user sees)
     blind = plan.get("camera") is not None and not plan.get("quantities")
+    if blind:
+        print("gyrorig: failed: the camera never sees the tip marker: the plan measures nothing (check the camera's "
+              "placement and field of view against the tip's path)", file=sys.stderr)
     if args.json:
         print_data(json.dumps(doc, indent=2, sort_keys=True))
         return EXIT_FAILED if blind else EXIT_OK
@@ -437,7 +442,11 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
                                 terms=terms_arg(args.terms))
         ok = int((summary.status == "ok").sum())
         print(f"{ok} of {len(summary)} videos analysed -> {out / 'summary.csv'}")
-        return EXIT_OK if ok == len(summary) else EXIT_FAILED
+        if ok < len(summary):  # on stderr too: with -q it is all the user sees
+            print(f"gyrorig: failed: {len(summary) - ok} of {len(summary)} videos could not be analysed (status and "
+                  f"error of each in {out / 'summary.csv'})", file=sys.stderr)
+            return EXIT_FAILED
+        return EXIT_OK
     if protocol is None or args.camera is None:
         raise ValueError("analyze VIDEO needs --camera and --protocol")
     camera = args.camera

@@ -198,6 +198,10 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
     rig_names = _free_rig(prior)
     video_spins = sorted({o.table_key for o in obs if o.table_prior is not None})
     base = rig_names + video_spins + ([*spin_tables, "spin_down.viscous_rate_per_s"] if spin_tables else [])
+    if not base:
+        raise IdentifyInputError(f"{prior.source or prior.name}: no rig parameter has a standard deviation, so there is "
+                                 "nothing to identify: give the numbers to identify as { value, sd } (e.g. "
+                                 "inertia_transverse_kg_m2 = { value = 4e-3, sd = 1e-3 })")
     n_res = len(obs) + len(rig_names) + len(video_spins)
     if n_res <= len(base) + (1 if spin_tables else 0):
         raise IdentifyInputError(f"{len(obs)} observation(s) and {len(rig_names)} prior(s) are too few for "
