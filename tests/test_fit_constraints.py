@@ -60,6 +60,20 @@ def test_a_vague_prior_changes_nothing(heavy):
         assert r.params[k][1] == pytest.approx(s, rel=1e-3), k
 
 
+@pytest.mark.parametrize("kind", ["prior", "fix"])
+def test_a_constraint_that_disagrees_with_the_record_is_flagged_and_one_that_agrees_is_not(heavy, kind):
+    """A prior 10 of the record's standard errors away (as precise as the record: 7 combined), or a value fixed
+    there, is a conflict; one 1 standard error away is not (|z| = 0.7 and 1, below the 3 used)."""
+    p, angles, truth, pred, free = heavy
+    name = "precession_rate_rad_s"
+    v, se = free.params[name]
+    for offset, flagged in ((10.0, True), (1.0, False)):
+        c = (Constraints(priors=((name, v + offset * se, se),)) if kind == "prior"
+             else Constraints(fixed=((name, v + offset * se),)))
+        r = fit_angles(angles, p, prediction=pred, constraints=c)
+        assert [n.term for n in r.notes_of(NoteKind.PRIOR_CONFLICT)] == ([name] if flagged else [])
+
+
 def test_a_fixed_parameter_keeps_its_value_and_the_rest_still_fit(heavy):
     p, angles, truth, pred, free = heavy
     name = "nutation_frequency_rad_s"

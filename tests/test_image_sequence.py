@@ -3,6 +3,7 @@ timestamps.csv or from camera.json's fps, tracks exactly like the video it was c
 and timestamps are bad input (exit 2, the file, row and column named, nothing written)."""
 
 import copy
+import json
 import tomllib
 
 import cv2
@@ -154,3 +155,30 @@ def test_a_recording_is_recognised_by_its_fingerprint_wherever_it_is_copied(tmp_
     (tmp_path / "g" / "frame2.png").unlink()
     assert fingerprint(tmp_path / "f") != fingerprint(tmp_path / "g")
     assert fingerprint(FrameArrays([np.zeros((4, 4), np.uint8)])) is None
+
+
+def _camera_without_fps(out, tmp_path):
+    d = json.loads((out / "v" / "camera.json").read_text())
+    d.pop("fps")
+    (tmp_path / "camera.json").write_text(json.dumps(d))
+    return load_camera(tmp_path / "camera.json")
+
+
+def test_without_any_frame_rate_the_folder_is_bad_input(rendered, tmp_path):
+    out, protocol, cam, frames = rendered
+    folder = _write(tmp_path / "images", frames[:12], ".png", np.uint8)
+    with pytest.raises(BadInputError):
+        track(folder, _camera_without_fps(out, tmp_path), protocol, frame_dots=False)
+
+
+def test_timestamps_in_milliseconds_are_named(rendered, tmp_path, caplog):
+    """Times in ms: refused against camera.json's fps; without one, tracked at the times' rate with a warning."""
+    out, protocol, cam, frames = rendered
+    folder = _write(tmp_path / "images", frames[:12], ".png", np.uint8)
+    pd.DataFrame({"frame": range(12), "t_s": np.arange(12) / cam.fps * 1000.0}).to_csv(folder / "timestamps.csv",
+                                                                                      index=False)
+    with pytest.raises(BadInputError):
+        track(folder, cam, protocol, frame_dots=False)
+    result = track(folder, _camera_without_fps(out, tmp_path), protocol, frame_dots=False)
+    assert result.angles.theta_rad.notna().all()
+    assert "WARNING" in {r.levelname for r in caplog.records if r.name == "gyrorig.tracking.tracker"}

@@ -13,6 +13,7 @@ documented in ``docs/user-guide.md`` (section "Protocol format").
 from __future__ import annotations
 
 import importlib.resources
+import logging
 import math
 import tomllib
 from collections.abc import Mapping
@@ -22,6 +23,8 @@ from typing import Any, Union
 
 from ._validate import ProtocolError, angle, boolean, check_keys, finite, number, vector3
 from .parameters import Uncertainty, split_uncertain
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "ProtocolError",
@@ -41,6 +44,7 @@ __all__ = [
     "top_protocol",
     "protocol_summary",
     "BUNDLED_PROTOCOL_DIR",
+    "bundled_protocols",
     "Uncertainty",
     "checked_rig",
 ]
@@ -504,6 +508,7 @@ def load_protocol(path: str | Path) -> Protocol:
     Parameters
     ----------
     path : str or Path
+        A TOML file, or the name of a bundled protocol (:func:`bundled_protocols`) where no such file exists.
 
     Returns
     -------
@@ -515,6 +520,10 @@ def load_protocol(path: str | Path) -> Protocol:
         If the file cannot be read or parsed, or a value is invalid.
     """
     path = Path(path)
+    if not path.exists() and path.name == str(path) and path.suffix in ("", ".toml"):
+        bundled = BUNDLED_PROTOCOL_DIR / f"{path.stem}.toml"
+        if bundled.is_file():  # a bundled protocol named on its own (``gyrorig plan air-cushion-heavy-top``)
+            path = bundled
     try:
         with path.open("rb") as fh:
             data = tomllib.load(fh)
@@ -529,9 +538,25 @@ def load_protocol(path: str | Path) -> Protocol:
     except tomllib.TOMLDecodeError as exc:
         raise ProtocolError(f"{path}: not valid TOML: {exc}") from exc
     try:
-        return parse_protocol(data, source=str(path))
+        protocol = parse_protocol(data, source=str(path))
     except ProtocolError as exc:
         raise ProtocolError(f"{path}: {exc}") from None
+    from .plausibility import protocol_doubts
+
+    for doubt in protocol_doubts(protocol):
+        logger.warning("%s: %s", path, doubt)
+    return protocol
+
+
+def bundled_protocols() -> dict[str, str]:
+    """The protocols that come with gyrorig, by name (what ``load_protocol`` accepts on its own): name ->
+    description."""
+    out = {}
+    for f in sorted(BUNDLED_PROTOCOL_DIR.glob("*.toml")):
+        with f.open("rb") as fh:
+            meta = tomllib.load(fh).get("protocol", {})
+        out[f.stem] = str(meta.get("description", ""))
+    return out
 
 
 def top_protocol(

@@ -386,6 +386,16 @@ def _cmd_bench_smooth(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_protocols(args: argparse.Namespace) -> int:
+    from ..protocols import bundled_protocols
+
+    names = bundled_protocols()
+    width = max(map(len, names), default=0)
+    for name, description in names.items():
+        print_data(f"{name:<{width}}  {description}")
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     for option, value in (("--duration", args.duration), ("--video-duration", args.video_duration)):
         if value is not None:
@@ -472,9 +482,13 @@ def _cmd_theory(args: argparse.Namespace) -> int:
         raise ValueError("give a PROTOCOL, or --validate")
     from ..propagate import predict_with_uncertainty
 
-    pred = predict_with_uncertainty(load_protocol(args.protocol), simulate_damping=not args.no_simulate)
+    from ..plausibility import protocol_doubts
+
+    protocol = load_protocol(args.protocol)  # logs its doubts as warnings
+    pred = predict_with_uncertainty(protocol, simulate_damping=not args.no_simulate)
     if args.json:
-        print_data(json.dumps(_io.json_safe(pred), indent=2))
+        doubts = [d.as_dict() for d in protocol_doubts(protocol)]
+        print_data(json.dumps(_io.json_safe({**pred, "doubts": doubts}), indent=2))
     else:
         print_prediction(pred)
     return EXIT_OK

@@ -40,6 +40,10 @@ def add_board_placement_options(parser: argparse.ArgumentParser) -> None:
                    help="how far from level the board may lie, about each horizontal axis [deg]")
 
 
+#: the help of every protocol argument
+PROTOCOL_HELP = "protocol TOML file, or a bundled protocol's name ('gyrorig protocols' lists them)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for documentation and tests)."""
     p = argparse.ArgumentParser(prog="gyrorig", description="experiment design and data fitting for air-bearing gyroscope rigs")
@@ -53,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="integrate a protocol's scene; write trajectory.csv and manifest.json")
-    s.add_argument("protocol", help="protocol TOML file")
+    s.add_argument("protocol", help=PROTOCOL_HELP)
     s.add_argument("--out", required=True, help="output directory")
     s.add_argument("--method", default="auto", choices=["auto", "exact", *METHODS],
                    help="integration method (default: chosen from the scene); 'exact' for undamped scenes")
@@ -132,7 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
     bf.set_defaults(func="_cmd_bench_fit")
 
     pl = sub.add_parser("plan", help="what a rig and camera will measure: resolution, expected errors, advice")
-    pl.add_argument("protocol", nargs="?", help="protocol TOML file")
+    pl.add_argument("protocol", nargs="?", help=PROTOCOL_HELP)
     pl.add_argument("--json", action="store_true", help="print JSON")
     pl.add_argument("--out", default=None, help="write plan.json (and sweep tables/plots) here")
     pl.add_argument("--duration", type=float, default=None, help="recording length [s] (default: scene.duration_s, at most 20)")
@@ -149,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.set_defaults(func="_cmd_plan")
 
     t = sub.add_parser("theory", help="the paper's predictions for a scene, or --validate them all")
-    t.add_argument("protocol", nargs="?", help="protocol TOML file")
+    t.add_argument("protocol", nargs="?", help=PROTOCOL_HELP)
     t.add_argument("--json", action="store_true", help="print JSON (keys carry units)")
     t.add_argument("--no-simulate", action="store_true", help="skip the simulated damped tilt rate")
     t.add_argument("--validate", action="store_true", help="judge every formula against the simulator over sweeps")
@@ -158,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.set_defaults(func="_cmd_theory")
 
     r = sub.add_parser("render", help="synthetic video of a protocol's scene, with truth and calibration images")
-    r.add_argument("protocol", help="protocol TOML file with [camera] and [markers]")
+    r.add_argument("protocol", help=PROTOCOL_HELP + " with [camera] and [markers]")
     r.add_argument("--out", required=True, help="output directory")
     r.add_argument("--seed", type=int, default=0, help="noise seed (same seed, same bits)")
     r.add_argument("--codec", choices=["lossless", "raw", "mp4"], default="lossless",
@@ -227,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     f = sub.add_parser("fit", help="least-squares fit of angles.csv with the scene's model, against theory")
     f.add_argument("angles", help="angles.csv from 'gyrorig track'")
-    f.add_argument("--protocol", required=True, help="protocol TOML (decides the model)")
+    f.add_argument("--protocol", required=True, help=PROTOCOL_HELP + " (decides the model)")
     f.add_argument("--out", required=True, help="output directory (fit.json, fit.png, fit_residuals.csv)")
     add_fit_options(f)
     f.set_defaults(func="_cmd_fit")
@@ -235,7 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     an = sub.add_parser("analyze", help="track -> smooth -> fit -> report.html; a folder or manifest CSV for a batch")
     an.add_argument("video", help="a video, a folder of videos, or a manifest CSV (video, protocol[, camera])")
     an.add_argument("--camera", default=None, help="camera.json")
-    an.add_argument("--protocol", default=None, help="protocol TOML")
+    an.add_argument("--protocol", default=None, help=PROTOCOL_HELP)
     an.add_argument("--out", required=True, help="output directory")
     add_capture_fps(an)
     add_fit_options(an)
@@ -249,6 +253,10 @@ def build_parser() -> argparse.ArgumentParser:
                      "{ value, sd } for the rest")
     idf.add_argument("--out", required=True, help="output directory (identified.toml, identify.json, identify.png)")
     idf.set_defaults(func="_cmd_identify")
+
+    pr = sub.add_parser("protocols", help="the bundled protocols: names (usable wherever a protocol file is asked "
+                                          "for) and descriptions")
+    pr.set_defaults(func="_cmd_protocols")
 
     d = sub.add_parser("demo", help="the chain on the bundled air-cushion rig: simulate, theory, render, track, smooth, fit, report")
     d.add_argument("--out", default="gyrorig-demo", help="output directory (default ./gyrorig-demo)")

@@ -114,31 +114,7 @@ def print_plan(plan: dict) -> None:
 
 
 def print_fit(fit, out: Path) -> None:
-    print(f"fit: {fit.spec.harmonics} nutation harmonic(s), axis {'fitted' if fit.spec.fit_axis else 'vertical'}, "
-          f"{'damped' if fit.spec.damped else 'undamped'}; chi2_red {fit.chi2_red:.3f}; errors {fit.errors}")
-    for name, q in fit.quantities.items():
-        if q.status != "determined":
-            print(f"  {name}: undetermined ({q.reason})")
-            continue
-        line = f"  {name}: {q.value:.7g} +- {q.standard_error:.2g} {q.units}"
-        if q.camera_standard_error:
-            line += f" (camera model {q.camera_standard_error:.2g} of it)"
-        for kind in ("paper", "exact"):
-            value, diff = getattr(q, kind), getattr(q, f"diff_{kind}_se")
-            if value is None or diff is None:
-                continue
-            psd, comb = getattr(q, f"{kind}_standard_error"), getattr(q, f"diff_{kind}_combined_se")
-            if psd and comb is not None:
-                line += f"; {kind} {value:.6g} +- {psd:.2g} ({comb:+.1f} combined s.e.)"
-            else:
-                line += f"; {kind} {value:.6g} ({diff:+.1f} s.e.)"
-        if q.prediction_share is not None:
-            line += f" [prediction {q.prediction_share:.0%} of the variance]"
-        if q.truth is not None:
-            line += f"; truth {q.truth:.7g} (pull {q.pull:+.2f})"
-        print(line)
-    for n in fit.notes:
-        print(f"  note: {n}")
+    print(fit.report())
     print(f"-> {out / 'fit.json'}, {out / 'fit.png'}, {out / 'fit_residuals.csv'}")
 
 

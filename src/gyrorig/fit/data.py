@@ -171,6 +171,15 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
     sph = a["phi_sigma_rad"].to_numpy(float)
     if not (np.all(np.isfinite(sth)) and np.all(np.isfinite(sph)) and np.all(sth > 0) and np.all(sph > 0)):
         raise FitError("theta_sigma_rad and phi_sigma_rad must be finite and > 0 wherever there are angles")
+    theta = a["theta_rad"].to_numpy(float)
+    outside = np.flatnonzero((theta < -5 * sth) | (theta > math.pi + 5 * sth))
+    if len(outside):
+        i = int(outside[0])
+        degrees = bool(np.all((theta >= -1.0) & (theta <= 181.0)) and np.max(theta) > math.pi)
+        raise FitError(f"theta_rad = {theta[i]:.6g} in row {i + 1} of the measured frames ({len(outside)} rows "
+                       f"outside the range): theta is a tilt from the vertical, allowed [0, pi] rad"
+                       + ("; the column looks like degrees (convert theta, phi and their sigmas with radians())"
+                          if degrees else ""))
     cov = measurement_covariance(sth, sph, a["theta_phi_corr"] if "theta_phi_corr" in a.columns else None)
     t = a["t_s"].to_numpy(float)
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):

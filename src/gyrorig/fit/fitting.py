@@ -9,9 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 
+from .._format import with_error
 from ..protocols import Protocol
+from .checks import check_notes
 from .constraints import Constraints
-from .data import FitData, fit_data_from_angles
+from .data import FitData, FitError, fit_data_from_angles
 from .model import FitModel, Residuals, model_for_scene
 from .quantities import build_quantities, quantity_functions, truth_values
 from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, Note, NoteKind, Reason, Undetermined
@@ -169,6 +171,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         sol = solve(sol.spec, data, FitModel(sol.spec).values(sol.x), near=True)
     if constraints:
         notes.append(_constraint_note(constraints, sol.spec))
+        notes += _prior_conflicts(constraints, sol, data)
     at_pole = _azimuth_undefined(data, sol.spec)
     if at_pole is not None:
         undetermined = {**undetermined, "precession_rate_rad_s": at_pole}
@@ -180,6 +183,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
     notes += error_notes + _record_notes(sol, data, phases, camera_se, check_residuals)
     truth_vals = truth_values(truth, data, sol.spec, sol.x) if truth is not None else {}
     quantities = build_quantities(sol.spec, values, formal, camera_se, undetermined, protocol, prediction, truth_vals)
+    notes += check_notes(sol, data, protocol, quantities)
     residuals, curve = _residual_tables(sol, data)
     names = sol.spec.names()
     params = {n: (float(v), float(np.sqrt(max(sol.cov[i, i], 0.0)))) for i, (n, v) in enumerate(zip(names, sol.x))}
@@ -198,6 +202,40 @@ def _constraint_note(constraints: Constraints, spec) -> Note:
     if unused:
         text += f"; unused, the model has no such parameter: {', '.join(unused)}"
     return Note(NoteKind.CONSTRAINED, text)
+
+
+#: a user's fixed value or prior this many combined standard errors from what the record alone says is a conflict
+PRIOR_CONFLICT_SIGMAS = 3.0
+
+
+def _prior_conflicts(constraints: Constraints, sol: Solution, data: FitData) -> list[Note]:
+    """The record refitted without the user's constraints: each fixed value or prior further than
+    :data:`PRIOR_CONFLICT_SIGMAS` combined standard errors from the record's own estimate is a conflict (a prior
+    that disagrees with the data pulls the result while the chi-square hides it)."""
+    names = sol.spec.names()
+    wanted = [(n, m, 0.0) for n, m in constraints.fixed] + list(constraints.priors)
+    wanted = [w for w in wanted if w[0] in names]
+    if not wanted:
+        return []
+    try:
+        free = solve(sol.spec, replace(data, constraints=Constraints()), FitModel(sol.spec).values(sol.x), near=True)
+    except FitError as exc:
+        return [Note(NoteKind.PRIOR_CONFLICT, f"the constraints could not be checked against the record alone: the "
+                                              f"unconstrained fit failed ({exc})")]
+    scale = math.sqrt(max(1.0, free.chi2 / max(free.dof, 1)))
+    out = []
+    for name, mean, sd in wanted:
+        i = names.index(name)
+        value, se = float(free.x[i]), math.sqrt(max(float(free.cov[i, i]), 0.0)) * scale
+        combined = math.hypot(se, sd)
+        z = (value - mean) / combined if combined > 0 else math.inf
+        if abs(z) > PRIOR_CONFLICT_SIGMAS:
+            given = f"fixed at {mean:.6g}" if sd == 0 else f"given the prior {mean:.6g} +- {sd:.3g}"
+            out.append(Note(NoteKind.PRIOR_CONFLICT,
+                            f"{name} is {given}, but the record alone says {with_error(value, se)}: {z:+.3g} combined "
+                            "standard errors apart; the constrained result mixes two measurements that disagree "
+                            "(check the prior, or leave it out)", term=name))
+    return out
 
 
 #: a tilt below this many of its per-frame errors (medians over the record) leaves the azimuth undefined

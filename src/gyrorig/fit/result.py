@@ -8,12 +8,14 @@ for people).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
 import pandas as pd
 
+from .._format import with_error
 from .constraints import Constraints
 from .spec import FitTerms, ModelSpec
 
@@ -101,6 +103,12 @@ class NoteKind(StrEnum):
     CONSTRAINED = "constrained"
     #: the frames come from an inter-coded video (P, B pictures): its motion compensation can smooth fast motion
     CODEC_SMOOTHING = "codec-smoothing"
+    #: a fixed value or prior far from what the record alone says (the term is the parameter)
+    PRIOR_CONFLICT = "prior-conflict"
+    #: an input value that is allowed but unlikely (a unit slip, :mod:`gyrorig.plausibility`)
+    PLAUSIBILITY = "plausibility"
+    #: the record's geometry disagrees with the protocol's (the launch tilt): a tip marker or pose stated wrong
+    GEOMETRY = "geometry"
 
 
 @dataclass(frozen=True)
@@ -162,9 +170,39 @@ class Quantity:
                 for k, v in ((k, getattr(self, k)) for k in self.__dataclass_fields__)}
 
 
-@dataclass(frozen=True)
+def _quantity_lines(q: Quantity) -> list[str]:
+    """A quantity for :meth:`FitResult.report`: value, error, relative error; theory; truth."""
+    if not q.determined:
+        return [f"    {q.name}: undetermined ({q.reason})"]
+    rel = f" ({abs(q.standard_error / q.value):.2g} relative)" if q.value and q.standard_error else ""
+    out = [f"    {q.name}: {with_error(q.value, q.standard_error)} {q.units}{rel}"]
+    if q.camera_standard_error:
+        out[0] += f"; camera model {q.camera_standard_error:.2g} of the error"
+    for kind in ("exact", "paper"):
+        value = getattr(q, kind)
+        if value is None or not math.isfinite(value):
+            continue
+        psd = getattr(q, f"{kind}_standard_error")
+        line = f"        {kind}: {with_error(value, psd)}" + (f" ({q.exact_source})" if kind == "exact" and
+                                                              q.exact_source else "")
+        if value != 0:
+            line += f"; fit - {kind} {100 * (q.value - value) / abs(value):+.3g} %"
+        diff = getattr(q, f"diff_{kind}_combined_se")
+        if diff is None:
+            diff = getattr(q, f"diff_{kind}_se")
+        if diff is not None:
+            line += f", {diff:+.3g} combined s.e." if psd else f", {diff:+.3g} s.e."
+        out.append(line)
+    if q.note:
+        out.append(f"        ({q.note})")
+    if q.truth is not None:
+        out.append(f"        truth: {q.truth:.8g}" + (f"; pull {q.pull:+.2f}" if q.pull is not None else ""))
+    return out
+
+
+@dataclass(frozen=True, repr=False)
 class FitResult:
-    """Outcome of :func:`gyrorig.fit.fit_angles`."""
+    """Outcome of :func:`gyrorig.fit.fit_angles`.  ``print(result)`` shows :meth:`report`."""
 
     spec: ModelSpec
     params: dict[str, tuple[float, float]]
@@ -231,6 +269,40 @@ class FitResult:
         with np.errstate(divide="ignore", invalid="ignore"):
             corr = self.covariance / np.outer(sd, sd)
         return np.where(np.outer(sd, sd) > 0, corr, np.nan)
+
+    @property
+    def p_value(self) -> float:
+        """The chance of a chi-square this large or larger if the model and the per-frame errors were right."""
+        from scipy.stats import chi2
+
+        return float(chi2.sf(self.chi2, self.dof)) if self.dof > 0 else math.nan
+
+    def report(self) -> str:
+        """The fit for people (in the manner of lmfit's ``fit_report``): the model and its chi-square, each
+        quantity to the digits its standard error resolves, with its relative error, theory beside it (the
+        difference in % and in combined standard errors), the truth and pull of a synthetic run, and the notes."""
+        spec = self.spec
+        lines = ["[[Fit]]",
+                 f"    model: {spec.harmonics} nutation harmonic(s), axis {'fitted' if spec.fit_axis else 'vertical'}, "
+                 f"{'damped' if spec.damped else 'undamped'}, {len(self.params)} parameters",
+                 f"    chi-square: {self.chi2:.5g} for {self.dof} degrees of freedom (reduced {self.chi2_red:.4g}, "
+                 f"p = {self.p_value:.2g})",
+                 f"    errors: {self.errors}",
+                 "[[Quantities]]"]
+        for q in self.quantities.values():
+            lines += _quantity_lines(q)
+        if self.notes:
+            lines.append("[[Notes]]")
+            lines += [f"    - {n.text} [{n.kind}]" for n in self.notes]
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.report()
+
+    def __repr__(self) -> str:
+        names = ", ".join(self.quantities)
+        return (f"<FitResult chi2_red={self.chi2_red:.4g} dof={self.dof} errors={self.error_kind!s} "
+                f"quantities=[{names}] notes={len(self.notes)}>")
 
     def to_frame(self) -> pd.DataFrame:
         """The quantities as a table, one row each (:class:`Quantity`'s fields as columns), indexed by name."""

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from .. import _io
+from .._format import with_error
 from ..fit import FitResult, FitTerms
 from ..protocols import Protocol
 from ..smooth import SmoothResult
@@ -35,10 +36,17 @@ def _fmt(v, digits: int = 6) -> str:
     return html.escape(str(v))
 
 
+def _pm(value, sd) -> str:
+    """A value to the digits its standard error resolves (:func:`gyrorig._format.with_error`), with a ±."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return html.escape(with_error(float(value), sd).replace("+-", "±"))
+
+
 def _value_cell(q) -> str:
     if q.status != "determined":
         return f"<em>undetermined</em><br><small>{html.escape(q.reason)}</small>"
-    cell = f"{_fmt(q.value)} ± {_fmt(q.standard_error, 2)}"
+    cell = _pm(q.value, q.standard_error)
     if q.camera_standard_error:
         cell += f"<br><small>camera model: {_fmt(q.camera_standard_error, 2)} of it</small>"
     return cell
@@ -46,7 +54,7 @@ def _value_cell(q) -> str:
 
 def _predicted_cell(value, sd) -> str:
     """A prediction, with its own standard error when the rig's parameters carry uncertainties."""
-    return _fmt(value) + (f" ± {_fmt(sd, 2)}" if sd else "")
+    return _pm(value, sd) if sd else _fmt(value)
 
 
 def _combined(q, kind: str):
@@ -55,11 +63,16 @@ def _combined(q, kind: str):
     return combined if combined is not None else getattr(q, f"diff_{kind}_se")
 
 
-def _diff_cell(d) -> str:
+def _diff_cell(d, q=None, kind: str = "") -> str:
+    """The difference from a prediction in standard errors, and in % of the prediction where known."""
     if d is None:
         return "–"
     cls = "bad" if abs(d) > 3 else "ok"
-    return f'<span class="{cls}">{d:+.2f}</span>'
+    pct = ""
+    ref = getattr(q, kind, None) if q is not None and kind else None
+    if ref and q.value is not None and math.isfinite(ref):
+        pct = f"{100 * (q.value - ref) / abs(ref):+.3g} %<br>"
+    return f'{pct}<span class="{cls}">{d:+.3g}</span>'
 
 
 def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles: pd.DataFrame,
@@ -71,15 +84,16 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
     has_truth = any(q.truth is not None for q in fit.quantities.values())
     for name, q in fit.quantities.items():
         cells = [f"<code>{name}</code>", html.escape(q.units), _value_cell(q),
-                 _predicted_cell(q.paper, q.paper_standard_error), _diff_cell(_combined(q, "paper")),
-                 _fmt(q.corrected), _predicted_cell(q.exact, q.exact_standard_error), _diff_cell(_combined(q, "exact"))]
+                 _predicted_cell(q.paper, q.paper_standard_error), _diff_cell(_combined(q, "paper"), q, "paper"),
+                 _fmt(q.corrected), _predicted_cell(q.exact, q.exact_standard_error),
+                 _diff_cell(_combined(q, "exact"), q, "exact")]
         if has_truth:
             cells += [_fmt(q.truth), _diff_cell(q.pull)]
         note = q.note or (q.exact_source and f"exact: {q.exact_source}") or ""
         cells.append(f"<small>{html.escape(note)}</small>")
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
-    head = ["quantity", "units", "fitted ± s.e.", "paper", "(fit−paper)/s.e.", "corrected", "exact",
-            "(fit−exact)/s.e."] + (["truth (simulator)", "pull"] if has_truth else []) + ["note"]
+    head = ["quantity", "units", "fitted ± s.e.", "paper", "fit−paper: % and s.e.", "corrected", "exact",
+            "fit−exact: % and s.e."] + (["truth (simulator)", "pull"] if has_truth else []) + ["note"]
     table = ("<table><thead><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr></thead><tbody>"
              + "".join(rows) + "</tbody></table>")
     flags = pred.get("flags", {})

@@ -434,6 +434,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
                        pose_info, camera_sigma, check, times)
 
 
+#: frames slower than this (a frame rate from the frames' own times) are taken as times in ms and warned of [1/s]
+MIN_PLAUSIBLE_FPS = 1.0
 #: the frame rate is checked against camera.json's after this many frames (and again at the end)
 RATE_CHECK_FRAMES = 30
 #: a record whose intervals are this many grid steps or more (all but :data:`RATE_MISMATCH_SHARE` of them) is stored
@@ -480,7 +482,17 @@ def _timing(camera: TrackingCamera, frames, source) -> tuple[TrackingCamera, flo
                                 "frame times to scale")
         return replace(camera, fps=camera.capture_fps), 1.0 / (camera.capture_fps * interval)
     if not math.isfinite(camera.fps):
-        return replace(camera, fps=frames.fps), 1.0
+        fps = frames.fps
+        if not (math.isfinite(fps) and fps > 0):
+            interval = source.frame_interval_s() if hasattr(source, "frame_interval_s") else math.nan
+            if not (math.isfinite(interval) and interval > 0):
+                raise BadInputError(f"{source}: no frame rate: the frames carry no times and camera.json gives no "
+                                    "fps (add fps to camera.json, or a timestamps.csv with frame, t_s)")
+            fps = 1.0 / interval
+        if fps < MIN_PLAUSIBLE_FPS:
+            logger.warning("%s: the frames are %.4g s apart (%.3g fps): frame times in milliseconds where seconds "
+                           "are meant?", source, 1.0 / fps, fps)
+        return replace(camera, fps=fps), 1.0
     return camera, 1.0
 
 
@@ -499,6 +511,10 @@ def check_frame_rate(t_s: np.ndarray, fps: float, source) -> None:
         raise BadInputError(f"{source}: the frames are {float(np.median(dt)) * 1e3:.4g} ms apart (median), "
                             f"{1.0 / float(np.median(dt)):.5g} fps, but camera.json says {fps:g} fps: two frames would "
                             "share one number; give camera.json the video's frame rate")
+    if abs(med / 1000.0 - 1.0) < 0.05:
+        raise BadInputError(f"{source}: the frames are {float(np.median(dt)):.4g} s apart (median), 1000 times "
+                            f"camera.json's frame interval ({1.0 / fps:.4g} s at {fps:g} fps): frame times in "
+                            "milliseconds where seconds are meant (t_s)?")
     wide = steps >= 1.5
     if len(dt) >= 10 and np.mean(wide) >= RATE_MISMATCH_SHARE:
         whole = np.abs(steps - np.round(steps)) < 0.2
