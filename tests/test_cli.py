@@ -191,3 +191,13 @@ def test_sleeping_and_non_spinning_tops_in_theory(tmp_path, capsys):
     assert main(["theory", str(spin0), "--no-simulate"]) == 2
     assert main(["plan", str(spin0), "--draws", "0", "--duration", "1"]) == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_settings_file_larger_than_any_real_one_is_refused(tmp_path, capsys):
+    """A valid protocol padded to 17 MiB with a comment is bad input (read whole before), not parsed."""
+    from gyrorig._io import MAX_SETTINGS_BYTES
+
+    path = tmp_path / "p.toml"
+    path.write_text((PROTOCOL_DIR / "free-top.toml").read_text() + "#" + "x" * (MAX_SETTINGS_BYTES + 2**20) + "\n")
+    assert main(["theory", str(path), "--no-simulate"]) == 2
+    assert "Traceback" not in capsys.readouterr().err

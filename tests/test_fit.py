@@ -495,3 +495,19 @@ def test_a_record_mostly_missing_cannot_count_nutation_cycles():
         assert q.status == "undetermined" and q.reason_kind == "too-few-periods", name
     q = r.quantities["precession_rate_rad_s"]
     assert abs(q.value - exact_solution(p).mean_precession_rate_rad_s) < 4 * q.standard_error
+
+
+def test_a_damped_record_is_compared_with_theory_at_its_own_state():
+    """B2's damped top drifts from its launch tilt: theory at the launch is many standard errors off a record's tilt
+    rate (-58 s.e. on 10 s before), theory from the record's fitted state is not.  Three records, 6 s each: each
+    combined difference within 3.5 (a two-sided 3.5 sd excursion in 6 draws: p = 0.003)."""
+    from gyrorig.pipeline import smooth_and_fit
+
+    p = load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml")
+    for seed in range(3):
+        angles, truth = _noisy(p, 6.0, seed=seed)
+        fit = smooth_and_fit(angles, p).fit
+        for name in ("tilt_growth_rate_per_s", "precession_rate_rad_s"):
+            q = fit.quantities[name]
+            assert q.prediction_at == "record" and q.exact_nominal is not None, name
+            assert abs(q.diff_exact_combined_se) < 3.5, (seed, name, q.diff_exact_combined_se)

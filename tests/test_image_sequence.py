@@ -182,3 +182,31 @@ def test_timestamps_in_milliseconds_are_named(rendered, tmp_path, caplog):
     result = track(folder, _camera_without_fps(out, tmp_path), protocol, frame_dots=False)
     assert result.angles.theta_rad.notna().all()
     assert "WARNING" in {r.levelname for r in caplog.records if r.name == "gyrorig.tracking.tracker"}
+
+
+def test_a_clip_tracks_its_part_of_the_recording_with_the_files_numbers(rendered, tmp_path):
+    """--start/--end: the frames between the ends, numbered and timed as in the whole recording, the same angles
+    within their errors (the tracker acquires the tip afresh at the clip's start)."""
+    from gyrorig.tracking.sources import Clip, Cut
+
+    out, protocol, cam, frames = rendered
+    video = out / "v" / "video.mkv"
+    whole = track(video, cam, protocol, frame_dots=False).angles.set_index("frame")
+    for start, end in ((Cut(0.05), Cut(0.1)), (Cut(10, "f"), Cut(20, "f"))):
+        part = track(Clip(video, start, end), cam, protocol, frame_dots=False).angles.set_index("frame")
+        first, last = 10, 20  # at 200 fps 0.05 s is frame 10 and 0.1 s frame 20
+        assert part.index.tolist() == list(range(first, last + 1))
+        np.testing.assert_allclose(part.t_s, whole.loc[part.index, "t_s"], rtol=0, atol=1e-9)
+        ok = part.theta_rad.notna()
+        dev = (part.theta_rad[ok] - whole.loc[part.index[ok], "theta_rad"]) / part.theta_sigma_rad[ok]
+        assert ok.mean() > 0.9 and np.all(np.abs(dev) < 1.0)
+
+
+@pytest.mark.parametrize("ends", [("0.1", "0.05"), ("abc", None), ("-1", None), ("2.5f", None), ("5", None)])
+def test_bad_clip_ends_are_bad_input(rendered, tmp_path, capsys, ends):
+    out, protocol, cam, frames = rendered
+    argv = ["track", str(out / "v" / "video.mkv"), "--camera", str(out / "v" / "camera.json"), "--protocol",
+            str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out", str(tmp_path / "t"), "--tip-only",
+            "--start", ends[0]] + (["--end", ends[1]] if ends[1] else [])
+    assert main(argv) == 2 and not (tmp_path / "t").exists()
+    assert "Traceback" not in capsys.readouterr().err

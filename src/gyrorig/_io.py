@@ -27,6 +27,23 @@ class OutputExistsError(ValueError):
 
 #: every output folder gyrorig writes holds this file: ``--overwrite`` replaces only such a folder
 OUTPUT_MARKER = ".gyrorig-output"
+#: the largest settings file gyrorig reads (a protocol, camera.json, fit.json: real ones are a few kB) [bytes]
+MAX_SETTINGS_BYTES = 16 * 2**20
+
+
+class InputTooLarge(ValueError):
+    """A settings file far larger than any real one (bad input: its parser would take minutes or all memory)."""
+
+
+def check_settings_size(path: str | Path, what: str) -> None:
+    """Refuse a settings file above :data:`MAX_SETTINGS_BYTES` (:class:`InputTooLarge`, naming it)."""
+    try:
+        size = Path(path).stat().st_size
+    except OSError:
+        return  # the reader says what is wrong with it
+    if size > MAX_SETTINGS_BYTES:
+        raise InputTooLarge(f"{path}: {size / 2**20:.0f} MiB is far larger than any {what} (at most "
+                            f"{MAX_SETTINGS_BYTES // 2**20} MiB read)")
 
 
 def _claim(final: Path, overwrite: bool) -> None:

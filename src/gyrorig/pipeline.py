@@ -10,18 +10,21 @@ these too.  Like pvlib's ``ModelChain``, but a function over frozen results, not
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .fit import Constraints, FitResult, FitTerms, fit_angles
+from .fit import STATE_NAMES, Constraints, FitResult, FitTerms, fit_angles, record_state, state_values
+from .fit.quantities import at_record_state
 from .protocols import Protocol
 from .smooth import SmoothResult, smooth_angles
 from .propagate import predict_with_uncertainty
+from .physics.simulate import simulate
 from .tracking import TrackingCamera, TrackResult, load_camera, track
 
 logger = logging.getLogger(__name__)
@@ -86,7 +89,46 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict
     exclude = (smooth.table["status"] == "outlier").to_numpy()
     fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms,
                      constraints=constraints)
+    fit = _at_record_state(fit, angles, protocol, exclude, prediction)
     return Fitted(smooth, prediction, fit, {"smooth": t1 - t0, "fit": time.perf_counter() - t1})
+
+
+def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, exclude: np.ndarray,
+                     prediction: dict) -> FitResult:
+    """A damped record compared with theory at its own state: the simulator launched from the fitted motion at the
+    record's first frame (tilt, azimuth and their rates; the protocol's spin), over the record's frames, fitted with
+    the same model (:func:`gyrorig.fit.quantities.at_record_state`); the state's uncertainty (from the fit) carried
+    to each prediction by differences over one standard deviation of each state number.  The protocol's launch is
+    not the record's: a damped top drifts, and a recording starts after the release."""
+    if not fit.spec.damped:
+        return fit
+    t0, state, cov = record_state(fit)
+    if not 0.0 < state["tilt_rad"] < math.pi:
+        return fit
+    t = np.unique(fit.residuals.t_s.to_numpy(float)) - t0
+
+    def values(s: dict[str, float]) -> dict[str, float]:
+        launch = replace(protocol.launch, **s)
+        motion = simulate(replace(protocol, launch=launch), t_eval_s=t)
+        return state_values(fit, angles, protocol, motion.assign(t_s=motion.t_s + t0), exclude=exclude,
+                            prediction=prediction)
+
+    try:
+        v0 = values(state)
+        keys = [k for k in v0 if k != "cone_angle_rad"]  # the cone is the state itself, not a prediction
+        jac = np.zeros((len(keys), len(STATE_NAMES)))
+        for j, name in enumerate(STATE_NAMES):
+            step = math.sqrt(max(cov[j, j], 0.0))
+            if step > 0:
+                moved = values({**state, name: state[name] + step})
+                jac[:, j] = [(moved[k] - v0[k]) / step for k in keys]
+    except (ValueError, ArithmeticError, RuntimeError) as exc:  # the launch's comparison stays, and says so
+        logger.warning("no prediction at the record's fitted state: %s", exc)
+        return fit
+    sd = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", jac, cov, jac), 0.0, None))
+    source = (f"simulator from the record's fitted state at t = {t0:.4g} s (tilt {state['tilt_rad']:.5g} rad), "
+              "fitted with the same model")
+    return at_record_state(fit, {k: (v0[k], float(s)) for k, s in zip(keys, sd)}, source)
 
 
 def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,

@@ -524,6 +524,12 @@ def load_protocol(path: str | Path) -> Protocol:
         bundled = BUNDLED_PROTOCOL_DIR / f"{path.stem}.toml"
         if bundled.is_file():  # a bundled protocol named on its own (``gyrorig plan air-cushion-heavy-top``)
             path = bundled
+    from . import _io
+
+    try:
+        _io.check_settings_size(path, "protocol")
+    except _io.InputTooLarge as exc:
+        raise ProtocolError(str(exc)) from None
     try:
         with path.open("rb") as fh:
             data = tomllib.load(fh)

@@ -174,11 +174,14 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
         raise ValueError(f"{args.protocol}: no [camera] section; its position_m and look_at_m give the rough pose the "
                          "fit starts from")
     rvec, tvec = placement_pose(protocol.extra["camera"])
-    pose = pose_from_motion(args.video, replace(cam, rvec=rvec, tvec=tvec), protocol, progress=progress_printer("pose"))
+    from .parser import clipped
+
+    video = clipped(args.video, args)
+    pose = pose_from_motion(video, replace(cam, rvec=rvec, tvec=tvec), protocol, progress=progress_printer("pose"))
     if mark is not None:
         pose = fix_azimuth(pose, cam, mark)
     sd = np.sqrt(np.diag(pose.covariance))
-    print(f"pose from the tip's motion in {args.video}: {pose.frames} frames, chi2_red {pose.chi2_red:.3g}, nutation "
+    print(f"pose from the tip's motion in {video}: {pose.frames} frames, chi2_red {pose.chi2_red:.3g}, nutation "
           f"{pose.nutation_frequency_rad_s:.5g} rad/s; rotation sd {np.degrees(np.linalg.norm(sd[:3])):.3g} deg, "
           f"position sd {np.linalg.norm(sd[3:]) * 1e3:.3g} mm, depth scale sd {pose.depth_scale_sd_rel:.2%}")
     fields = pose.camera_fields(str(args.video))

@@ -22,6 +22,7 @@ from .._validate import number
 from ..protocols import load_protocol, protocol_summary
 from . import EXIT_FAILED, EXIT_OK
 from .camera_commands import _cmd_calibrate, _cmd_pose  # noqa: F401 (dispatched by name)
+from .parser import clipped
 from .printing import print_data, print_fit, print_plan, print_prediction, progress_printer
 
 
@@ -35,6 +36,7 @@ def terms_arg(value: str):
     path = Path(value)
     if not path.is_file():
         raise ValueError(f"--terms: expected 'data' or a plan.json from 'gyrorig plan --out DIR'; {value} is not a file")
+    _io.check_settings_size(path, "plan.json")
     try:
         doc = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
@@ -215,7 +217,18 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
     protocol = load_protocol(args.protocol)
     camera = _with_capture_fps(load_camera(args.camera, require_pose=False), args.capture_fps)
-    summary = track_video(args.video, camera, protocol, args.out, progress=progress_printer("track"),
+    from ..tracking.imported import import_pixel_track, is_pixel_track
+
+    if is_pixel_track(args.video):
+        if args.start is not None or args.end is not None or args.overlay:
+            raise ValueError("--start, --end and --overlay apply to a video, not to a pixel track")
+        summary = import_pixel_track(args.video, camera, protocol, args.out, track_name=args.track_name)
+        print(f"{summary['frames']} positions from {args.video}: {summary['tracked_fraction']:.1%} with angles, "
+              f"{summary['outliers']} outlier(s); errors {summary['sigma_px']:.3g} px ({summary['sigma_source']}) "
+              f"-> {summary['angles']}")
+        return EXIT_OK
+    video = clipped(args.video, args)
+    summary = track_video(video, camera, protocol, args.out, progress=progress_printer("track"),
                           frame_dots=not args.tip_only)
     n = summary["frames"]
     if summary["pose"]:
@@ -247,8 +260,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
         from ..report.overlay import write_overlay
 
-        path = write_overlay(args.video, pd.read_csv(summary["angles"]), pd.read_csv(summary["markers"]),
-                             Path(args.out) / "overlay.png", fps=summary["fps"], title=str(args.video))
+        path = write_overlay(video, pd.read_csv(summary["angles"]), pd.read_csv(summary["markers"]),
+                             Path(args.out) / "overlay.png", fps=summary["fps"], title=str(video))
         print(f"overlay: {path} (the tip as found in chosen frames, with its path and flags)")
     return EXIT_OK
 
@@ -448,6 +461,8 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if (src.is_dir() and not sequence) or src.suffix.lower() == ".csv":
         if constraints:
             raise ValueError("--fix and --prior apply to one video, not to a batch (each run has its own parameters)")
+        if args.start is not None or args.end is not None:
+            raise ValueError("--start and --end apply to one video, not to a batch")
         summary = analyze_batch(src, out, camera=args.camera, protocol=protocol, progress_line=print,
                                 terms=terms_arg(args.terms))
         ok = int((summary.status == "ok").sum())
@@ -464,7 +479,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         from ..tracking import load_camera
 
         camera = _with_capture_fps(load_camera(args.camera, require_pose=False), args.capture_fps)
-    res = analyze_video(src, camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
+    res = analyze_video(clipped(src, args), camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
                         terms=terms_arg(args.terms), constraints=constraints,
                         stage=lambda msg: print(msg, flush=True))
     ts = res["time_s"]

@@ -198,6 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     po.add_argument("--protocol", default=None,
                     help="with --video: the protocol (the tip marker; its [camera] placement is the rough start)")
     add_board_placement_options(po)
+    add_clip_options(po)
     m = po.add_argument_group("azimuth origin of a pose from the motion (default: phi's slow part 0 at the first frame)")
     m.add_argument("--azimuth-mark-px", default=None, metavar="X,Y",
                    help="with --video: a lab mark's position in the video's image [px]; the pose is turned about "
@@ -212,11 +213,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     k = sub.add_parser("track", help="track the markers: video -> angles.csv, markers.csv")
     k.add_argument("video", help="any video OpenCV can decode, or a folder of PNG/TIFF images in name order "
-                                 "(frame times from its timestamps.csv: frame, t_s; else camera.json's fps)")
+                                 "(frame times from its timestamps.csv: frame, t_s; else camera.json's fps), or the "
+                                 "tip's pixel track from another tool: an OSP Tracker .trk, or a CSV with frame, t_s, "
+                                 "x_px, y_px[, sigma_px]")
     k.add_argument("--camera", required=True, help="camera.json with intrinsics and the pose relative to the pivot")
     k.add_argument("--protocol", required=True, help="protocol with the [markers] geometry")
     k.add_argument("--out", required=True, help="output directory")
     add_capture_fps(k)
+    add_clip_options(k)
+    k.add_argument("--track-name", default=None,
+                   help="with a Tracker .trk holding several point masses: the tip's track's name")
     k.add_argument("--tip-only", action="store_true",
                    help="skip the frame's off-axis dots (no psi_rad; about twice as fast)")
     k.add_argument("--overlay", action="store_true",
@@ -242,6 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--protocol", default=None, help=PROTOCOL_HELP)
     an.add_argument("--out", required=True, help="output directory")
     add_capture_fps(an)
+    add_clip_options(an)
     add_fit_options(an)
     an.set_defaults(func="_cmd_analyze")
 
@@ -266,6 +273,26 @@ def build_parser() -> argparse.ArgumentParser:
     cal.set_defaults(out_is_file=True)
     _add_overwrite(sub)
     return p
+
+
+def add_clip_options(parser) -> None:
+    """``--start`` and ``--end``: the part of a recording to use (seconds from its first frame, or frames)."""
+    for name, where in (("--start", "first"), ("--end", "last")):
+        parser.add_argument(name, default=None, metavar="T",
+                            help=f"the {where} moment of the recording to use: seconds from its first frame as a "
+                                 "player shows them (12.5), or a frame counted from 0 (300f); the file's own frame "
+                                 "numbers and times are kept")
+
+
+def clipped(video, args: argparse.Namespace):
+    """The video, or the part of it between ``--start`` and ``--end`` (:class:`gyrorig.tracking.sources.Clip`)."""
+    start, end = getattr(args, "start", None), getattr(args, "end", None)
+    if start is None and end is None:
+        return video
+    from ..tracking.sources import Clip, parse_cut
+
+    return Clip(video, None if start is None else parse_cut(start, "--start"),
+                None if end is None else parse_cut(end, "--end"))
 
 
 def add_capture_fps(parser) -> None:

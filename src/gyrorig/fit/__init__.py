@@ -26,7 +26,7 @@ a number.
 
 from .constraints import Constraints, constrainable_names
 from .data import FIT_REQUIRED, FitConvergenceError, FitData, FitError, fit_data_from_angles
-from .fitting import TERM_CHOICES, fit_angles, linear_response
+from .fitting import STATE_NAMES, TERM_CHOICES, fit_angles, linear_response, record_state, state_values
 from .model import FitModel, Residuals, SceneModel, model_for_scene
 from .result import (NONLINEAR_PHASE_RAD, QUANTITY_UNITS, ErrorKind, FitResult, Note, NoteKind, Quantity,
                      QuantityStatus, Undetermined)
@@ -42,4 +42,4 @@ __all__ = ["Constraints", "constrainable_names", "FitError", "FitConvergenceErro
            "solve", "plan_terms", "phase_uncertainty", "left_out_noncentrality", "linear_response", "score_term",
            "trial_term", "ErrorKind", "Note", "NoteKind", "QuantityStatus", "Undetermined", "OPTIONAL_TERMS",
            "QUANTITY_UNITS", "MAX_HARMONICS", "NONLINEAR_PHASE_RAD", "PLANNED_NONCENTRALITY", "TERM_P_VALUE",
-           "TERM_CHOICES", "FIT_REQUIRED"]
+           "TERM_CHOICES", "FIT_REQUIRED", "record_state", "state_values", "STATE_NAMES"]

@@ -23,7 +23,7 @@ from .spec import FitTerms
 from .terms import BFrameShrink
 from .uncertainty import choose_errors, delta_se, phase_uncertainty, shared_pose_prior_root, statistical_covariance
 
-__all__ = ["fit_angles", "linear_response", "TERM_CHOICES"]
+__all__ = ["fit_angles", "linear_response", "record_state", "state_values", "TERM_CHOICES", "STATE_NAMES"]
 
 TERM_CHOICES = ("data", "noiseless")
 #: above this reduced chi-square the residuals are dominated by a systematic, and the report says so
@@ -278,3 +278,42 @@ def linear_response(angles: pd.DataFrame, fit: FitResult, protocol: Protocol, *,
         return {k: float(fns[k](x)) for k in keys}
 
     return respond
+
+
+#: the record's state at its first frame, in this order (:func:`record_state`)
+STATE_NAMES = ("tilt_rad", "azimuth_rad", "tilt_rate_rad_s", "precession_rate_rad_s")
+
+
+def _state_vector(model: FitModel, x: np.ndarray, t0: float, t_ref: float) -> np.ndarray:
+    h = 1e-4
+    th, ph = model.lab(x, np.array([t0 - h, t0, t0 + h]) - t_ref, np.zeros(3, int))
+    ph = np.unwrap(ph)
+    return np.array([th[1], ph[1], (th[2] - th[0]) / (2 * h), (ph[2] - ph[0]) / (2 * h)])
+
+
+def record_state(fit: FitResult) -> tuple[float, dict[str, float], np.ndarray]:
+    """The fitted motion at the record's first frame: its time [s], the state (:data:`STATE_NAMES`: the model
+    curve and its central differences over 0.1 ms) and the state's covariance (4, 4) from the fit's (scaled by
+    chi2_red when above 1)."""
+    model = FitModel(fit.spec)
+    t0 = float(fit.residuals.t_s.iloc[0])
+    s0 = _state_vector(model, fit.x, t0, fit.t_ref_s)
+    sd = np.sqrt(np.clip(np.diag(fit.covariance), 0.0, None))
+    jac = np.zeros((len(s0), len(fit.x)))
+    for i in np.flatnonzero(sd > 0):
+        step = np.zeros(len(fit.x))
+        step[i] = 1e-3 * sd[i]
+        jac[:, i] = (_state_vector(model, fit.x + step, t0, fit.t_ref_s)
+                     - _state_vector(model, fit.x - step, t0, fit.t_ref_s)) / (2 * step[i])
+    cov = jac @ fit.covariance @ jac.T * max(1.0, fit.chi2_red)
+    return t0, dict(zip(STATE_NAMES, map(float, s0))), cov
+
+
+def state_values(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, motion: pd.DataFrame, *,
+                 exclude: np.ndarray | None = None, prediction: dict | None = None) -> dict[str, float]:
+    """The quantities of ``fit``'s model fitted to a noiseless ``motion`` (``t_s, theta_rad, phi_rad``) at the
+    record's frames with its weights (:func:`gyrorig.fit.quantities.truth_values`): what this estimator gives for
+    that motion."""
+    scene = model_for_scene(protocol, prediction)
+    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, fit.constraints)
+    return truth_values(motion, data, fit.spec, fit.x)

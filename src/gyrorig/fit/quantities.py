@@ -19,10 +19,11 @@ from ..geometry import angles_from_tip, wrap_angle
 from ..protocols import Protocol
 from .constraints import Constraints
 from .data import FitData, FitError
-from .result import QUANTITY_UNITS, Quantity, QuantityStatus, Reason, Undetermined
+from .result import QUANTITY_UNITS, FitResult, Quantity, QuantityStatus, Reason, Undetermined
 from .spec import ModelSpec
 
-__all__ = ["quantity_functions", "nutation_amplitude", "theory_values", "build_quantities", "truth_values"]
+__all__ = ["quantity_functions", "nutation_amplitude", "theory_values", "build_quantities", "truth_values",
+           "at_record_state"]
 
 
 def nutation_amplitude(spec: ModelSpec, names: list[str], x: np.ndarray) -> float:
@@ -120,6 +121,13 @@ def _compare(q: Quantity, theory: dict, comparable: bool, note: str = "") -> Qua
     return replace(q, **upd)
 
 
+#: how the note on a tilt-dependent quantity compared at the launch tilt begins
+_LAUNCH_TILT_NOTE = "theory is for steady precession at the launch tilt"
+#: how the notes on a comparison that is for the launch, not the record, begin
+_LAUNCH_NOTES = (_LAUNCH_TILT_NOTE, "predictions are for the undamped top at the launch tilt",
+                 "prediction is for the undamped launch")
+
+
 def _comparison_note(name: str, spec: ModelSpec, protocol: Protocol, cone_rad: float) -> tuple[bool, str]:
     """Whether the prediction is comparable with the fitted value, and what to say beside it."""
     if name == "nutation_amplitude_rad" and spec.damped:
@@ -131,7 +139,7 @@ def _comparison_note(name: str, spec: ModelSpec, protocol: Protocol, cone_rad: f
     if name in ("tilt_growth_rate_per_s", "tilt_time_constant_s"):
         launch = protocol.launch.tilt_rad
         if abs(cone_rad - launch) > 1e-3:
-            return True, (f"theory is for steady precession at the launch tilt {launch:.4g} rad; the fitted cone is at "
+            return True, (f"{_LAUNCH_TILT_NOTE} {launch:.4g} rad; the fitted cone is at "
                           f"{cone_rad:.4g} rad at t_ref, and the rate depends on the tilt")
         return True, ""
     if name in ("equilibrium_tilt_rad", "equilibrium_azimuth_rad") and spec.damped:
@@ -217,3 +225,33 @@ def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndar
     spec0 = replace(spec, camera_modes=0, b_frames=False)
     sol = solve(spec0, d, dict(zip(spec0.names(), x)))
     return {k: float(f(sol.x)) for k, f in quantity_functions(spec).items()}
+
+
+def at_record_state(fit: FitResult, state_values: dict[str, tuple[float, float]], source: str) -> FitResult:
+    """``fit`` compared with theory at the record's own state: ``state_values`` (quantity -> (value, standard
+    deviation)) are the same model's quantities on the motion theory gives from the record's fitted state
+    (:mod:`gyrorig.pipeline`); each becomes ``exact`` (``exact_source`` = ``source``), the launch's prediction moves
+    to ``exact_nominal``, and the difference is given in combined standard errors (the two errors added in
+    quadrature: they come from the same record and are positively correlated, so this errs on the wide side).  Under
+    damping the launch's prediction is not comparable (the top has drifted).  The paper's values stay."""
+    values = dict(state_values)
+    if "tilt_growth_rate_per_s" in values and values["tilt_growth_rate_per_s"][0]:
+        rate, sd = values["tilt_growth_rate_per_s"]
+        values["tilt_time_constant_s"] = (1.0 / rate, sd / rate**2)
+    quantities = dict(fit.quantities)
+    for name, (exact, sd) in values.items():
+        q = quantities.get(name)
+        if q is None or not q.determined or not math.isfinite(exact):
+            continue
+        kept = [part for part in q.note.split("; ") if part and not part.startswith(_LAUNCH_NOTES)]
+        if q.exact is not None:
+            kept.append(f"theory at the protocol's launch: {q.exact:.6g}")
+        diff = _difference(name, q.value, exact)
+        se = q.standard_error or 0.0
+        quantities[name] = replace(
+            q, exact=exact, exact_source=source, exact_standard_error=sd,
+            diff_exact_se=diff / se if se else None,
+            diff_exact_combined_se=diff / math.hypot(se, sd) if math.hypot(se, sd) > 0 else None,
+            prediction_share=sd**2 / (se**2 + sd**2) if se or sd else None,
+            note="; ".join(kept), prediction_at="record", exact_nominal=q.exact)
+    return replace(fit, quantities=quantities)

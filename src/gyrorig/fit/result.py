@@ -160,6 +160,11 @@ class Quantity:
     diff_exact_combined_se: float | None = None
     #: the prediction's share of that combined variance (0: all measurement, 1: all prediction)
     prediction_share: float | None = None
+    #: where ``exact`` is evaluated: ``"launch"`` (the protocol's launch) or ``"record"`` (the record's own fitted
+    #: state, for a quantity that depends on where a damped top has drifted to; ``exact_nominal`` then holds the
+    #: launch's value)
+    prediction_at: str = "launch"
+    exact_nominal: float | None = None
 
     @property
     def determined(self) -> bool:
@@ -183,8 +188,9 @@ def _quantity_lines(q: Quantity) -> list[str]:
         if value is None or not math.isfinite(value):
             continue
         psd = getattr(q, f"{kind}_standard_error")
-        line = f"        {kind}: {with_error(value, psd)}" + (f" ({q.exact_source})" if kind == "exact" and
-                                                              q.exact_source else "")
+        label = "exact at the record's state" if kind == "exact" and q.prediction_at == "record" else kind
+        line = f"        {label}: {with_error(value, psd)}" + (f" ({q.exact_source})" if kind == "exact" and
+                                                               q.exact_source else "")
         if value != 0:
             line += f"; fit - {kind} {100 * (q.value - value) / abs(value):+.3g} %"
         diff = getattr(q, f"diff_{kind}_combined_se")

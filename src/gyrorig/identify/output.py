@@ -26,7 +26,10 @@ def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observa
     for path in map(Path, inputs):
         if path.suffix.lower() == ".json":
             try:
+                _io.check_settings_size(path, "fit.json")
                 doc = json.loads(path.read_text())
+            except _io.InputTooLarge as exc:
+                raise IdentifyInputError(str(exc)) from None
             except FileNotFoundError:
                 raise IdentifyInputError(f"{path}: no such file") from None
             except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -90,6 +90,8 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
         if has_truth:
             cells += [_fmt(q.truth), _diff_cell(q.pull)]
         note = q.note or (q.exact_source and f"exact: {q.exact_source}") or ""
+        if q.prediction_at == "record" and q.exact_source:
+            note = f"exact: {q.exact_source}; {q.note}" if q.note else f"exact: {q.exact_source}"
         cells.append(f"<small>{html.escape(note)}</small>")
         rows.append("<tr>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     head = ["quantity", "units", "fitted ± s.e.", "paper", "fit−paper: % and s.e.", "corrected", "exact",

@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .. import _io
 from .errors import CameraFileError, TrackingError
 
 __all__ = ["TrackingCamera", "load_camera", "INTRINSIC_PARAMETERS"]
@@ -182,6 +183,10 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
     ``require_pose=False``; :func:`gyrorig.tracking.estimate_pose` then finds it from the fiducials.
     """
     path = Path(path)
+    try:
+        _io.check_settings_size(path, "camera file")
+    except _io.InputTooLarge as exc:
+        raise CameraFileError(str(exc)) from None
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:

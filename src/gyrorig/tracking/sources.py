@@ -31,7 +31,8 @@ import numpy as np
 
 from .errors import BadInputError, TrackingError
 
-__all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "as_source", "fingerprint", "IMAGE_SUFFIXES"]
+__all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "Clip", "Cut", "parse_cut", "as_source", "fingerprint",
+           "IMAGE_SUFFIXES"]
 
 
 #: FFmpeg decoders of codecs that keep every pixel value (anything else changes them: H.264, HEVC, mp4v, MJPEG)
@@ -323,6 +324,93 @@ def fingerprint(video) -> str | None:
     """A digest that recognises a recording again (a copy of it too); None for frames in memory."""
     source = as_source(video)
     return source.fingerprint() if hasattr(source, "fingerprint") else None
+
+
+@dataclass(frozen=True)
+class Cut:
+    """One end of a clip: a time in the file [s] (``unit = "s"``) or a frame's place in it (``"f"``, 0 = first)."""
+
+    value: float
+    unit: str = "s"
+
+    def __str__(self) -> str:
+        return f"{self.value:g} s" if self.unit == "s" else f"frame {int(self.value)}"
+
+
+def parse_cut(text: str, option: str = "--start") -> Cut:
+    """``"12.5"`` or ``"12.5s"`` (seconds from the file's first frame, as a player shows them) or ``"300f"`` (the
+    300th frame, counting from 0) -> :class:`Cut`; a :class:`BadInputError` naming the option otherwise."""
+    t = str(text).strip().lower()
+    unit = "f" if t.endswith("f") else "s"
+    number = t[:-1] if t.endswith(("f", "s")) else t
+    try:
+        value = float(number)
+    except ValueError:
+        raise BadInputError(f"{option} {text!r}: expected seconds (12.5) or a frame (300f)") from None
+    if not math.isfinite(value) or value < 0 or (unit == "f" and value != int(value)):
+        raise BadInputError(f"{option} {text!r}: allowed: seconds >= 0, or a whole frame number >= 0 with f")
+    return Cut(value, unit)
+
+
+class Clip:
+    """The part of a source between two :class:`Cut` s (either may be None: the start or end of the source).
+
+    Frames outside are decoded and passed over (a file's own frame numbers and times are kept, so a clip's angle
+    table lines up with the whole recording's); the same recording as its source (:meth:`fingerprint`)."""
+
+    def __init__(self, source, start: Cut | None = None, end: Cut | None = None):
+        self.source = as_source(source)
+        self.start, self.end = start, end
+        if start is not None and end is not None and start.unit == end.unit and end.value <= start.value:
+            raise BadInputError(f"--end ({end}) must come after --start ({start})")
+
+    def __str__(self) -> str:
+        return f"{self.source} [{self.start or 'start'} to {self.end or 'end'}]"
+
+    def fingerprint(self):
+        return self.source.fingerprint()
+
+    def frame_interval_s(self) -> float:
+        return self.source.frame_interval_s() if hasattr(self.source, "frame_interval_s") else math.nan
+
+    def _inside(self, cut: Cut, k: int, t: float, t0: float, fps: float, after: bool) -> bool:
+        if cut.unit == "f":
+            return k >= cut.value if after else k <= cut.value
+        if not math.isfinite(t):
+            if not (math.isfinite(fps) and fps > 0):
+                raise BadInputError(f"{self.source}: its frames carry no times and no rate: give the clip's ends "
+                                    "as frames (300f)")
+            t, t0 = k / fps, 0.0
+        rel = t - t0
+        slack = 1e-6  # a container's rounding of the cut's own frame
+        return rel >= cut.value - slack if after else rel <= cut.value + slack
+
+    def open(self, *, colour: bool = False) -> Frames:
+        inner = self.source.open(colour=colour)
+        types: list[str] | None = [] if inner.frame_types is not None else None
+
+        def items():
+            t0 = math.nan
+            kept = 0
+            try:
+                for k, (image, t) in enumerate(inner):
+                    if not math.isfinite(t0) and math.isfinite(t):
+                        t0 = t
+                    if self.end is not None and not self._inside(self.end, k, t, t0, inner.fps, after=False):
+                        break
+                    if self.start is not None and not self._inside(self.start, k, t, t0, inner.fps, after=True):
+                        continue
+                    if types is not None:
+                        types.append(inner.frame_types[k] if k < len(inner.frame_types) else "")
+                    kept += 1
+                    yield image, t
+            finally:
+                inner.close()
+            if not kept:
+                raise BadInputError(f"{self}: no frame lies between the clip's ends")
+
+        return Frames(inner.width_px, inner.height_px, inner.fps, 0, items(), lossy=inner.lossy,
+                      bit_depth=inner.bit_depth, frame_types=types)
 
 
 def as_source(video) -> VideoFile | ImageFolder | FrameArrays:

@@ -1,0 +1,157 @@
+"""Pixel tracks from other tools (issue 31): OSP Tracker .trk files and CSV tables become angle tables through the
+camera model, with errors from the track's own scatter where none are given.
+
+Pixels come from projecting the simulator's tip through the bundled camera (plus Gaussian noise of known sigma), or
+from gyrorig's own tracking of a rendered clip; never from the formulas being tested.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import PROTOCOL_DIR
+from gyrorig.cli import main
+from gyrorig.fit import fit_angles
+from gyrorig.physics.simulate import simulate
+from gyrorig.protocols import load_protocol
+from gyrorig.theory import predict
+from gyrorig.tracking import BadInputError, track
+from gyrorig.tracking.imported import angles_from_pixel_track, read_pixel_track
+from test_image_sequence import rendered  # noqa: F401 (the rendered clip, a fixture)
+from test_plausibility import _camera
+
+HEAVY = PROTOCOL_DIR / "air-cushion-heavy-top.toml"
+
+
+def _pixels(protocol, sigma_px: float, seed: int, duration_s: float = 2.0, rate_hz: float = 100.0):
+    truth = simulate(protocol, duration_s=duration_s, rate_hz=rate_hz)
+    length = float(protocol.extra["markers"]["tip"]["position_m"][2])
+    th, ph = truth.theta_rad.to_numpy(), truth.phi_rad.to_numpy()
+    tips = length * np.column_stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)])
+    cam = _camera(protocol)
+    px = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
+    px = px + sigma_px * np.random.default_rng(seed).normal(size=px.shape)
+    table = pd.DataFrame({"frame": np.arange(len(px)), "t_s": truth.t_s, "x_px": px[:, 0], "y_px": px[:, 1]})
+    return table, truth, cam
+
+
+def _write_trk(path, table: pd.DataFrame, dt_ms: float, name: str = "tip", extra_mass: str | None = None):
+    """A Tracker project as Tracker saves one: a clip control's frame duration, the axes, point masses whose marks
+    are image positions indexed by frame."""
+    def mass(label, rows):
+        marks = "".join(
+            f'<property name="[{int(r.frame)}]" type="object"><object class="org.opensourcephysics.cabrillo.tracker.'
+            f'PointMass$FrameData"><property name="x" type="double">{r.x_px!r}</property>'
+            f'<property name="y" type="double">{r.y_px!r}</property></object></property>' for r in rows.itertuples())
+        return ('<property name="item" type="object"><object class="org.opensourcephysics.cabrillo.tracker.PointMass">'
+                f'<property name="name" type="string">{label}</property><property name="mass" type="double">1.0'
+                '</property><property name="framedata" type="array" class="[Lorg.opensourcephysics.cabrillo.tracker.'
+                f'PointMass$FrameData;">{marks}</property></object></property>')
+
+    masses = mass(name, table) + (mass(extra_mass, table.iloc[:3]) if extra_mass else "")
+    path.write_text(
+        '<?xml version="1.0" encoding="UTF-8"?>\n<object class="org.opensourcephysics.cabrillo.tracker.TrackerPanel">'
+        '<property name="videoclip" type="object"><object class="org.opensourcephysics.media.core.VideoClip">'
+        '<property name="startframe" type="int">0</property><property name="stepsize" type="int">1</property>'
+        '</object></property><property name="clipcontrol" type="object"><object class="org.opensourcephysics.media.'
+        f'core.VideoClipControl"><property name="delta_t" type="double">{dt_ms!r}</property></object></property>'
+        '<property name="tracks" type="collection" class="java.util.ArrayList"><property name="item" type="object">'
+        '<object class="org.opensourcephysics.cabrillo.tracker.CoordAxes"><property name="name" type="string">axes'
+        f'</property></object></property>{masses}</property></object>\n')
+    return path
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_errors_from_the_scatter_are_the_pixel_noise(seed):
+    """Without stated errors the track's scatter gives them: 0.3 px noise on 2 x 201 coordinates is found to
+    1/sqrt(2 N) = 5 % (4 of those: 20 %), and the fit from the imported angles recovers the truth (pulls within 4)."""
+    p = load_protocol(HEAVY)
+    table, truth, cam = _pixels(p, 0.3, seed)
+    angles, summary = angles_from_pixel_track(table.assign(sigma_px=np.nan), cam, p)
+    assert summary["sigma_px"] == pytest.approx(0.3, rel=0.2)
+    fit = fit_angles(angles, p, prediction=predict(p, simulate_damping=False),
+                     truth=truth[["t_s", "theta_rad", "phi_rad"]])
+    for name, q in fit.quantities.items():
+        assert abs(q.pull) < 4.0, (name, q.pull)
+
+
+def test_a_tracker_file_gives_the_angles_of_the_same_csv(tmp_path):
+    p = load_protocol(HEAVY)
+    table, truth, cam = _pixels(p, 0.3, 0, duration_s=1.0)
+    table.to_csv(tmp_path / "tip.csv", index=False)
+    _write_trk(tmp_path / "tip.trk", table, dt_ms=10.0, extra_mass="crossbar")
+    from_csv = angles_from_pixel_track(read_pixel_track(tmp_path / "tip.csv"), cam, p)[0]
+    with pytest.raises(BadInputError):  # two point masses: which is the tip's must be said
+        read_pixel_track(tmp_path / "tip.trk")
+    from_trk = angles_from_pixel_track(read_pixel_track(tmp_path / "tip.trk", track_name="tip"), cam, p)[0]
+    for col in ("frame", "t_s", "theta_rad", "phi_rad", "theta_sigma_rad"):
+        np.testing.assert_allclose(from_trk[col], from_csv[col], rtol=0, atol=1e-9, err_msg=col)
+
+
+def test_gyrorigs_own_pixels_imported_give_its_own_angles(rendered, tmp_path):  # noqa: F811
+    """The tracker's tip positions and errors (markers.csv), imported as a CSV pixel track, give the tracker's angles:
+    the import's geometry is the tracker's."""
+    out, protocol, cam, frames = rendered
+    result = track(out / "v" / "video.mkv", cam, protocol, frame_dots=False)
+    tip = result.markers[(result.markers.marker == "tip") & result.markers.x_px.notna()]
+    start = tip.t_s - cam.exposure_s / 2
+    table = pd.DataFrame({"frame": tip.frame, "t_s": start, "x_px": tip.x_px, "y_px": tip.y_px,
+                          "sigma_x_px": tip.sigma_x_px, "sigma_y_px": tip.sigma_y_px})
+    table.to_csv(tmp_path / "px.csv", index=False)
+    angles = angles_from_pixel_track(read_pixel_track(tmp_path / "px.csv"), result.camera, protocol)[0]
+    own = result.angles.set_index("frame").loc[angles.frame]
+    ok = angles.theta_rad.notna().to_numpy() & own.theta_rad.notna().to_numpy()
+    assert ok.mean() > 0.9
+    # the same ray geometry: equal to rounding where the errors are isotropic enough to share one sigma per axis
+    np.testing.assert_allclose(angles.theta_rad[ok], own.theta_rad[ok], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(angles.phi_rad[ok], own.phi_rad[ok], rtol=0, atol=1e-9)
+
+
+def test_track_imports_a_tracker_file_from_the_command_line(tmp_path, capsys):
+    p = load_protocol(HEAVY)
+    table, truth, cam = _pixels(p, 0.3, 1, duration_s=1.0)
+    _write_trk(tmp_path / "take.trk", table, dt_ms=10.0)
+    camera = {"camera_matrix": cam.camera_matrix.tolist(), "dist_coeffs": cam.dist_coeffs.tolist(),
+              "rvec": cam.rvec.ravel().tolist(), "tvec": cam.tvec.ravel().tolist(),
+              "image_size": [cam.width_px, cam.height_px], "fps": 100.0}
+    (tmp_path / "camera.json").write_text(json.dumps(camera))
+    argv = ["track", str(tmp_path / "take.trk"), "--camera", str(tmp_path / "camera.json"), "--protocol", str(HEAVY),
+            "--out", str(tmp_path / "t")]
+    assert main(argv) == 0
+    angles = pd.read_csv(tmp_path / "t" / "angles.csv")
+    assert len(angles) == len(table) and angles.theta_rad.notna().mean() > 0.99
+    summary = json.loads((tmp_path / "t" / "track.json").read_text())
+    assert summary["sigma_px"] == pytest.approx(0.3, rel=0.25) and math.isfinite(summary["sigma_check"]["factor"])
+
+
+@pytest.mark.parametrize("kind", ["no-columns", "text", "reversed", "xml-entity", "no-mass", "not-xml"])
+def test_bad_pixel_tracks_are_bad_input(tmp_path, kind):
+    p = load_protocol(HEAVY)
+    table, truth, cam = _pixels(p, 0.3, 0, duration_s=0.3)
+    if kind in ("no-columns", "text", "reversed"):
+        path = tmp_path / "px.csv"
+        t = table.copy()
+        if kind == "no-columns":
+            t = t.drop(columns=["y_px"])
+        elif kind == "text":
+            t["x_px"] = t.x_px.astype(object)
+            t.loc[3, "x_px"] = "abc"
+        else:
+            t = t.iloc[::-1]
+        t.to_csv(path, index=False)
+    else:
+        path = tmp_path / "px.trk"
+        if kind == "xml-entity":
+            path.write_text('<?xml version="1.0"?><!DOCTYPE x [<!ENTITY a "b">]><object>&a;</object>')
+        elif kind == "no-mass":
+            path.write_text('<object class="org.opensourcephysics.cabrillo.tracker.TrackerPanel"></object>')
+        else:
+            path.write_text("not xml at all <")
+    with pytest.raises(BadInputError):
+        angles_from_pixel_track(read_pixel_track(path), cam, p)
