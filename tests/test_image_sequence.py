@@ -210,3 +210,16 @@ def test_bad_clip_ends_are_bad_input(rendered, tmp_path, capsys, ends):
             "--start", ends[0]] + (["--end", ends[1]] if ends[1] else [])
     assert main(argv) == 2 and not (tmp_path / "t").exists()
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_camera_file_without_exposure_takes_the_protocols(rendered, tmp_path):
+    """A calibration's camera.json records no exposure: the protocol's [camera] exposure_s is used (mid-exposure
+    times, the fit's exposure average) instead of 0."""
+    out, protocol, cam, frames = rendered
+    d = json.loads((out / "v" / "camera.json").read_text())
+    d.pop("exposure_s")
+    (tmp_path / "camera.json").write_text(json.dumps(d))
+    result = track(out / "v" / "video.mkv", load_camera(tmp_path / "camera.json"), protocol, frame_dots=False)
+    stated = protocol.extra["camera"]["exposure_s"]
+    assert result.camera.exposure_s == stated
+    np.testing.assert_allclose(result.angles.t_s - result.angles.frame / cam.fps, stated / 2, rtol=0, atol=1e-12)

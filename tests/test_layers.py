@@ -162,3 +162,11 @@ def test_every_package_is_installed():
     listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {".".join(p.parent.relative_to(root / "src").parts) for p in (root / "src" / "gyrorig").rglob("__init__.py")}
     assert found | {"gyrorig.bundled_protocols"} == listed
+
+
+def test_the_command_lines_modules_do_not_import_their_package():
+    """cli/__init__.py runs the commands; the modules it dispatches to import nothing back from it (no cycle
+    hidden behind a package edge)."""
+    for f in (SRC / "cli").glob("*.py"):
+        if f.name != "__init__.py":
+            assert "gyrorig.cli" not in _imports(f, "gyrorig.cli"), f.name

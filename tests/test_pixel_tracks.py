@@ -155,3 +155,47 @@ def test_bad_pixel_tracks_are_bad_input(tmp_path, kind):
             path.write_text("not xml at all <")
     with pytest.raises(BadInputError):
         angles_from_pixel_track(read_pixel_track(path), cam, p)
+
+
+def _datasheet_fit(tmp_path, p, seed: int, rel_off: float, sigma_px: float = 0.1):
+    """The fit of simulated pixels (through the true camera) analysed with a data-sheet camera whose focal length is
+    ``rel_off`` off the true one and stated with a 5 % sd (the principal point exact, the pose true)."""
+    from gyrorig.tracking import load_camera
+
+    table, truth, cam = _pixels(p, sigma_px, seed, duration_s=1.0)
+    f = float(cam.camera_matrix[0, 0]) * (1 + rel_off)
+    doc = {"focal_length_px": {"value": f, "sd": 0.05 * f}, "image_size": [cam.width_px, cam.height_px],
+           "principal_point_px": {"value": cam.camera_matrix[:2, 2].tolist(), "sd": 0.0},
+           "dist_coeffs": cam.dist_coeffs.tolist(), "rvec": cam.rvec.ravel().tolist(),
+           "tvec": cam.tvec.ravel().tolist(), "fps": 100.0}
+    (tmp_path / "camera.json").write_text(json.dumps(doc))
+    camera = load_camera(tmp_path / "camera.json")
+    angles, _ = angles_from_pixel_track(table.assign(sigma_px=sigma_px), camera, p)
+    return camera, angles, fit_angles(angles, p, truth=truth[["t_s", "theta_rad", "phi_rad"]])
+
+
+def test_a_data_sheet_focal_length_enters_as_the_camera_models_uncertainty(tmp_path):
+    """camera.json without a calibration: the focal length {value, sd} becomes the camera matrix and an intrinsics
+    covariance over fx, fy (one focal length: fully correlated); the precession rate, which a camera above the
+    pivot sees without the focal length, keeps its statistical error."""
+    p = load_protocol(HEAVY)
+    camera, angles, fit = _datasheet_fit(tmp_path, p, 0, -0.03)
+    f = camera.camera_matrix[0, 0]
+    assert camera.intrinsics_parameters[:2] == ("fx", "fy")
+    np.testing.assert_allclose(camera.intrinsics_covariance[:2, :2], (0.05 * f) ** 2 * np.ones((2, 2)), rtol=1e-12)
+    assert "theta_cam_1_rad" in angles.columns
+    q = fit.quantities["precession_rate_rad_s"]
+    assert q.camera_standard_error < 0.01 * q.standard_error and abs(q.pull) < 4
+
+
+@pytest.mark.xfail(strict=True, reason="a 5 % focal length is beyond the camera modes' linear reach on a precise "
+                   "record: the fit reads the focal length from the nutation's shape through linearised modes and "
+                   "misreads it (cone pulls up to 8); see docs/methods.md, Pixel tracks")
+def test_a_data_sheet_focal_length_known_to_5_percent_is_covered_by_the_error_bars(tmp_path):
+    """The truth within 3 of the fit's errors for the cone angle and the nutation amplitude, for focal lengths
+    1 and 4.5 % off (0.2 and 0.9 of the stated sd)."""
+    p = load_protocol(HEAVY)
+    for rel_off in (0.01, -0.045):
+        fit = _datasheet_fit(tmp_path, p, 1, rel_off)[2]
+        for name in ("cone_angle_rad", "nutation_amplitude_rad"):
+            assert abs(fit.quantities[name].pull) < 3, (rel_off, name, fit.quantities[name].pull)

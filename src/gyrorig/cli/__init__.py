@@ -18,10 +18,8 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
+from .codes import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
 from .parser import build_parser
-
-#: exit codes: success, bad input, a failed computation, interrupted (Ctrl-C)
-EXIT_OK, EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED = 0, 2, 3, 130
 
 __all__ = ["main", "build_parser", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_INTERRUPTED"]
 

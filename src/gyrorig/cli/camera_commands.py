@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import _io
 from .._validate import number
-from . import EXIT_FAILED, EXIT_OK
+from .codes import EXIT_FAILED, EXIT_OK
 
 
 def _board_size(args: argparse.Namespace) -> tuple[int, int, float]:

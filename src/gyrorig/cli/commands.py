@@ -20,7 +20,7 @@ from ..physics.exact import ExactSolutionError
 from ..physics.simulate import output_times
 from .._validate import number
 from ..protocols import load_protocol, protocol_summary
-from . import EXIT_FAILED, EXIT_OK
+from .codes import EXIT_FAILED, EXIT_OK
 from .camera_commands import _cmd_calibrate, _cmd_pose  # noqa: F401 (dispatched by name)
 from .parser import clipped
 from .printing import print_data, print_fit, print_plan, print_prediction, progress_printer

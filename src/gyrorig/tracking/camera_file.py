@@ -176,6 +176,73 @@ def _check_camera_values(path: Path, d: dict) -> None:
         _scalar(path, "sensor.gamma", sensor["gamma"], 0.1, hi=10.0)
 
 
+#: the principal point's standard deviation, as a fraction of the image width, when a data-sheet camera states none
+#: (a phone's or webcam's lens is centred on its sensor to about 1 % of the width; twice that to be safe)
+PRINCIPAL_POINT_SD_FRACTION = 0.02
+
+
+def _value_sd(path: Path, key: str, value, lo: float = 0.0) -> tuple[float, float]:
+    """A number, or ``{ "value": v, "sd": s }`` -> (v, s); the file and key named when wrong."""
+    if isinstance(value, dict):
+        extra = sorted(set(value) - {"value", "sd"})
+        if extra or "value" not in value or "sd" not in value:
+            raise CameraFileError(f"{path}: {key} = {value!r}: a number with an uncertainty is "
+                                  '{"value": ..., "sd": ...}')
+        return (_scalar(path, f"{key}.value", value["value"], lo, lo_open=True),
+                _scalar(path, f"{key}.sd", value["sd"], 0.0))
+    return _scalar(path, key, value, lo, lo_open=True), 0.0
+
+
+def datasheet_intrinsics(path: Path, d: dict) -> dict:
+    """camera.json without a calibration: the intrinsics from the lens's focal length and the sensor's width (a data
+    sheet: ``focal_length_mm`` and ``sensor_width_mm``, the width the video's ``image_size[0]`` pixels span) or the
+    focal length in pixels (``focal_length_px``), each a number or ``{"value", "sd"}``; the principal point
+    ``principal_point_px`` ([x, y], or ``{"value": [x, y], "sd": s}``; default the image centre with
+    :data:`PRINCIPAL_POINT_SD_FRACTION` of the width); ``dist_coeffs`` default 0.  Returns ``d`` with
+    ``camera_matrix``, ``dist_coeffs`` and ``intrinsics_covariance`` over fx, fy (one focal length: fully
+    correlated), cx, cy, and ``intrinsics_source``; ``d`` as it is when it has a ``camera_matrix``."""
+    if "camera_matrix" in d or not ({"focal_length_px", "focal_length_mm"} & set(d)):
+        return d
+    size = d.get("image_size")
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        raise CameraFileError(f"{path}: image_size = {size!r}: expected [width, height], positive integers (the "
+                              "focal length in pixels needs it)")
+    w, h = size
+    if "focal_length_px" in d:
+        if "focal_length_mm" in d:
+            raise CameraFileError(f"{path}: give focal_length_px or focal_length_mm (with sensor_width_mm), not both")
+        f, f_sd = _value_sd(path, "focal_length_px", d["focal_length_px"])
+        source = "focal_length_px"
+    else:
+        if "sensor_width_mm" not in d:
+            raise CameraFileError(f"{path}: focal_length_mm needs sensor_width_mm (the width the video's "
+                                  f"{w} pixels span on the sensor), or give focal_length_px")
+        f_mm, f_mm_sd = _value_sd(path, "focal_length_mm", d["focal_length_mm"])
+        s_mm, s_mm_sd = _value_sd(path, "sensor_width_mm", d["sensor_width_mm"])
+        f = f_mm * w / s_mm
+        f_sd = f * math.hypot(f_mm_sd / f_mm, s_mm_sd / s_mm)
+        source = "focal_length_mm and sensor_width_mm"
+    pp = d.get("principal_point_px")
+    if pp is None:
+        c, c_sd = np.array([(w - 1) / 2.0, (h - 1) / 2.0]), PRINCIPAL_POINT_SD_FRACTION * w
+    elif isinstance(pp, dict):
+        if sorted(pp) != ["sd", "value"]:
+            raise CameraFileError(f"{path}: principal_point_px = {pp!r}: expected [x, y] or "
+                                  '{"value": [x, y], "sd": s}')
+        c = _array(path, "principal_point_px.value", pp["value"], (2,))
+        c_sd = _scalar(path, "principal_point_px.sd", pp["sd"], 0.0)
+    else:
+        c, c_sd = _array(path, "principal_point_px", pp, (2,)), 0.0
+    out = {**d, "camera_matrix": [[f, 0.0, float(c[0])], [0.0, f, float(c[1])], [0.0, 0.0, 1.0]],
+           "dist_coeffs": d.get("dist_coeffs", [0.0] * 5), "intrinsics_source": source}
+    if "intrinsics_covariance" not in d and (f_sd > 0 or c_sd > 0):
+        out["intrinsics_parameters"] = ["fx", "fy", "cx", "cy"]
+        out["intrinsics_covariance"] = [[f_sd**2, f_sd**2, 0.0, 0.0], [f_sd**2, f_sd**2, 0.0, 0.0],
+                                        [0.0, 0.0, c_sd**2, 0.0], [0.0, 0.0, 0.0, c_sd**2]]
+    return out
+
+
 def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamera:
     """Read ``camera.json`` (as written by ``gyrorig render``, or by ``gyrorig calibrate``).
 
@@ -193,9 +260,12 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         raise CameraFileError(f"cannot read camera file {path}: {exc}") from exc
     if not isinstance(d, dict):
         raise CameraFileError(f"{path}: expected a JSON object with camera_matrix, dist_coeffs, image_size")
+    d = datasheet_intrinsics(path, d)
     missing = [k for k in ("camera_matrix", "dist_coeffs", "image_size") if k not in d]
     if missing:
-        raise CameraFileError(f"{path}: missing key(s) {', '.join(missing)}")
+        raise CameraFileError(f"{path}: missing key(s) {', '.join(missing)} (or, without a calibration, the focal "
+                              "length: focal_length_mm with sensor_width_mm, or focal_length_px, each a number or "
+                              '{"value", "sd"})')
     if ("rvec" not in d or "tvec" not in d) and require_pose:
         raise CameraFileError(f"{path}: no camera pose (rvec, tvec) relative to the pivot; "
                               "the tracker needs it to turn pixels into directions")

@@ -354,6 +354,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     pose_info = None
     if not camera.has_pose:
         camera, pose_info = estimate_pose(source, camera, protocol)
+    camera = _protocol_exposure(camera, protocol)
     with source.open(colour=tip.colour != "any") as frames:
         camera, time_scale = _timing(camera, frames, source)
         if frames.bit_depth is not None and frames.bit_depth < 16 and (1 << frames.bit_depth) - 1 != camera.max_adu:
@@ -469,6 +470,20 @@ class _FrameClock:
         if abs(t - index / self.fps) <= TIME_SNAP_FRAMES / self.fps:
             t = index / self.fps
         return index, t
+
+
+def _protocol_exposure(camera: TrackingCamera, protocol: Protocol) -> TrackingCamera:
+    """The camera with the protocol's ``[camera] exposure_s`` when camera.json has none (a calibration's file
+    records no exposure; 0 is no exposure at all, which no camera has): the frames' mid-exposure times and the
+    fit's average over the exposure need it."""
+    if camera.exposure_s > 0:
+        return camera
+    stated = protocol.extra.get("camera", {}).get("exposure_s") if isinstance(protocol.extra.get("camera"), dict) \
+        else None
+    if isinstance(stated, (int, float)) and not isinstance(stated, bool) and 0 < stated <= 10.0:
+        logger.info("camera.json states no exposure: the protocol's [camera] exposure_s = %g s is used", stated)
+        return replace(camera, exposure_s=float(stated))
+    return camera
 
 
 def _timing(camera: TrackingCamera, frames, source) -> tuple[TrackingCamera, float]:
