@@ -223,3 +223,25 @@ def test_a_camera_file_without_exposure_takes_the_protocols(rendered, tmp_path):
     stated = protocol.extra["camera"]["exposure_s"]
     assert result.camera.exposure_s == stated
     np.testing.assert_allclose(result.angles.t_s - result.angles.frame / cam.fps, stated / 2, rtol=0, atol=1e-12)
+
+
+def test_a_track_call_parses_the_markers_once(rendered, monkeypatch):
+    """One track() call parses the protocol's [markers] once (three times before: the tip, the follower's fiducials,
+    the frame's dots; the pose from the fiducials takes the same parse)."""
+    import gyrorig.markers
+    import gyrorig.tracking.pose
+    import gyrorig.tracking.tracker
+
+    out, protocol, cam, frames = rendered
+    calls = []
+    real = gyrorig.markers.parse_markers
+
+    def counting(source):
+        calls.append(source)
+        return real(source)
+
+    for module in (gyrorig.tracking.tracker, gyrorig.tracking.pose):
+        monkeypatch.setattr(module, "parse_markers", counting)
+    result = track(out / "v" / "video.mkv", cam, protocol)
+    assert result.angles.theta_rad.notna().any()
+    assert len(calls) == 1

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ..geometry import angles_from_tip, wrap_angle
-from ..markers import parse_markers
+from ..markers import MarkerSet, parse_markers
 from ..protocols import Protocol
 from .camera_file import TrackingCamera
 from .detect import find_blobs
@@ -102,7 +102,8 @@ def _best_assignment(spots, names: list[str], obj_all: np.ndarray, camera: Track
 
 
 def estimate_pose(video, camera: TrackingCamera, protocol: Protocol, *, span_s: float = 2.0,
-                  samples: int = 15, max_rms_px: float = 1.0) -> tuple[TrackingCamera, dict]:
+                  samples: int = 15, max_rms_px: float = 1.0, markers: MarkerSet | None = None
+                  ) -> tuple[TrackingCamera, dict]:
     """Camera pose relative to the pivot from the protocol's lab-fixed fiducials.
 
     The per-pixel median of frames spread over the first ``span_s`` seconds keeps what
@@ -115,10 +116,11 @@ def estimate_pose(video, camera: TrackingCamera, protocol: Protocol, *, span_s: 
     least 4 fiducials visible; their layout must have no rotational symmetry (else the
     azimuth is ambiguous), which the bundled protocols' irregular circle satisfies.
 
-    ``video`` is a path or a frame source (:mod:`gyrorig.tracking.sources`).  Returns the
-    camera with its pose and a summary (matched fiducials, RMS error in px).
+    ``video`` is a path or a frame source (:mod:`gyrorig.tracking.sources`); ``markers``: the protocol's, parsed
+    already.  Returns the camera with its pose and a summary (matched fiducials, RMS error in px).
     """
-    fid = {m.name: np.asarray(m.position_m, dtype=float) for m in parse_markers(protocol).fiducials()}
+    markers = markers if markers is not None else parse_markers(protocol)
+    fid = {m.name: np.asarray(m.position_m, dtype=float) for m in markers.fiducials()}
     if len(fid) < 4:
         raise TrackingError(f"the camera file has no pose and the protocol has {len(fid)} lab-fixed fiducial(s) "
                             "(body = 'lab'); at least 4 are needed to find the pose")

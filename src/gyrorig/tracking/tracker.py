@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from .. import _io
-from ..markers import Marker, parse_markers
+from ..markers import Marker, MarkerSet, parse_markers
 from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count, camera_mode_prior_column
 from .camera_file import TrackingCamera
@@ -120,11 +120,14 @@ class TrackResult:
                 "frame_times": self.frame_times}
 
 
-def tip_marker(protocol: Protocol) -> Marker:
-    """The protocol's tip marker: named ``tip``, on the frame, on the axis above the pivot."""
-    if "markers" not in protocol.extra:
-        raise ProtocolError(f"{protocol.name}: tracking needs a [markers] section with the tip marker")
-    tip = parse_markers(protocol).tip()
+def tip_marker(protocol: Protocol, markers: MarkerSet | None = None) -> Marker:
+    """The protocol's tip marker (from ``markers``, the protocol's parsed once, when given): named ``tip``, on the
+    frame, on the axis above the pivot."""
+    if markers is None:
+        if "markers" not in protocol.extra:
+            raise ProtocolError(f"{protocol.name}: tracking needs a [markers] section with the tip marker")
+        markers = parse_markers(protocol)
+    tip = markers.tip()
     x, y, z = tip.position_m
     if abs(x) > 1e-9 or abs(y) > 1e-9 or z <= 0:
         raise ProtocolError(f"markers.tip.position_m = {list(tip.position_m)!r}: the tip must be on the axis, above "
@@ -323,9 +326,9 @@ def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera
     return [float("nan"), float("nan")]
 
 
-def _follower(camera: TrackingCamera, tip: Marker, protocol: Protocol, source) -> TipFollower:
+def _follower(camera: TrackingCamera, tip: Marker, markers: MarkerSet, source) -> TipFollower:
     """The tip's follower, refusing a tip that would fill the image (:data:`MAX_TIP_IMAGE_FRACTION`)."""
-    follower = TipFollower(camera, tip, parse_markers(protocol).fiducials())
+    follower = TipFollower(camera, tip, markers.fiducials())
     if not follower.r_expected < MAX_TIP_IMAGE_FRACTION * min(camera.width_px, camera.height_px):
         raise BadInputError(f"{source}: with this camera the tip (markers.{tip.name}.radius_m = {tip.radius_m:g}) would "
                             f"appear {2 * follower.r_expected:.0f} px wide in a {camera.width_px} x {camera.height_px} "
@@ -349,11 +352,14 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     Raises :class:`TrackingError` for an unreadable video, a camera that does not match the
     video, or a tip that is never found.
     """
-    tip = tip_marker(protocol)
+    if "markers" not in protocol.extra:
+        raise ProtocolError(f"{protocol.name}: tracking needs a [markers] section with the tip marker")
+    markers = parse_markers(protocol)  # once per call
+    tip = tip_marker(protocol, markers)
     source = as_source(video)
     pose_info = None
     if not camera.has_pose:
-        camera, pose_info = estimate_pose(source, camera, protocol)
+        camera, pose_info = estimate_pose(source, camera, protocol, markers=markers)
     camera = _protocol_exposure(camera, protocol)
     with source.open(colour=tip.colour != "any") as frames:
         camera, time_scale = _timing(camera, frames, source)
@@ -369,8 +375,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         if (lossy or not appearance.keeps_sensor_model) and camera.sensor_known:
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = replace(camera, gain_e_per_adu=math.nan)
-        follower = _follower(camera, tip, protocol, source)
-        dot_markers = parse_markers(protocol).frame_dots() if frame_dots else ()
+        follower = _follower(camera, tip, markers, source)
+        dot_markers = markers.frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
         scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
