@@ -188,9 +188,10 @@ def test_a_data_sheet_focal_length_enters_as_the_camera_models_uncertainty(tmp_p
     assert q.camera_standard_error < 0.01 * q.standard_error and abs(q.pull) < 4
 
 
-@pytest.mark.xfail(strict=True, reason="a 5 % focal length is beyond the camera modes' linear reach on a precise "
-                   "record: the fit reads the focal length from the nutation's shape through linearised modes and "
-                   "misreads it (cone pulls up to 8); see docs/methods.md, Pixel tracks")
+@pytest.mark.xfail(strict=True, reason="with the pose held, a 5 % focal length is beyond the camera modes' linear "
+                   "reach on a precise record: the fit reads the focal length from the nutation's shape through "
+                   "linearised modes and misreads it (cone pulls up to 8); pose --video fits it with the pose instead "
+                   "(tests/test_pose.py); see docs/methods.md")
 def test_a_data_sheet_focal_length_known_to_5_percent_is_covered_by_the_error_bars(tmp_path):
     """The truth within 3 of the fit's errors for the cone angle and the nutation amplitude, for focal lengths
     1 and 4.5 % off (0.2 and 0.9 of the stated sd)."""

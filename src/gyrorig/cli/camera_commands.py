@@ -179,11 +179,16 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
     video = clipped(args.video, args)
     pose = pose_from_motion(video, replace(cam, rvec=rvec, tvec=tvec), protocol, progress=progress_printer("pose"))
     if mark is not None:
-        pose = fix_azimuth(pose, cam, mark)
+        fitted = cam if pose.camera_matrix is None else replace(cam, camera_matrix=pose.camera_matrix)
+        pose = fix_azimuth(pose, fitted, mark)
     sd = np.sqrt(np.diag(pose.covariance))
     print(f"pose from the tip's motion in {video}: {pose.frames} frames, chi2_red {pose.chi2_red:.3g}, nutation "
           f"{pose.nutation_frequency_rad_s:.5g} rad/s; rotation sd {np.degrees(np.linalg.norm(sd[:3])):.3g} deg, "
           f"position sd {np.linalg.norm(sd[3:]) * 1e3:.3g} mm, depth scale sd {pose.depth_scale_sd_rel:.2%}")
+    if pose.focal_scale_sd > 0:
+        print(f"focal length fitted with the pose: {pose.camera_matrix[0, 0]:.1f} px, {100 * pose.focal_scale:+.2f} % "
+              f"+- {100 * pose.focal_scale_sd:.2f} % from camera.json's (its sd "
+              f"{100 * float(np.sqrt(cam.intrinsics_covariance[0, 0])) / cam.camera_matrix[0, 0]:.2g} %)")
     fields = pose.camera_fields(str(args.video))
     print(f"azimuth origin: {fields['pose_source']['azimuth_origin']}")
     if pose.azimuth_mark is not None:

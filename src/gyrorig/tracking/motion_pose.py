@@ -79,6 +79,13 @@ class MotionPose:
     video_fingerprint: str | None = None
     #: how the azimuth origin was fixed by a lab mark (:func:`fix_azimuth`); None: phi's slow part 0 at the first frame
     azimuth_mark: dict | None = None
+    #: the focal length fitted with the pose, relative to the starting one (f = f0 (1 + scale)), and its sd; sd 0:
+    #: the focal length was held (a calibration, or no uncertainty stated)
+    focal_scale: float = 0.0
+    focal_scale_sd: float = 0.0
+    #: with the focal length fitted: the camera matrix and the intrinsics' covariance it gives (else None)
+    camera_matrix: np.ndarray | None = None
+    intrinsics: tuple[tuple[str, ...], np.ndarray] | None = None
 
     def camera_fields(self, video: str) -> dict:
         """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose).
@@ -88,7 +95,14 @@ class MotionPose:
         covariance only what the frames do not hold themselves (the same tip positions gave it; see
         :func:`gyrorig.fit.uncertainty.shared_pose_prior_root`)."""
         sd = np.sqrt(np.diag(self.covariance))
-        return {"rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(), "pose_covariance": self.covariance.tolist(),
+        focal, intrinsics = {}, {}
+        if self.focal_scale_sd > 0:
+            focal = {"focal_scale": self.focal_scale, "focal_scale_sd": self.focal_scale_sd}
+        if self.camera_matrix is not None and self.intrinsics is not None:
+            intrinsics = {"camera_matrix": self.camera_matrix.tolist(), "intrinsics_parameters": list(self.intrinsics[0]),
+                          "intrinsics_covariance": self.intrinsics[1].tolist()}
+        return {**intrinsics, "rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(),
+                "pose_covariance": self.covariance.tolist(),
                 "pose_source": {
                     "method": "the tip's motion", "video": video, "frames": self.frames, "chi2_red": self.chi2_red,
                     "sigma_rvec_rad": sd[:3].tolist(), "sigma_tvec_m": sd[3:].tolist(),
@@ -98,6 +112,7 @@ class MotionPose:
                                        "phi's slow (precession) part is 0 at the first tracked frame"),
                     **({"azimuth_mark": self.azimuth_mark} if self.azimuth_mark else {}),
                     **({"video_fingerprint": self.video_fingerprint} if self.video_fingerprint else {}),
+                    **focal,
                     "assumes": "a fixed pivot; the slow motion a precession about the vertical at a steady rate "
                                + ("with tilt and rate drifting linearly (damped scene)" if self.slow_terms
                                   else "and a constant slow tilt (undamped scene)")}}
@@ -106,12 +121,15 @@ class MotionPose:
 class _Model:
     """Pixels of the tip for the pose and motion parameters (see the module's notes)."""
 
-    def __init__(self, t_s: np.ndarray, camera: TrackingCamera, length_m: float, slow_terms: bool, harmonics: int):
+    def __init__(self, t_s: np.ndarray, camera: TrackingCamera, length_m: float, slow_terms: bool, harmonics: int,
+                 focal: bool = False):
         self.t = t_s - t_s[0]
         self.cam = camera
         self.length_m = length_m
         self.slow = slow_terms
         self.k = harmonics
+        #: the last parameter scales the focal length (f = f0 (1 + p[-1]))
+        self.focal = focal
 
     def split(self, p: np.ndarray):
         rvec, tvec = p[:3], p[3:6]
@@ -142,7 +160,12 @@ class _Model:
         theta, phi = self.angles(p)
         st = np.sin(theta)
         tip = self.length_m * np.column_stack([st * np.sin(phi), -st * np.cos(phi), np.cos(theta)])
-        return cv2.projectPoints(tip, p[:3], p[3:6], self.cam.camera_matrix, self.cam.dist_coeffs)[0].reshape(-1, 2)
+        k = self.cam.camera_matrix
+        if self.focal:
+            k = k.copy()
+            k[0, 0] *= 1.0 + p[-1]
+            k[1, 1] *= 1.0 + p[-1]
+        return cv2.projectPoints(tip, p[:3], p[3:6], k, self.cam.dist_coeffs)[0].reshape(-1, 2)
 
 
 def nutation_frequency(t_s: np.ndarray, xy_px: np.ndarray) -> float:
@@ -176,12 +199,14 @@ def _start_motion(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w: float, s
 
 
 def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, start: TrackingCamera,
-                      length_m: float, *, slow_terms: bool = False, harmonics: int = HARMONICS) -> MotionPose:
+                      length_m: float, *, slow_terms: bool = False, harmonics: int = HARMONICS,
+                      focal_sd_rel: float = 0.0) -> MotionPose:
     """The pose fitted jointly with the motion model to the tip's pixels (see the module's notes).
 
     ``sigma_px``: (n, 2) per-frame standard deviations of x and y.  ``start`` holds the intrinsics and
-    a starting pose.  Raises :class:`TrackingError` when fewer than :data:`MIN_FRAMES` frames are given,
-    the rays from the starting pose miss the tip's sphere, or the fit does not converge."""
+    a starting pose.  ``focal_sd_rel`` > 0: the focal length is fitted too, with a Gaussian prior of that relative
+    sd about the starting one (a data sheet's).  Raises :class:`TrackingError` when fewer than :data:`MIN_FRAMES`
+    frames are given, the rays from the starting pose miss the tip's sphere, or the fit does not converge."""
     t = np.asarray(t_s, float)
     xy = np.asarray(xy_px, float).reshape(-1, 2)
     sig = np.asarray(sigma_px, float).reshape(-1, 2)
@@ -197,11 +222,13 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
     motion, phi0 = _start_motion(t[hit], theta[hit], phi[hit], nutation_frequency(t, xy), slow_terms, harmonics)
     # the gauge: turn the starting pose about the vertical so that phi's slow part starts at 0
     rot = cv2.Rodrigues(start.rvec)[0] @ _rot_z(phi0)
-    p0 = np.concatenate([cv2.Rodrigues(rot)[0].ravel(), start.tvec, motion])
-    model = _Model(t, start, length_m, slow_terms, harmonics)
+    focal = focal_sd_rel > 0
+    p0 = np.concatenate([cv2.Rodrigues(rot)[0].ravel(), start.tvec, motion] + ([[0.0]] if focal else []))
+    model = _Model(t, start, length_m, slow_terms, harmonics, focal)
 
     def resid(p):
-        return ((model.pixels(p) - xy) / sig).ravel()
+        r = ((model.pixels(p) - xy) / sig).ravel()
+        return np.append(r, p[-1] / focal_sd_rel) if focal else r
 
     sol = least_squares(resid, p0, method="lm", x_scale="jac", max_nfev=4000)
     if not sol.success or not np.all(np.isfinite(sol.x)):
@@ -210,7 +237,7 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
         raise TrackingError(f"the pose from the motion put the camera {np.linalg.norm(sol.x[3:6]) * 1e3:.4g} mm from the "
                             f"pivot (the tip is {length_m * 1e3:.4g} mm from it): not a pose of this rig; the motion does "
                             "not fix the pose (use a board at a known place or lab fiducials)")
-    dof = max(2 * len(t) - len(sol.x), 1)
+    dof = max(2 * len(t) - len(sol.x) + (1 if focal else 0), 1)
     chi2 = float(sol.fun @ sol.fun)
     chi2_red = chi2 / dof
     cov = np.linalg.pinv(sol.jac.T @ sol.jac, hermitian=True) * max(1.0, chi2_red)
@@ -219,7 +246,9 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
     depth_sd = float(np.sqrt(sol.x[3:6] @ cov_pose[3:, 3:] @ sol.x[3:6])) / dist / dist
     depth_sd = max(depth_sd, _profile_depth_sd(resid, sol.x, chi2, max(1.0, chi2_red)))
     return MotionPose(sol.x[:3].copy(), sol.x[3:6].copy(), cov_pose, chi2_red, len(t),
-                      float(abs(model.split(sol.x)[4])), slow_terms, depth_sd)
+                      float(abs(model.split(sol.x)[4])), slow_terms, depth_sd,
+                      focal_scale=float(sol.x[-1]) if focal else 0.0,
+                      focal_scale_sd=float(np.sqrt(max(cov[-1, -1], 0.0))) if focal else 0.0)
 
 
 def _profile_depth_sd(resid, x: np.ndarray, chi2: float, scale: float) -> float:
@@ -261,13 +290,16 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
     tip = tip_marker(protocol)
     video = as_source(video)
     camera = replace(start, pose_covariance=None, pose_points=None, pose_recording=None)
+    focal_sd_rel = _focal_sd_rel(start)
     for _ in range(2):  # the second pass tracks with the pose found: frames the rough pose lost come back
         result = track(video, camera, protocol, progress=progress, frame_dots=False)
         m = result.markers
         rows = m[(m.marker == tip.name) & m.frame.isin(result.angles.frame[result.angles.theta_rad.notna()])]
+        # the focal length's prior is the starting camera's (a data sheet's), whatever the tracking pass used
+        fit_start = replace(result.camera, camera_matrix=start.camera_matrix)
         pose = fit_pose_to_track(rows.t_s.to_numpy(), rows[["x_px", "y_px"]].to_numpy(),
-                                 rows[["sigma_x_px", "sigma_y_px"]].to_numpy(), result.camera, float(tip.position_m[2]),
-                                 slow_terms=protocol.is_damped)
+                                 rows[["sigma_x_px", "sigma_y_px"]].to_numpy(), fit_start, float(tip.position_m[2]),
+                                 slow_terms=protocol.is_damped, focal_sd_rel=focal_sd_rel)
         if pose.depth_scale_sd_rel > MAX_DEPTH_SCALE_SD_REL:  # before tracking again with a pose that may be far off
             raise TrackingError(
                 f"the tip's motion fixes the camera's distance only to {pose.depth_scale_sd_rel:.1%} (limit "
@@ -275,7 +307,43 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
                 "the nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a "
                 "known place or lab fiducials")
         camera = replace(camera, rvec=pose.rvec, tvec=pose.tvec)
+        if focal_sd_rel > 0:  # the next pass tracks at the focal length found
+            camera = _with_focal(replace(camera, camera_matrix=start.camera_matrix), pose.focal_scale)
+            pose = _with_fitted_intrinsics(pose, camera, start)
     return replace(pose, video_fingerprint=fingerprint(video))
+
+
+def _focal_sd_rel(camera: TrackingCamera) -> float:
+    """The focal length's relative sd from the camera's intrinsics covariance (0 when it states none)."""
+    names = camera.intrinsics_parameters
+    if camera.intrinsics_covariance is None or "fx" not in names:
+        return 0.0
+    i = names.index("fx")
+    return math.sqrt(max(float(camera.intrinsics_covariance[i, i]), 0.0)) / float(camera.camera_matrix[0, 0])
+
+
+def _with_focal(camera: TrackingCamera, scale: float) -> TrackingCamera:
+    k = camera.camera_matrix.copy()
+    k[0, 0] *= 1.0 + scale
+    k[1, 1] *= 1.0 + scale
+    return replace(camera, camera_matrix=k)
+
+
+def _with_fitted_intrinsics(pose: MotionPose, camera: TrackingCamera, start: TrackingCamera) -> MotionPose:
+    """The pose with the camera matrix at the fitted focal length and the intrinsics' covariance with the focal
+    length's posterior sd (fx and fy one focal length; the other intrinsics' rows as they were)."""
+    names = start.intrinsics_parameters
+    cov = np.array(start.intrinsics_covariance, float)
+    f = float(camera.camera_matrix[0, 0])
+    sd = f * pose.focal_scale_sd
+    fi = [names.index(n) for n in ("fx", "fy") if n in names]
+    for a in fi:
+        cov[a, :] = 0.0
+        cov[:, a] = 0.0
+    for a in fi:
+        for b in fi:
+            cov[a, b] = sd * sd
+    return replace(pose, camera_matrix=camera.camera_matrix, intrinsics=(tuple(names), cov))
 
 
 @dataclass(frozen=True)

@@ -120,6 +120,13 @@ class TrackResult:
                 "frame_times": self.frame_times}
 
 
+def _markers_and_tip(protocol: Protocol) -> tuple[MarkerSet, Marker]:
+    if "markers" not in protocol.extra:
+        raise ProtocolError(f"{protocol.name}: tracking needs a [markers] section with the tip marker")
+    markers = parse_markers(protocol)
+    return markers, tip_marker(protocol, markers)
+
+
 def tip_marker(protocol: Protocol, markers: MarkerSet | None = None) -> Marker:
     """The protocol's tip marker (from ``markers``, the protocol's parsed once, when given): named ``tip``, on the
     frame, on the axis above the pivot."""
@@ -352,10 +359,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     Raises :class:`TrackingError` for an unreadable video, a camera that does not match the
     video, or a tip that is never found.
     """
-    if "markers" not in protocol.extra:
-        raise ProtocolError(f"{protocol.name}: tracking needs a [markers] section with the tip marker")
-    markers = parse_markers(protocol)  # once per call
-    tip = tip_marker(protocol, markers)
+    markers, tip = _markers_and_tip(protocol)  # parsed once per call
     source = as_source(video)
     pose_info = None
     if not camera.has_pose:
