@@ -83,3 +83,16 @@ def test_fit_monte_carlo_runs_the_chain_and_summarises(tmp_path, capsys):
         combine_fit_runs([tmp_path / "b0", tmp_path / "b0" / "runs.csv"])
     with pytest.raises(ValueError, match="no runs.csv"):
         combine_fit_runs([tmp_path / "nowhere"])
+
+
+@pytest.mark.slow
+def test_the_data_sheet_run_finds_the_focal_length_and_keeps_its_pulls():
+    """bench fit --datasheet-focal-sd: one run without calibration or fiducials; the focal length found is within 3
+    of its sd of the truth, and the quantities' pulls within 3."""
+    from gyrorig.montecarlo import DataSheet, fit_monte_carlo_run
+
+    rows = fit_monte_carlo_run("air-cushion-heavy-top", 4, 2.0, datasheet=DataSheet())
+    assert rows[0]["error"] == "", rows[0]["error"]
+    assert abs(rows[0]["focal_found_rel"]) < 3 * rows[0]["focal_found_sd_rel"]
+    for row in rows:
+        assert abs(row["pull"]) < 3, (row["quantity"], row["pull"])

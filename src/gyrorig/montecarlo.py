@@ -10,12 +10,14 @@ the comparison.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import tempfile
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +33,7 @@ from .render.phone import PhoneStyle, render_phone_video
 from .tables import tip_truth
 from .theory import predict
 
-__all__ = ["FIT_MC_SCENES", "RUN_COLUMNS", "fit_monte_carlo_run", "fit_monte_carlo", "combine_fit_runs",
+__all__ = ["FIT_MC_SCENES", "RUN_COLUMNS", "DataSheet", "fit_monte_carlo_run", "fit_monte_carlo", "combine_fit_runs",
            "summarize_fit_monte_carlo", "monte_carlo_check", "scene_protocol"]
 
 FIT_MC_SCENES = ("air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-pivot")
@@ -41,6 +43,49 @@ RUN_COLUMNS = ("scene", "seed", "duration_s", "quantity", "status", "value", "st
                "added_terms", "refused_terms", "wall_s", "error")
 
 
+@dataclass(frozen=True)
+class DataSheet:
+    """A user without calibration or fiducials: the camera moved off the vertical (the motion then fixes its
+    distance), a camera.json with only a data sheet's focal length (drawn ``focal_sd_rel`` off the true one, stated
+    with that sd) and the placement measured to ``placement_sd_m`` per coordinate; the pose and the focal length come
+    from ``pose --video`` (:func:`gyrorig.tracking.motion_pose.pose_from_motion`)."""
+
+    focal_sd_rel: float = 0.05
+    placement_sd_m: float = 0.03
+    camera_position_m: tuple[float, float, float] = (0.0, -0.2, 0.75)
+
+    def scene(self, p: Protocol) -> Protocol:
+        """The protocol with its camera at :attr:`camera_position_m`, looking at the pivot, z up in the image."""
+        cam = {**p.extra["camera"], "position_m": list(self.camera_position_m), "look_at_m": [0.0, 0.0, 0.0],
+               "up_hint": [0.0, 0.0, 1.0]}
+        return replace(p, extra={**p.extra, "camera": cam})
+
+    def posed_camera(self, video, camera_json: str | Path, protocol: Protocol, seed: int, out: str | Path) -> dict:
+        """Write the data-sheet camera.json and the posed one (``out``); returns what was drawn and found."""
+        from .camera import placement_pose
+        from .tracking import load_camera
+        from .tracking.motion_pose import pose_from_motion
+
+        rng = np.random.default_rng([seed, 20261126])
+        d = json.loads(Path(camera_json).read_text())
+        off = self.focal_sd_rel * rng.normal()
+        f = d["camera_matrix"][0][0] * (1.0 + off)
+        sheet = {k: v for k, v in d.items() if k not in ("rvec", "tvec", "camera_matrix", "pose_covariance",
+                                                         "pose_points", "intrinsics_covariance",
+                                                         "intrinsics_parameters")}
+        sheet["focal_length_px"] = {"value": f, "sd": self.focal_sd_rel * f}
+        sheet_path = Path(out).with_name("sheet.json")
+        sheet_path.write_text(json.dumps(sheet))
+        rough = np.asarray(self.camera_position_m) + self.placement_sd_m * rng.normal(size=3)
+        rvec, tvec = placement_pose({"position_m": rough.tolist(), "look_at_m": [0.0, 0.0, 0.0],
+                                     "up_hint": [0.0, 0.0, 1.0]})
+        cam = load_camera(sheet_path, require_pose=False)
+        pose = pose_from_motion(video, replace(cam, rvec=rvec, tvec=tvec), protocol)
+        Path(out).write_text(json.dumps({**sheet, **pose.camera_fields(str(video))}))
+        return {"focal_off_rel": off, "focal_found_rel": (1 + off) * (1 + pose.focal_scale) - 1,
+                "focal_found_sd_rel": pose.focal_scale_sd}
+
+
 def scene_protocol(scene: str | Protocol) -> Protocol:
     """A bundled protocol by name (``protocols/NAME.toml``), or the protocol given."""
     return scene if isinstance(scene, Protocol) else load_protocol(BUNDLED_PROTOCOL_DIR / f"{scene}.toml")
@@ -48,12 +93,14 @@ def scene_protocol(scene: str | Protocol) -> Protocol:
 
 def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
                         camera_size: tuple[int, int] | None = (640, 480), prediction: dict | None = None,
-                        terms="planned", phone: PhoneStyle | None = None) -> list[dict]:
+                        terms="planned", phone: PhoneStyle | None = None,
+                        datasheet: DataSheet | None = None) -> list[dict]:
     """One run of the full chain (render -> track -> smooth -> fit) with the truth unseen.
 
     ``phone``: the video is recorded as a phone would (:func:`gyrorig.render.phone.render_phone_video`: in front of
     a photograph, gamma, a lossy codec, jittered times and dropped frames, a camera file without sensor numbers)
-    instead of through the sensor model.
+    instead of through the sensor model.  ``datasheet``: no calibration and no fiducials (:class:`DataSheet`): the
+    camera off the vertical, the pose and focal length from the tip's motion.
 
     Returns one row per fitted quantity (:data:`RUN_COLUMNS`): value, standard error, the truth
     (the same model fitted to the simulator's noiseless angles), pull.  A failure is returned as a
@@ -63,6 +110,9 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
     scene = p.name
     if camera_size is not None:
         p = with_image_size(p, *camera_size)
+    if datasheet is not None:
+        p = datasheet.scene(p)
+    drawn: dict = {}
     if prediction is None:
         prediction = predict(p, simulate_damping=False)
     start = time.perf_counter()
@@ -75,7 +125,11 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
             else:
                 video = render_phone_video(p, f"{tmp}/v", style=phone, seed=seed, duration_s=duration_s)["video"]
             truth = tip_truth(pd.read_csv(f"{tmp}/v/truth.csv"))
-            res = analyze(video, f"{tmp}/v/camera.json", p, truth=truth, prediction=prediction,
+            camera = f"{tmp}/v/camera.json"
+            if datasheet is not None:
+                drawn = datasheet.posed_camera(video, camera, p, seed, f"{tmp}/posed.json")
+                camera = f"{tmp}/posed.json"
+            res = analyze(video, camera, p, truth=truth, prediction=prediction,
                           terms=terms, rng=np.random.default_rng(seed))
     except Exception as exc:  # reported in the table, not hidden
         return [{"scene": scene, "seed": seed, "duration_s": duration_s, "error": f"{type(exc).__name__}: {exc}"}]
@@ -85,7 +139,7 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
              "truth": q.truth, "pull": q.pull, "chi2_red": fit.chi2_red, "errors": fit.errors,
              "error_kind": str(fit.error_kind), "harmonics": fit.spec.harmonics, "terms": fit.terms.describe(),
              "added_terms": ",".join(fit.terms_beyond_plan), "refused_terms": ",".join(fit.terms_not_identifiable),
-             "wall_s": time.perf_counter() - start, "error": ""}
+             "wall_s": time.perf_counter() - start, "error": "", **drawn}
             for name, q in fit.quantities.items()]
 
 
@@ -134,7 +188,8 @@ def _run_jobs(jobs, submit, completed, progress) -> list[dict]:
 def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: int = 40, duration_s: float = 2.0,
                     workers: int | None = None, progress=None, scheduler: str | None = None,
                     camera_size: tuple[int, int] | None = (640, 480), first_seed: int = 0,
-                    terms: str = "planned", phone: PhoneStyle | None = None) -> pd.DataFrame:
+                    terms: str = "planned", phone: PhoneStyle | None = None,
+                    datasheet: DataSheet | None = None) -> pd.DataFrame:
     """The fit benchmark: many seeds per scene, in parallel; one row per quantity and run.
 
     Runs in local processes, or on a Dask cluster when ``scheduler`` is its address
@@ -151,7 +206,7 @@ def fit_monte_carlo(scenes: Sequence[str | Protocol] = FIT_MC_SCENES, *, seeds: 
                  for p, pr in zip(protos, preds)]
     else:
         plans = [terms] * len(protos)
-    jobs = [(protos[i], seed, duration_s, camera_size, preds[i], plans[i], phone)
+    jobs = [(protos[i], seed, duration_s, camera_size, preds[i], plans[i], phone, datasheet)
             for i in range(len(protos)) for seed in range(first_seed, first_seed + seeds)]
     if scheduler is not None:
         try:

@@ -316,11 +316,26 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
 
             phone = PhoneStyle(photo=args.phone)
             phone.check()
+        datasheet = None
+        if args.datasheet_focal_sd is not None:
+            from ..montecarlo import DataSheet
+
+            number("", "--datasheet-focal-sd", args.datasheet_focal_sd, lo=0.0, lo_open=True, hi=0.5)
+            datasheet = DataSheet(focal_sd_rel=args.datasheet_focal_sd)
         runs = fit_monte_carlo(scenes, seeds=seeds, duration_s=args.duration, workers=args.workers,
                                progress=progress_printer("runs"), first_seed=args.first_seed, terms=args.terms,
-                               phone=phone)
+                               phone=phone, datasheet=datasheet)
         table = summarize_fit_monte_carlo(runs)
         how = f"recorded like a phone in front of {args.phone}" if phone else "through the sensor model"
+        if datasheet is not None:
+            how += (f"; no calibration, no fiducials: camera at {list(datasheet.camera_position_m)} m, focal length "
+                    f"drawn and stated +- {datasheet.focal_sd_rel:.0%}, placement +- {datasheet.placement_sd_m:g} m, "
+                    "pose and focal length from the motion")
+            if "focal_found_rel" in runs:
+                found = runs.drop_duplicates(["scene", "seed"]).dropna(subset=["focal_found_rel"])
+                z = found.focal_found_rel / found.focal_found_sd_rel
+                print(f"focal length found: error / sd over {len(found)} runs: mean {z.mean():+.2f}, sd "
+                      f"{z.std(ddof=1):.2f}; found to {100 * found.focal_found_sd_rel.median():.2g} % (median)")
         print(f"{len(scenes)} scene(s) x {seeds} seeds (from {args.first_seed}), {args.duration:g} s of 640x480 "
               f"video each ({how}), model terms {args.terms}, {time.perf_counter() - start:.0f} s")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))

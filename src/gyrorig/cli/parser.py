@@ -129,6 +129,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="record each video as a phone would, in front of this scikit-image photograph (coffee, "
                          "brick, astronaut, camera, rocket, gravel, chelsea): gamma 2.2, HEVC, jittered times, "
                          "dropped frames, no sensor numbers (needs scikit-image)")
+    bf.add_argument("--datasheet-focal-sd", type=float, default=None, metavar="REL",
+                    help="no calibration and no fiducials: the camera 0.2 m off the vertical, its focal length drawn "
+                         "and stated with this relative sd (0.05: a data sheet's 5 %%), the placement known to 3 cm; "
+                         "the pose and the focal length from the tip's motion (pose --video)")
     bf.add_argument("--out", default=None, help="also write runs.csv and fit.csv here")
     bf.add_argument("--combine", nargs="+", default=None, metavar="DIR",
                     help="run nothing: summarise the runs.csv of earlier --out batches together "
