@@ -89,6 +89,8 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict
     exclude = (smooth.table["status"] == "outlier").to_numpy()
     fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms,
                      constraints=constraints)
+    if fit.spec.damped:
+        say("theory at the record's own state (the simulator from its fitted first frame) ...")
     fit = _at_record_state(fit, angles, protocol, exclude, prediction)
     return Fitted(smooth, prediction, fit, {"smooth": t1 - t0, "fit": time.perf_counter() - t1})
 
