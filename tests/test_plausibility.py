@@ -148,7 +148,7 @@ def test_angles_in_degrees_are_refused_by_the_column():
 @pytest.mark.parametrize("slip", ["azimuth in degrees", "times in ms"])
 def test_a_unit_slip_in_the_angle_table_is_noted(slip):
     p = load_protocol(HEAVY)
-    angles = _tracked(p, 0.14)
+    angles = _tracked(p, 0.14, duration_s=0.5)
     if slip == "azimuth in degrees":
         angles["phi_rad"] = np.degrees(angles.phi_rad)
         angles["phi_sigma_rad"] = np.degrees(angles.phi_sigma_rad)

@@ -62,3 +62,15 @@ def test_bundled_protocols_by_name(capsys, tmp_path, monkeypatch):
     with pytest.raises(ProtocolError):
         load_protocol("no-such-protocol")
     assert main(["theory", "free-top", "--no-simulate", "--json"]) == 0
+
+
+def test_theory_prints_predictions_to_the_digits_their_sd_resolves(tmp_path, capsys):
+    from gyrorig.propagate import predict_with_uncertainty
+
+    text = (PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
+    path = tmp_path / "p.toml"
+    path.write_text(text.replace("mass_kg = 0.5292", "mass_kg = { value = 0.5292, sd = 0.002 }"))
+    assert main(["theory", str(path), "--no-simulate"]) == 0
+    out = capsys.readouterr().out
+    entry = predict_with_uncertainty(load_protocol(path), simulate_damping=False)["nutation_amplitude_rad"]
+    assert with_error(entry["exact"], entry["exact_sd"]) in out

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._format import with_error
+
 __all__ = ["progress_printer", "print_plan", "print_fit", "print_prediction", "print_data", "set_quiet"]
 
 #: ``-q/--quiet``: no progress and no summary; only the data asked for (``--json``) and errors
@@ -123,9 +125,9 @@ def print_prediction(pred: dict) -> None:
     for k, v in pred["flags"].items():
         print(f"  flag {k} = {v:.4g}" if isinstance(v, float) else f"  flag {k} = {v}")
     fmt = lambda x: "-" if x is None else (f"{x:.6g}" if isinstance(x, float) else str(x))  # noqa: E731
-    def pm(v: dict, kind: str) -> str:
-        sd = v.get(f"{kind}_sd")
-        return fmt(v.get(kind)) + (f" +- {sd:.2g}" if sd else "")
+    def pm(v: dict, kind: str) -> str:  # to the digits the prediction's own sd resolves, where it has one
+        sd, x = v.get(f"{kind}_sd"), v.get(kind)
+        return with_error(x, sd) if sd and isinstance(x, float) else fmt(x)
 
     for key, v in pred.items():
         if key in ("protocol", "flags", "parameter_uncertainty"):
