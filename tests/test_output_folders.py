@@ -126,8 +126,19 @@ def test_overwrite_never_removes_what_gyrorig_did_not_write(tmp_path, monkeypatc
     assert (work / "sim" / _io.OUTPUT_MARKER).is_file() and _no_leftovers(work)
 
 
+@pytest.fixture(scope="module")
+def long_video(tmp_path_factory):
+    """A 1.5 s render of the bundled rig (rendered once for the signal tests)."""
+    from gyrorig.protocols import load_protocol
+    from gyrorig.render import render_video
+
+    folder = tmp_path_factory.mktemp("signals") / "v"
+    render_video(load_protocol(AIR), folder, seed=0, duration_s=1.5, calibration_views=0)
+    return folder
+
+
 @pytest.mark.parametrize("signame, code", [("SIGINT", 130), ("SIGTERM", 143), ("SIGHUP", 129)])
-def test_a_signal_while_tracking_leaves_nothing(tmp_path, signame, code):
+def test_a_signal_while_tracking_leaves_nothing(tmp_path, long_video, signame, code):
     """Ctrl-C while the decoding thread reads the video (issue 23: SIGABRT 'exception not rethrown' in 2 of 3
     tries), and SIGTERM or SIGHUP (issue 33: they left the temporary folder behind): exit 128 + the signal, one
     line, no output folder, no temporary folder."""
@@ -136,13 +147,9 @@ def test_a_signal_while_tracking_leaves_nothing(tmp_path, signame, code):
     import sys
     import time
 
-    from gyrorig.render import render_video
-    from gyrorig.protocols import load_protocol
-
-    render_video(load_protocol(AIR), tmp_path / "v", seed=0, duration_s=1.5, calibration_views=0)
     out = tmp_path / "track"
-    proc = subprocess.Popen([sys.executable, "-m", "gyrorig", "track", str(tmp_path / "v" / "video.mkv"), "--camera",
-                             str(tmp_path / "v" / "camera.json"), "--protocol", AIR, "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "gyrorig", "track", str(long_video / "video.mkv"), "--camera",
+                             str(long_video / "camera.json"), "--protocol", AIR, "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     seen = []
     for line in proc.stderr:  # wait for the first progress line: frames are being decoded and tracked
