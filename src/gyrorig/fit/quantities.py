@@ -104,7 +104,7 @@ def _compare(q: Quantity, theory: dict, comparable: bool, note: str = "") -> Qua
     p = theory[q.name]
     paper, corr, exact = p.get("paper"), p.get("corrected"), p.get("exact")
     upd = dict(paper=paper, corrected=corr, exact=exact, exact_source=p.get("exact_source", ""),
-               note="; ".join(n for n in (q.note, note) if n),
+               note="; ".join(n for n in (q.note, note) if n), theory_note=note,
                paper_standard_error=p.get("paper_sd"), exact_standard_error=p.get("exact_sd"))
     if comparable and q.value is not None and q.standard_error:
         se = q.standard_error
@@ -121,13 +121,6 @@ def _compare(q: Quantity, theory: dict, comparable: bool, note: str = "") -> Qua
     return replace(q, **upd)
 
 
-#: how the note on a tilt-dependent quantity compared at the launch tilt begins
-_LAUNCH_TILT_NOTE = "theory is for steady precession at the launch tilt"
-#: how the notes on a comparison that is for the launch, not the record, begin
-_LAUNCH_NOTES = (_LAUNCH_TILT_NOTE, "predictions are for the undamped top at the launch tilt",
-                 "prediction is for the undamped launch")
-
-
 def _comparison_note(name: str, spec: ModelSpec, protocol: Protocol, cone_rad: float) -> tuple[bool, str]:
     """Whether the prediction is comparable with the fitted value, and what to say beside it."""
     if name == "nutation_amplitude_rad" and spec.damped:
@@ -139,7 +132,7 @@ def _comparison_note(name: str, spec: ModelSpec, protocol: Protocol, cone_rad: f
     if name in ("tilt_growth_rate_per_s", "tilt_time_constant_s"):
         launch = protocol.launch.tilt_rad
         if abs(cone_rad - launch) > 1e-3:
-            return True, (f"{_LAUNCH_TILT_NOTE} {launch:.4g} rad; the fitted cone is at "
+            return True, (f"theory is for steady precession at the launch tilt {launch:.4g} rad; the fitted cone is at "
                           f"{cone_rad:.4g} rad at t_ref, and the rate depends on the tilt")
         return True, ""
     if name in ("equilibrium_tilt_rad", "equilibrium_azimuth_rad") and spec.damped:
@@ -243,9 +236,9 @@ def at_record_state(fit: FitResult, state_values: dict[str, tuple[float, float]]
         q = quantities.get(name)
         if q is None or not q.determined or not math.isfinite(exact):
             continue
-        kept = [part for part in q.note.split("; ") if part and not part.startswith(_LAUNCH_NOTES)]
-        if q.exact is not None:
-            kept.append(f"theory at the protocol's launch: {q.exact:.6g}")
+        own = q.note[:len(q.note) - len(q.theory_note)].rstrip("; ") if q.theory_note else q.note
+        at_launch = f"theory at the protocol's launch: {q.exact:.6g}" if q.exact is not None else ""
+        kept = [n for n in (own, at_launch) if n]
         diff = _difference(name, q.value, exact)
         se = q.standard_error or 0.0
         quantities[name] = replace(
@@ -253,5 +246,5 @@ def at_record_state(fit: FitResult, state_values: dict[str, tuple[float, float]]
             diff_exact_se=diff / se if se else None,
             diff_exact_combined_se=diff / math.hypot(se, sd) if math.hypot(se, sd) > 0 else None,
             prediction_share=sd**2 / (se**2 + sd**2) if se or sd else None,
-            note="; ".join(kept), prediction_at="record", exact_nominal=q.exact)
+            note="; ".join(kept), theory_note=at_launch, prediction_at="record", exact_nominal=q.exact)
     return replace(fit, quantities=quantities)

@@ -145,6 +145,8 @@ class Quantity:
     truth: float | None = None
     pull: float | None = None
     note: str = ""
+    #: the part of ``note`` that qualifies the comparison with theory (it ends ``note``; "" when none)
+    theory_note: str = ""
     #: the Cramer-Rao bound of the fit model for the tracker's errors ((J^T J)^-1, before any
     #: chi-square scaling or bootstrap)
     formal_standard_error: float | None = None

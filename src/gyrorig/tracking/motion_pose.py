@@ -308,7 +308,8 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
                 "known place or lab fiducials")
         camera = replace(camera, rvec=pose.rvec, tvec=pose.tvec)
         if focal_sd_rel > 0:  # the next pass tracks at the focal length found
-            camera = _with_focal(replace(camera, camera_matrix=start.camera_matrix), pose.focal_scale)
+            camera = replace(camera, camera_matrix=start.camera_matrix).with_intrinsics(
+                ("fx", "fy"), pose.focal_scale * np.diag(start.camera_matrix)[:2])
             pose = _with_fitted_intrinsics(pose, camera, start)
     return replace(pose, video_fingerprint=fingerprint(video))
 
@@ -320,13 +321,6 @@ def _focal_sd_rel(camera: TrackingCamera) -> float:
         return 0.0
     i = names.index("fx")
     return math.sqrt(max(float(camera.intrinsics_covariance[i, i]), 0.0)) / float(camera.camera_matrix[0, 0])
-
-
-def _with_focal(camera: TrackingCamera, scale: float) -> TrackingCamera:
-    k = camera.camera_matrix.copy()
-    k[0, 0] *= 1.0 + scale
-    k[1, 1] *= 1.0 + scale
-    return replace(camera, camera_matrix=k)
 
 
 def _with_fitted_intrinsics(pose: MotionPose, camera: TrackingCamera, start: TrackingCamera) -> MotionPose:
