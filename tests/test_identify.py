@@ -9,6 +9,7 @@ three of those.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 import math
 import tomllib
 from pathlib import Path
@@ -300,6 +301,48 @@ def test_a_spin_down_with_constant_friction_is_found_with_or_without_stated_erro
     assert doc["damping_law"] == "viscous+friction"
     f = doc["parameters"]["spin_down.friction_rad_s2"]
     assert abs(f["value"] - 0.15) < 4 * f["standard_error"]
+
+
+def test_a_videos_spin_keeps_its_error_beside_a_lab_table(tmp_path):
+    """Issue 32, item 4: a video's fit.json with a spin-down table.  The video's rates tell the product of its
+    spin and Io, so its spin is known from its prior (sd 20 rad/s) and the other priors, narrowed a little by the
+    data; the normal matrix, its columns some 1e6 apart in scale, was cut in the spin's direction (its standard
+    error 1.6e-7 rad/s, correlation -1 with Io).  Noiseless rates of the true rig (stated to 0.1 %) and the
+    priors' means at the truth: the spin's error between 0.3 and 1 of its prior sd, a full-rank covariance, and
+    every parameter within 3 of its errors of the truth."""
+    from gyrorig.physics.exact import exact_solution
+    from gyrorig.protocols import protocol_summary
+
+    base = load_protocol(AIR)
+    rig, spin = base.rig, 400.0
+    sol = exact_solution(replace(base, launch=replace(base.launch, spin_rate_rad_s=spin)))
+    doc = {"protocol_summary": protocol_summary(replace(base, launch=replace(base.launch, spin_rate_rad_s=spin))),
+           "quantities": {k: {"value": v, "standard_error": 1e-3 * v, "status": "determined"} for k, v in (
+               ("precession_rate_rad_s", sol.mean_precession_rate_rad_s),
+               ("nutation_frequency_rad_s", sol.nutation_frequency_rad_s))}}
+    (tmp_path / "fit.json").write_text(json.dumps(doc))
+    (tmp_path / "spin_down.csv").write_text(_spin_down_rows(np.random.default_rng(2), True))
+    text = AIR.read_text()
+    for key, value in (("inertia_axial_kg_m2", rig.inertia_axial_kg_m2), ("com_distance_m", rig.com_distance_m),
+                       ("inertia_transverse_kg_m2", rig.inertia_transverse_kg_m2)):
+        old = next(line for line in text.splitlines() if line.startswith(key + " "))
+        text = text.replace(old, f"{key} = {{ value = {value!r}, sd = {0.1 * value!r} }}")
+    old = next(line for line in text.splitlines() if line.startswith("spin_rate_rad_s"))
+    (tmp_path / "prior.toml").write_text(text.replace(old, f"spin_rate_rad_s = {{ value = {spin}, sd = 20.0 }}"))
+    out = tmp_path / "out"
+    assert main(["identify", str(tmp_path / "fit.json"), str(tmp_path / "spin_down.csv"), "--protocol",
+                 str(tmp_path / "prior.toml"), "--out", str(out)]) == 0
+    doc = json.loads((out / "identify.json").read_text())
+    par = doc["parameters"]
+    video = next(k for k in par if k.startswith("spin["))
+    assert 0.3 * 20.0 <= par[video]["standard_error"] <= 20.0
+    # a covariance cut in one direction is singular there (a correlation of exactly +-1); the real correlations
+    # here reach 0.9996 (It with h, both seen through the same two rates), so its smallest eigenvalue is ~6e-5
+    assert np.linalg.eigvalsh(np.array(doc["correlation"]["matrix"])).min() > 1e-6
+    truth = {video: spin, "rig.inertia_axial_kg_m2": rig.inertia_axial_kg_m2,
+             "rig.inertia_transverse_kg_m2": rig.inertia_transverse_kg_m2, "rig.com_distance_m": rig.com_distance_m}
+    for key, true in truth.items():
+        assert abs(par[key]["value"] - true) < 3 * par[key]["standard_error"], key
 
 
 def test_rates_in_hz_under_rad_s_are_flagged_not_passed(tmp_path, capsys):

@@ -25,7 +25,7 @@ from gyrorig.protocols import BUNDLED_PROTOCOL_DIR, ProtocolError, parse_protoco
 from gyrorig.render.phone import PhoneStyle, render_phone_video
 from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, TrackingCamera, VideoFile, load_camera, track
 from gyrorig.tracking.detect import detection_threshold, find_blobs, opening_size_px
-from gyrorig.tracking.scene_spot import fit_scene_spot
+from gyrorig.tracking.scene_spot import fit_scene_spot, sandwich_covariance
 
 PHOTOS = ("brick", "camera", "gravel", "coffee", "astronaut")
 
@@ -96,6 +96,31 @@ def test_scene_spot_errors_hold_on_real_photographs():
     pulls = np.array(pulls)
     assert len(errors) >= 280
     assert 0.7 <= pulls.std() <= 1.5 and np.abs(pulls).max() < 5.0
+
+
+def test_the_sandwich_covariance_is_its_definition():
+    """``F^-1 M F^-1`` with ``M = sum_ij k(i - j) u_i u_j^T`` over pixels up to 2 px apart, written out as the
+    double sum over every pair of fitted pixels (Bartlett weights ``(1 - |dx| / 3)(1 - |dy| / 3)``), on random
+    Jacobians, weights and residuals over an irregular set of pixels; also its first two parameters alone."""
+    rng = np.random.default_rng(1)
+    h, w, n = 13, 11, 5
+    pick = np.flatnonzero(rng.random((h, w)) < 0.6)
+    jac, weight, resid = rng.normal(size=(pick.size, n)), rng.random(pick.size), rng.normal(size=pick.size)
+    a = rng.normal(size=(n, n))
+    finv = a @ a.T
+    iy, ix = np.divmod(pick, w)
+    u = jac * (weight * resid)[:, None]
+    meat = np.zeros((n, n))
+    for i in range(pick.size):
+        for j in range(pick.size):
+            dy, dx = abs(iy[i] - iy[j]), abs(ix[i] - ix[j])
+            if dy <= 2 and dx <= 2:
+                meat += (1 - dx / 3) * (1 - dy / 3) * np.outer(u[i], u[j])
+    expected = finv @ meat @ finv
+    got = sandwich_covariance(pick, (h, w), jac, weight, resid, finv)
+    np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(sandwich_covariance(pick, (h, w), jac, weight, resid, finv, parameters=2),
+                               expected[:2, :2], rtol=1e-10, atol=1e-12 * np.abs(expected).max())
 
 
 def test_a_spot_merged_with_the_tip_widens_its_error_bar():

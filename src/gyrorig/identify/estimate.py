@@ -185,7 +185,11 @@ def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool
                             gtol=1e-10, max_nfev=50 * (len(x) + 1))
         x = res.x
     J = res.jac
-    cov = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
+    # the parameters' scales differ by many orders (inertias ~1e-4 kg m^2, spins ~1e2 rad/s): the normal matrix is
+    # inverted with its columns scaled to unit norm, so that no direction is cut for its units alone
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    cov = np.linalg.pinv((J / scale).T @ (J / scale), rcond=1e-12, hermitian=True) / np.outer(scale, scale)
     r = res.fun
     return x, cov, float(r @ r), sd_eff, J[:len(obs)]
 

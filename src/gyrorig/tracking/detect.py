@@ -17,7 +17,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-__all__ = ["Detection", "Blob", "find_blobs", "detection_threshold", "local_contrast", "opening_size_px",
+__all__ = ["Detection", "Blob", "find_blobs", "stands_out", "detection_threshold", "local_contrast", "opening_size_px",
            "THRESHOLD_SIGMAS", "PEAK_FRACTION"]
 
 #: a spot's local contrast must exceed the contrast's median by this many of its robust standard deviations
@@ -126,3 +126,11 @@ def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold:
     _components(sub, sub > level, x0, y0, min_radius_px, out, 2.0 * level if isinstance(threshold, Detection) else None)
     out.sort(key=lambda b: -b.peak)
     return out
+
+
+def stands_out(fit, threshold: Detection | float) -> bool:
+    """Whether a fitted spot (:class:`~gyrorig.tracking.spot.SpotFit`) would be detected: its contrast above the
+    background beyond a :class:`Detection`'s threshold, or its level beyond a raw level (:func:`find_blobs`)."""
+    if isinstance(threshold, Detection):
+        return fit.amplitude_adu > threshold.threshold
+    return fit.amplitude_adu + fit.background_adu > float(threshold)

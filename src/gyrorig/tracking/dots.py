@@ -19,12 +19,13 @@ import numpy as np
 from ..geometry import ray_sphere_distances, wrap_angle
 from ..markers import Marker
 from .camera_file import TrackingCamera
-from .detect import Detection, find_blobs
+from .detect import Detection, find_blobs, stands_out
+from .follow import CLEAR_RADII
 from .rays import pixel_rays
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
 
-__all__ = ["DotTracker", "dot_angle"]
+__all__ = ["DotTracker", "dot_angle", "dot_angles"]
 
 
 def _axis_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -44,31 +45,33 @@ def _dot_position(dot: Marker, n: np.ndarray, psi: float) -> np.ndarray:
     return dot.off_axis_m * (math.cos(ang) * a + math.sin(ang) * b) + dot.position_m[2] * n
 
 
-def dot_angle(x_px: float, y_px: float, dot: Marker, n: np.ndarray, cam: TrackingCamera) -> float | None:
-    """The frame angle psi implied by ``dot`` seen at a pixel, for the tip direction ``n``.
+def dot_angles(xy_px: np.ndarray, dot: Marker, n: np.ndarray, cam: TrackingCamera) -> np.ndarray:
+    """The frame angles psi (k,) implied by ``dot`` seen at pixels ``xy_px`` (k, 2), for the tip direction ``n``.
 
-    The ray meets the sphere ``|X| = |p|`` twice; the intersection whose height along the
-    axis is nearer the dot's is taken, and rejected (None) if it is off the dot's circle by
-    more than a quarter of its radius, or if the ray misses the sphere.
+    Each ray meets the sphere ``|X| = |p|`` twice; the intersection whose height along the axis is nearer the
+    dot's is taken, and rejected (NaN) if it is off the dot's circle by more than a quarter of its radius, or if
+    the ray misses the sphere.
     """
-    d = pixel_rays(np.array([[x_px, y_px]]), cam)[0]
+    d = pixel_rays(np.asarray(xy_px, float).reshape(-1, 2), cam)
     c = cam.centre_m
     near, far = ray_sphere_distances(c, d, float(np.dot(dot.position_m, dot.position_m)) ** 0.5)
-    if not math.isfinite(near):
-        return None
-    best = None
-    for s in (near, far):
-        X = c + s * d
-        off = abs(X @ n - dot.position_m[2])
-        if best is None or off < best[0]:
-            best = (off, X)
-    off, X = best
-    v = X - (X @ n) * n
+    both = c + np.stack([near, far], axis=1)[:, :, None] * d[:, None, :]  # (k, 2, 3)
+    off = np.abs(both @ n - dot.position_m[2])
+    pick = np.argmin(np.where(np.isfinite(off), off, np.inf), axis=1)
+    X = both[np.arange(len(d)), pick]
+    off = off[np.arange(len(d)), pick]
+    v = X - (X @ n)[:, None] * n
     rho = dot.off_axis_m
-    if off > 0.25 * rho or abs(np.linalg.norm(v) - rho) > 0.25 * rho:
-        return None
     a, b = _axis_basis(n)
-    return math.atan2(v @ b, v @ a) - _angle_on_frame(dot)
+    psi = np.arctan2(v @ b, v @ a) - _angle_on_frame(dot)
+    bad = ~np.isfinite(near) | (off > 0.25 * rho) | (np.abs(np.linalg.norm(v, axis=1) - rho) > 0.25 * rho)
+    return np.where(bad, np.nan, psi)
+
+
+def dot_angle(x_px: float, y_px: float, dot: Marker, n: np.ndarray, cam: TrackingCamera) -> float | None:
+    """The frame angle psi implied by ``dot`` seen at a pixel (:func:`dot_angles`); None where it is rejected."""
+    psi = float(dot_angles(np.array([[x_px, y_px]]), dot, n, cam)[0])
+    return psi if math.isfinite(psi) else None
 
 
 class DotTracker:
@@ -109,10 +112,21 @@ class DotTracker:
                     return psi
         return None
 
-    def _fit_dot(self, image, dot: Marker, n, psi_pred, tip_xy, r_tip, threshold) -> SpotFit | None:
+    def _fit_dot(self, image, dot: Marker, n, psi_pred, tip_xy, r_tip, threshold, near=()) -> SpotFit | None:
+        """The dot near its predicted place.  Followed, and clear of the tip and of ``near`` (the other dots'
+        predictions, ``(x, y, r)`` [px]) by :data:`~gyrorig.tracking.follow.CLEAR_RADII` of its radii plus
+        theirs, the fit starts at the prediction and is taken when it stays there; otherwise the candidates
+        around the prediction are searched."""
         r = self.r_px[dot.name]
         h, w = image.shape
         px, py = self._project(_dot_position(dot, n, psi_pred))[0]
+        spots = ((tip_xy[0], tip_xy[1], r_tip), *near)
+        if self.misses == 0 and all(math.hypot(x - px, y - py) > CLEAR_RADII * r + rr for x, y, rr in spots):
+            fit = fit_round_spot(image, float(px), float(py), self.last_r[dot.name], self.cam)
+            if (fit is not None and not fit.blended and stands_out(fit, threshold)
+                    and math.hypot(fit.x_px - px, fit.y_px - py) < max(2.0, 0.3 * fit.radius_px)
+                    and 0.5 * r <= fit.radius_px <= 1.6 * r):
+                return fit
         reach = int(3 * r + 10)
         cand = find_blobs(image, max(int(px) - reach, 0), max(int(py) - reach, 0), min(int(px) + reach, w),
                           min(int(py) + reach, h), threshold)
@@ -125,17 +139,20 @@ class DotTracker:
             cx, cy, cr = float(px), float(py), self.last_r[dot.name]  # sub-pixel prediction: fewer iterations
         return fit_round_spot(image, cx, cy, cr, self.cam)
 
-    def _psi_variance(self, fit: SpotFit, dot: Marker, n) -> float | None:
-        """The variance of psi from the spot covariance through the pixel -> angle map."""
-        jac = np.zeros(2)
-        for i, (dx, dy) in enumerate(((0.05, 0.0), (0.0, 0.05))):
-            p1 = dot_angle(fit.x_px + dx, fit.y_px + dy, dot, n, self.cam)
-            p0 = dot_angle(fit.x_px - dx, fit.y_px - dy, dot, n, self.cam)
-            if p1 is None or p0 is None:
-                return None
-            jac[i] = wrap_angle(p1 - p0) / 0.1
+    def _psi_with_variance(self, fit: SpotFit, dot: Marker, n) -> tuple[float | None, float | None]:
+        """psi of a fitted dot and its variance from the spot covariance through the pixel -> angle map
+        (central differences over +-0.05 px); ``(None, None)`` when the dot is rejected, the variance None when
+        a neighbouring pixel is."""
+        eps = 0.05
+        offsets = np.array([[0.0, 0.0], [eps, 0.0], [-eps, 0.0], [0.0, eps], [0.0, -eps]])
+        psi = dot_angles(np.array([fit.x_px, fit.y_px]) + offsets, dot, n, self.cam)
+        if not math.isfinite(psi[0]):
+            return None, None
+        if not np.all(np.isfinite(psi)):
+            return float(psi[0]), None
+        jac = np.array([wrap_angle(psi[1] - psi[2]), wrap_angle(psi[3] - psi[4])]) / (2 * eps)
         var = float(jac @ fit.cov_xy @ jac)
-        return var if var > 0 else None
+        return float(psi[0]), (var if var > 0 else None)
 
     def step(self, image, t_s: float, n: np.ndarray, tip_xy, r_tip: float, threshold: Detection):
         """Fit the dots in one frame; returns ``(psi, psi_sigma, [(name, SpotFit), ...])``."""
@@ -146,16 +163,18 @@ class DotTracker:
                 return float("nan"), float("nan"), []
         psi_pred = self.psi + self.rate * (t_s - self.t)
         found, est = [], []
-        for dot in self.dots:
-            fit = self._fit_dot(image, dot, n, psi_pred, tip_xy, r_tip, threshold)
+        predicted = self._project(np.array([_dot_position(d, n, psi_pred) for d in self.dots]))
+        for k, dot in enumerate(self.dots):
+            near = tuple((float(x), float(y), self.r_px[d.name]) for j, ((x, y), d) in enumerate(zip(predicted, self.dots))
+                         if j != k)
+            fit = self._fit_dot(image, dot, n, psi_pred, tip_xy, r_tip, threshold, near)
             if fit is None:
                 continue
             self.last_r[dot.name] = fit.radius_px
-            psi_m = dot_angle(fit.x_px, fit.y_px, dot, n, self.cam)
+            psi_m, var = self._psi_with_variance(fit, dot, n)
             if psi_m is None:
                 continue
             psi_m = psi_pred + wrap_angle(psi_m - psi_pred)
-            var = self._psi_variance(fit, dot, n)
             if var is not None:
                 est.append((psi_m, var))
             found.append((dot.name, fit))

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..markers import Marker
 from .camera_file import TrackingCamera
-from .detect import Blob, Detection, find_blobs
+from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .rays import tip_from_pixel
 from .scene_spot import fit_round_spot
@@ -64,6 +64,9 @@ CHI2_CHANGE = 2.0
 CHI2_SPREADS = 4.0
 #: the smallest motion gate around the prediction [px]
 MIN_GATE_PX = 3.0
+#: the tip is fitted straight from its prediction only when no other spot lies within this many of its radii (plus
+#: that spot's radius and the motion gate)
+CLEAR_RADII = 3.0
 #: a candidate confirms one of the last frame's when it lies within this many expected radii (+5 px) of it
 ACQUIRE_REACH = 1.0
 #: a scene with this many candidates of the tip's size or more is busy (a texture's spots, not the rig's few): the tip
@@ -302,6 +305,15 @@ class TipFollower:
             return False
         return predicted is None or math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) <= gate
 
+    def _clear(self, at: np.ndarray, gate: float, others) -> bool:
+        """Whether no other spot (``others`` and the lab markers, each ``(x, y, r)`` [px]) lies within
+        :data:`CLEAR_RADII` of the tip's radii, plus its own radius and ``gate``, of ``at``; False when ``others``
+        is None (not known)."""
+        if others is None:
+            return False
+        reach = CLEAR_RADII * self.last_r + gate
+        return all(math.hypot(x - at[0], y - at[1]) > reach + r for x, y, r in (*others, *self.lab_px))
+
     # ------------------------------------------------------------------------------- search
     def _candidates(self, frame: np.ndarray, threshold, centre=None, reach: int = 0,
                     refused: list | None = None) -> list[Blob]:
@@ -319,23 +331,39 @@ class TipFollower:
                                threshold, min_radius_px=smallest)
         out = []
         for c in blobs:
-            if not lo <= c.r <= 1.6 * self.r_expected:
-                why = Verdict.SIZE
-            elif any(math.hypot(c.x - x, c.y - y) <= r + 2.0 and self._nearer_size(c.r, r) for x, y, r in self.lab_px):
-                # where a lab marker appears, a spot of its size (the tip may pass in front of one, visible or not)
-                why = Verdict.LAB_MARKER
-            elif tip_from_pixel(c.x, c.y, self.camera, self.length_m) is None:
-                why = Verdict.OFF_SPHERE
-            else:
+            why = Verdict.SIZE if not lo <= c.r <= 1.6 * self.r_expected else self._verdict(c.x, c.y, c.r)
+            if why is None:
                 out.append(c)
-                continue
-            if refused is not None and len(refused) < MAX_RECORDED:
+            elif refused is not None and len(refused) < MAX_RECORDED:
                 refused.append(Candidate(c.x, c.y, c.r, why))
         return out
 
-    def _track(self, frame: np.ndarray, threshold: Detection) -> SpotFit | None:
-        """The tip near its prediction, or None."""
+    def _verdict(self, x: float, y: float, r: float) -> Verdict | None:
+        """Why a spot at ``(x, y)`` of radius ``r`` [px] cannot be the tip whatever its size: where a lab marker
+        appears and nearer its size (the tip may pass in front of one, visible or not), or off the tip's sphere;
+        None when it can be."""
+        if any(math.hypot(x - lx, y - ly) <= lr + 2.0 and self._nearer_size(r, lr) for lx, ly, lr in self.lab_px):
+            return Verdict.LAB_MARKER
+        if tip_from_pixel(x, y, self.camera, self.length_m) is None:
+            return Verdict.OFF_SPHERE
+        return None
+
+    def _track(self, frame: np.ndarray, threshold: Detection, others: tuple | None = ()) -> SpotFit | None:
+        """The tip near its prediction, or None.
+
+        Followed without a miss and clear of every other spot (``others``, the frame dots' last fits, and the lab
+        markers: none within :data:`CLEAR_RADII` tip radii plus its own radius and the motion gate), the fit starts
+        at the prediction and is taken when it stays there and passes the tip's tests; otherwise, and always
+        beside another spot (whose light a fit from the prediction can take into the disc), the candidates near
+        the prediction are searched."""
         predicted, gate = self._prediction()
+        if self.misses == 0 and len(self.last) >= 2 and self._clear(predicted, gate, others):
+            fit = self._fit(frame, float(predicted[0]), float(predicted[1]), self.last_r)
+            if (fit is not None and not fit.blended and stands_out(fit, threshold)
+                    and math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) < max(2.0, 0.3 * fit.radius_px)
+                    and self._verdict(fit.x_px, fit.y_px, fit.radius_px) is None
+                    and self._acceptable(fit, predicted, gate)):
+                return fit
         cand = self._candidates(frame, threshold, predicted, int(4 * self.r_expected + 20 + gate))
         cand.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
         for x0, y0, r0, _ in cand[:3]:
@@ -486,10 +514,11 @@ class TipFollower:
         return [p for p, o, s in zip(pairs, odd, noise) if o > max(SCENE_MOTION_PX, 5.0 * s)]
 
     # ------------------------------------------------------------------------------- per frame
-    def locate(self, frame: np.ndarray, threshold: Detection) -> Located:
-        """The tip in this frame."""
+    def locate(self, frame: np.ndarray, threshold: Detection, others: tuple | None = ()) -> Located:
+        """The tip in this frame; ``others`` the other spots followed in the last frame (``(x, y, r)`` [px]; None
+        when some were not found there)."""
         if self.last:
-            fit = self._track(frame, threshold)
+            fit = self._track(frame, threshold, others)
             if fit is not None:
                 self._accept(fit)
                 return Located(fit, "ok")

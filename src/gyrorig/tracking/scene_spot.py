@@ -23,9 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
-from scipy.special import erfc
+from numba import njit
 
 from .camera_file import TrackingCamera
 from .spot import SpotFit, fit_spot, spot_window
@@ -61,47 +60,174 @@ MIN_ARC_FRACTION = 0.5
 #: the spatial kernel of :func:`sandwich_covariance`: Bartlett weights over a 5 x 5 neighbourhood (a positive-definite
 #: kernel, so the estimate is positive semi-definite), reaching residuals correlated over a PSF, a texture's grain or
 #: a codec's block edge
-_BARTLETT = np.outer([1 / 3, 2 / 3, 1.0, 2 / 3, 1 / 3], [1 / 3, 2 / 3, 1.0, 2 / 3, 1 / 3])
+_BARTLETT_1D = np.array([1 / 3, 2 / 3, 1.0, 2 / 3, 1 / 3])
 
 
-def sandwich_covariance(jac: np.ndarray, weight: np.ndarray, resid: np.ndarray, fisher_inv: np.ndarray
-                        ) -> np.ndarray:
+@njit(cache=True)
+def _projected_meat(pick, shape, jac, weight, resid, proj):
+    """``P M P^T`` of :func:`sandwich_covariance`'s ``M = sum_ij k(i - j) u_i u_j^T`` over the fitted pixels
+    (flat indices ``pick`` into a window of ``shape``; the rows of ``jac``, ``weight``, ``resid`` theirs),
+    with ``P = proj`` (rows of ``F^-1``: only the parameters asked for are carried through the sum)."""
+    h, w = shape
+    m, n = proj.shape
+    grid = np.zeros((h, w, m))
+    for k in range(pick.size):
+        iy, ix = pick[k] // w, pick[k] % w
+        wr = weight[k] * resid[k]
+        for a in range(m):
+            acc = 0.0
+            for c in range(n):
+                acc += proj[a, c] * jac[k, c]
+            grid[iy, ix, a] = acc * wr
+    meat = np.zeros((m, m))
+    for k in range(pick.size):
+        iy, ix = pick[k] // w, pick[k] % w
+        for dy in range(-2, 3):
+            jy = iy + dy
+            if jy < 0 or jy >= h:
+                continue
+            for dx in range(-2, 3):
+                jx = ix + dx
+                if jx < 0 or jx >= w:
+                    continue
+                kern = _BARTLETT_1D[dy + 2] * _BARTLETT_1D[dx + 2]
+                for a in range(m):
+                    ua = kern * grid[iy, ix, a]
+                    for c in range(m):
+                        meat[a, c] += ua * grid[jy, jx, c]
+    return 0.5 * (meat + meat.T)
+
+
+def sandwich_covariance(pick: np.ndarray, shape: tuple[int, int], jac: np.ndarray, weight: np.ndarray,
+                        resid: np.ndarray, fisher_inv: np.ndarray, parameters: int | None = None) -> np.ndarray:
     """The parameters' covariance from the residuals themselves: ``F^-1 M F^-1`` with
-    ``M = sum_ij k(i - j) u_i u_j^T``, ``u_i = J_i w_i r_i`` over the fitted pixels (``weight`` 0 elsewhere)
-    and ``k`` a Bartlett kernel over neighbours up to 2 px apart.
+    ``M = sum_ij k(i - j) u_i u_j^T``, ``u_i = J_i w_i r_i`` over the fitted pixels and ``k`` a Bartlett kernel
+    over neighbours up to 2 px apart.
 
     Where the noise model is right and the pixels independent, ``E M = F`` and this is ``F^-1``; where the
     residuals hold what the model lacks (the scene behind the spot's edge, a lossy codec's ringing,
     spatially correlated noise) it grows by what those do to the centre: a heteroscedasticity- and
-    autocorrelation-consistent estimate (White; Newey-West, in two dimensions).  ``jac`` (h, w, n),
-    ``weight, resid`` (h, w)."""
-    u = (jac * (weight * resid)[:, :, None]).astype(np.float64)
-    n = u.shape[2]
-    smooth = np.stack([cv2.filter2D(u[:, :, a], -1, _BARTLETT, borderType=cv2.BORDER_CONSTANT) for a in range(n)],
-                      axis=2)
-    meat = u.reshape(-1, n).T @ smooth.reshape(-1, n)
-    meat = 0.5 * (meat + meat.T)
-    return fisher_inv @ meat @ fisher_inv
+    autocorrelation-consistent estimate (White; Newey-West, in two dimensions).  ``pick`` the fitted pixels'
+    flat indices in a window of ``shape``; ``jac`` (n, parameters), ``weight, resid`` (n) theirs.  With
+    ``parameters`` only the covariance of the first that many parameters is computed."""
+    proj = np.ascontiguousarray(fisher_inv[:parameters], np.float64)
+    return _projected_meat(np.asarray(pick, np.int64), shape, np.asarray(jac, np.float64),
+                           np.asarray(weight, np.float64), np.asarray(resid, np.float64), proj)
 
 
-def _ring(win, th, rho, r_out: float):
-    """The ring's bin means, the scene ``B`` at every pixel (interpolated in angle) and the ring pixels'
-    robust SD about their bins' means; ``(None, None, None)`` when a bin is empty."""
-    ring = (rho >= r_out) & (rho < r_out + RING_WIDTH_PX)
-    b = ((th[ring] + math.pi) / (2 * math.pi) * ANGLE_BINS).astype(int) % ANGLE_BINS
-    counts = np.bincount(b, None, ANGLE_BINS)
-    if np.any(counts == 0):
-        return None, None, None
-    values = win[ring]
-    bins = np.bincount(b, values, ANGLE_BINS) / counts
-    u = (th + math.pi) / (2 * math.pi) * ANGLE_BINS - 0.5
-    i0 = np.floor(u).astype(int)
-    f = u - i0
-    spread = 1.4826 * float(np.median(np.abs(values - bins[b])))
-    return bins, (1.0 - f) * bins[i0 % ANGLE_BINS] + f * bins[(i0 + 1) % ANGLE_BINS], spread
+@njit(cache=True)
+def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
+    """The ring about ``(cx, cy)`` starting at ``r_out``, and the pixels inside it: ``(ok, bins, pick, scene,
+    spread)``.  ``bins`` the ring's bin means; ``pick`` the flat indices of the allowed pixels nearer than
+    ``r_out``, ``scene`` the scene ``B`` at each (the bins interpolated in angle); ``spread`` the ring pixels'
+    robust SD about their bins' means.  ``ok`` False when a bin is empty."""
+    h, w = win.shape
+    sums = np.zeros(ANGLE_BINS)
+    counts = np.zeros(ANGLE_BINS)
+    ring_values = np.empty(h * w)
+    ring_bins = np.empty(h * w, np.int64)
+    pick = np.empty(h * w, np.int64)
+    angle = np.empty(h * w)
+    n_ring = 0
+    n_pick = 0
+    for iy in range(h):
+        dy = y_first + iy - cy
+        for ix in range(w):
+            dx = x_first + ix - cx
+            rho = math.sqrt(dx * dx + dy * dy) + 1e-12
+            if rho < r_out:
+                if allowed[iy, ix]:
+                    pick[n_pick] = iy * w + ix
+                    angle[n_pick] = math.atan2(dy, dx)
+                    n_pick += 1
+            elif rho < r_out + RING_WIDTH_PX:
+                b = int((math.atan2(dy, dx) + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS
+                sums[b] += win[iy, ix]
+                counts[b] += 1.0
+                ring_values[n_ring] = win[iy, ix]
+                ring_bins[n_ring] = b
+                n_ring += 1
+    bins = np.zeros(ANGLE_BINS)
+    scene = np.empty(n_pick)
+    for b in range(ANGLE_BINS):
+        if counts[b] == 0:
+            return False, bins, pick[:n_pick], scene, 0.0
+        bins[b] = sums[b] / counts[b]
+    dev = np.empty(n_ring)
+    for k in range(n_ring):
+        dev[k] = abs(ring_values[k] - bins[ring_bins[k]])
+    spread = 1.4826 * np.median(dev)
+    for k in range(n_pick):
+        u = (angle[k] + math.pi) / (2 * math.pi) * ANGLE_BINS - 0.5
+        i0 = math.floor(u)
+        f = u - i0
+        lo = (int(i0) + ANGLE_BINS) % ANGLE_BINS
+        scene[k] = (1.0 - f) * bins[lo] + f * bins[(lo + 1) % ANGLE_BINS]
+    return True, bins, pick[:n_pick], scene, spread
 
 
-def _scene_covariance(xx, yy, sol: "_Solution", fisher_inv: np.ndarray) -> np.ndarray:
+@njit(cache=True)
+def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner):
+    """One Gauss-Newton pass over the fitted pixels: ``(fisher, gradient, jac, resid, weight, coverage,
+    var_in)``.  With ``measure_inner`` the marker's noise ``var_in`` is measured from the residuals where the
+    disc covers the pixel (at least :data:`MIN_INNER_PIXELS` of them; NaN: use the ring's); the weights are
+    ``1 / ((1 - c) var_out + c var_in)``."""
+    n = xs.size
+    jac = np.empty((n, 5))
+    resid = np.empty(n)
+    cover = np.empty(n)
+    s2 = math.sqrt(2.0) * p[4]
+    norm = 1.0 / (math.sqrt(2.0 * math.pi) * p[4])
+    for k in range(n):
+        dx, dy = xs[k] - p[0], ys[k] - p[1]
+        rho = math.sqrt(dx * dx + dy * dy) + 1e-12
+        arg = (rho - p[2]) / s2
+        c = 0.5 * math.erfc(arg)
+        gauss = math.exp(-arg * arg) * norm
+        level = p[3] - scene[k]
+        edge = -level * gauss  # d mu / d rho
+        jac[k, 0] = edge * (-dx / rho)
+        jac[k, 1] = edge * (-dy / rho)
+        jac[k, 2] = -edge
+        jac[k, 3] = c
+        jac[k, 4] = level * gauss * (rho - p[2]) / p[4]
+        resid[k] = values[k] - (scene[k] * (1.0 - c) + p[3] * c)
+        cover[k] = c
+    if measure_inner:
+        inner = resid[cover > 0.99]
+        if inner.size >= MIN_INNER_PIXELS:
+            var_in = max(np.median(inner * inner) / 0.4549, 1.0 / 12.0)
+    v_in = var_out if math.isnan(var_in) else var_in
+    weight = 1.0 / (var_out * (1.0 - cover) + v_in * cover)
+    fisher = np.zeros((5, 5))
+    grad = np.zeros(5)
+    for k in range(n):
+        wk = weight[k]
+        for a in range(5):
+            wja = wk * jac[k, a]
+            grad[a] += wja * resid[k]
+            for b in range(a, 5):
+                fisher[a, b] += wja * jac[k, b]
+    for a in range(5):
+        for b in range(a):
+            fisher[a, b] = fisher[b, a]
+    return fisher, grad, jac, resid, weight, cover, var_in
+
+
+@njit(cache=True)
+def _sector_effects(xs, ys, cx, cy, jac, weight, coverage):
+    """Each ring bin's effect on the parameters per unit error of its level: the fitted pixels' Jacobian rows
+    times ``weight (1 - c)``, summed over the pixels of each angular sector about ``(cx, cy)``."""
+    v = np.zeros((ANGLE_BINS, jac.shape[1]))
+    for k in range(xs.size):
+        b = int((math.atan2(ys[k] - cy, xs[k] - cx) + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS
+        f = weight[k] * (1.0 - coverage[k])
+        for a in range(jac.shape[1]):
+            v[b, a] += jac[k, a] * f
+    return v
+
+
+def _scene_covariance(sol: "_Solution", fisher_inv: np.ndarray) -> np.ndarray:
     """What the scene behind the disc's edge, unseen, may do to the parameters: the ring stands in for it, but
     the edge lies ``3 sigma + 1`` px further in.  Taking the scene's texture as isotropic, it changes over that
     distance as much as it does along the ring over the same arc: the ring's structure function at that lag
@@ -112,19 +238,21 @@ def _scene_covariance(xx, yy, sol: "_Solution", fisher_inv: np.ndarray) -> np.nd
     arc = 2 * math.pi * (p[2] + gap + RING_WIDTH_PX / 2) / ANGLE_BINS
     lag = max(1, int(round((gap + 1.0) / arc)))
     var_bin = float(np.mean((np.roll(sol.bins, lag) - sol.bins) ** 2))
-    th = np.arctan2(yy - p[1], xx - p[0])
-    sector = ((th + math.pi) / (2 * math.pi) * ANGLE_BINS).astype(int) % ANGLE_BINS
-    u = (sol.jac * (sol.weight * (1.0 - sol.coverage))[:, :, None]).reshape(-1, sol.jac.shape[2])
-    v = np.column_stack([np.bincount(sector.ravel(), u[:, k], ANGLE_BINS)  # each bin's effect per unit error
-                         for k in range(u.shape[1])])
+    v = _sector_effects(sol.xs, sol.ys, p[0], p[1], sol.jac, sol.weight, sol.coverage)
     return fisher_inv @ (var_bin * v.T @ v) @ fisher_inv
 
 
 @dataclass
 class _Solution:
+    """A converged fit: its parameters and, for each fitted pixel (flat indices ``pick`` into the window, at
+    ``xs, ys``), its Jacobian row, weight, residual and the disc's coverage; the Fisher matrix and the ring's
+    bins."""
+
     p: np.ndarray
     converged: bool
-    use: np.ndarray
+    pick: np.ndarray
+    xs: np.ndarray
+    ys: np.ndarray
     weight: np.ndarray
     jac: np.ndarray
     resid: np.ndarray
@@ -133,39 +261,73 @@ class _Solution:
     coverage: np.ndarray
 
 
+@njit(cache=True)
 def _foreign_bins(bins: np.ndarray, marker_level: float) -> np.ndarray:
     """Ring bins holding another spot's light: above the ring's median by :data:`FOREIGN_Z` robust SDs of the
     bins and by :data:`FOREIGN_CONTRAST` of the marker's contrast."""
-    med = float(np.median(bins))
-    sd = max(1.4826 * float(np.median(np.abs(bins - med))), math.sqrt(1.0 / 12.0))
+    med = np.median(bins)
+    sd = max(1.4826 * np.median(np.abs(bins - med)), math.sqrt(1.0 / 12.0))
     return bins > med + max(FOREIGN_Z * sd, FOREIGN_CONTRAST * (marker_level - med))
+
+
+@njit(cache=True)
+def _without_sectors(allowed, x_first, y_first, cx, cy, foreign):
+    """``allowed`` without the pixels in the angular sectors about ``(cx, cy)`` of the ``foreign`` bins and of
+    one bin either side of each."""
+    near = foreign.copy()
+    for b in range(ANGLE_BINS):
+        if foreign[b]:
+            near[(b + 1) % ANGLE_BINS] = True
+            near[(b - 1 + ANGLE_BINS) % ANGLE_BINS] = True
+    h, w = allowed.shape
+    out = allowed.copy()
+    for iy in range(h):
+        for ix in range(w):
+            th = math.atan2(y_first + iy - cy, x_first + ix - cx)
+            if near[int((th + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS]:
+                out[iy, ix] = False
+    return out
 
 
 _BIN_ANGLES = -math.pi + (np.arange(ANGLE_BINS) + 0.5) * (2 * math.pi / ANGLE_BINS)
 
 
-def _edge_radii(win: np.ndarray, cx: float, cy: float, sol: "_Solution") -> np.ndarray:
+@njit(cache=True)
+def _bilinear(win, x, y):
+    """The window's value at ``(x, y)`` (its own pixel coordinates), bilinear, the edge pixels repeated beyond it."""
+    h, w = win.shape
+    x = min(max(x, 0.0), w - 1.0)
+    y = min(max(y, 0.0), h - 1.0)
+    ix, iy = min(int(x), w - 2), min(int(y), h - 2)
+    fx, fy = x - ix, y - iy
+    return ((1 - fy) * ((1 - fx) * win[iy, ix] + fx * win[iy, ix + 1])
+            + fy * ((1 - fx) * win[iy + 1, ix] + fx * win[iy + 1, ix + 1]))
+
+
+@njit(cache=True)
+def _edge_radii(win, cx, cy, r, blur, marker_level, bins):
     """Where the edge lies in each angular bin: along the ray from the window's point ``(cx, cy)`` through the
     bin's centre angle, the first radius at which the image falls below half-way between the marker's level and
     that bin's ring (bilinear samples 0.25 px apart, from ``r - 4 sigma`` out to the ring's outer edge; linear
     between samples).  ``+inf`` where it never falls that far (light beyond the disc), ``-inf`` where it starts
     below (something in front of the disc)."""
-    r, blur = sol.p[2], sol.p[4]
-    radii = np.arange(max(r - 4.0 * blur, 0.3 * r), r + RING_GAP_SIGMAS * blur + RING_WIDTH_PX, 0.25)
-    mx = (cx + np.cos(_BIN_ANGLES)[:, None] * radii[None, :]).astype(np.float32)
-    my = (cy + np.sin(_BIN_ANGLES)[:, None] * radii[None, :]).astype(np.float32)
-    prof = cv2.remap(win.astype(np.float32), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    level = 0.5 * (sol.p[3] + sol.bins)[:, None]
-    below = prof < level
-    first = np.argmax(below, axis=1)
+    start = max(r - 4.0 * blur, 0.3 * r)
+    n = int(math.ceil((r + RING_GAP_SIGMAS * blur + RING_WIDTH_PX - start) / 0.25))
     out = np.full(ANGLE_BINS, np.inf)
-    out[below[:, 0]] = -np.inf
-    inside = below.any(axis=1) & ~below[:, 0]
-    k = np.flatnonzero(inside)
-    j = first[k]
-    v0, v1 = prof[k, j - 1], prof[k, j]
-    frac = (v0 - level[k, 0]) / np.maximum(v0 - v1, 1e-12)
-    out[k] = radii[j - 1] + 0.25 * frac
+    for b in range(ANGLE_BINS):
+        c, s = math.cos(_BIN_ANGLES[b]), math.sin(_BIN_ANGLES[b])
+        level = 0.5 * (marker_level + bins[b])
+        before = _bilinear(win, cx + c * start, cy + s * start)
+        if before < level:
+            out[b] = -np.inf
+            continue
+        for j in range(1, n):
+            rad = start + 0.25 * j
+            v = _bilinear(win, cx + c * rad, cy + s * rad)
+            if v < level:
+                out[b] = rad - 0.25 + 0.25 * (before - level) / max(before - v, 1e-12)
+                break
+            before = v
     return out
 
 
@@ -178,7 +340,7 @@ def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solu
     or something in front of the disc spread over neighbouring harmonics and give what they shift the centre by.
     NaN when fewer than half the bins have an edge point."""
     x0, y0 = float(xx[0, 0]), float(yy[0, 0])
-    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol)
+    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], sol.p[3], sol.bins)
     good = np.isfinite(radii)
     if np.count_nonzero(good) < MIN_ARC_FRACTION * ANGLE_BINS:
         return math.nan
@@ -189,68 +351,101 @@ def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solu
     return float(np.mean(coef[3:] ** 2))
 
 
-def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int) -> _Solution | None:
-    """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring, the ring taken
-    again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  The
-    passes work on the fitted pixels alone; the solution's arrays are the window's (0 off those pixels)."""
+@njit(cache=True)
+def _lu_solve(a, b):
+    """``a x = b`` for a small square matrix by Gaussian elimination with partial pivoting; ``(x, ok)``, ``ok``
+    False when a pivot vanishes or the result is not finite."""
+    n = b.size
+    m = a.copy()
+    x = b.copy()
+    for k in range(n):
+        piv = k
+        for i in range(k + 1, n):
+            if abs(m[i, k]) > abs(m[piv, k]):
+                piv = i
+        if m[piv, k] == 0.0:
+            return x, False
+        if piv != k:
+            for j in range(n):
+                m[k, j], m[piv, j] = m[piv, j], m[k, j]
+            x[k], x[piv] = x[piv], x[k]
+        for i in range(k + 1, n):
+            f = m[i, k] / m[k, k]
+            for j in range(k, n):
+                m[i, j] -= f * m[k, j]
+            x[i] -= f * x[k]
+    for k in range(n - 1, -1, -1):
+        acc = x[k]
+        for j in range(k + 1, n):
+            acc -= m[k, j] * x[j]
+        x[k] = acc / m[k, k]
+    for k in range(n):
+        if not math.isfinite(x[k]):
+            return x, False
+    return x, True
+
+
+@njit(cache=True)
+def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations):
+    """:func:`_solve`'s iterations, compiled: ``(ok, p, pick, xs, ys, weight, jac, resid, fisher, bins,
+    coverage)``."""
+    h, w = win.shape
+    p = p0.copy()
     converged = False
-    var_in = None  # the residuals' variance on the marker (unknown before the first pass)
+    var_in = math.nan
+    var_out = 1.0 / 12.0
+    pick = np.empty(0, np.int64)
+    bins = np.zeros(ANGLE_BINS)
+    scene = np.empty(0)
+    xs, ys, values = np.empty(0), np.empty(0), np.empty(0)
+    fisher, grad = np.zeros((5, 5)), np.zeros(5)
+    jac, resid, weight, cover = np.empty((0, 5)), np.empty(0), np.empty(0), np.empty(0)
     for it in range(iterations):
         if it < RING_PASSES:  # then the ring and the fitted pixels stay put: their edges would make the steps flip
-            dx, dy = xx - p[0], yy - p[1]
-            rho = np.hypot(dx, dy) + 1e-12
-            gap = RING_GAP_SIGMAS * p[4]
-            bins, scene_all, spread = _ring(win, np.arctan2(dy, dx), rho, p[2] + gap)
-            if bins is None:
-                return None
-            use = (rho < p[2] + gap) & allowed
-            pick = np.flatnonzero(use)
-            xs, ys, values, scene = xx.ravel()[pick], yy.ravel()[pick], win.ravel()[pick], scene_all.ravel()[pick]
+            ok, bins, pick, scene, spread = _ring(win, x_first, y_first, p[0], p[1],
+                                                  p[2] + RING_GAP_SIGMAS * p[4], allowed)
+            if not ok:
+                return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
+            xs, ys, values = np.empty(pick.size), np.empty(pick.size), np.empty(pick.size)
+            for k in range(pick.size):
+                iy, ix = pick[k] // w, pick[k] % w
+                xs[k], ys[k], values[k] = x_first + ix, y_first + iy, win[iy, ix]
             var_out = max(spread * spread, 1.0 / 12.0)
-        dx, dy = xs - p[0], ys - p[1]
-        rho = np.hypot(dx, dy) + 1e-12
-        arg = (rho - p[2]) / (math.sqrt(2.0) * p[4])
-        c = 0.5 * erfc(arg)
-        gauss = np.exp(-arg * arg) / (math.sqrt(2.0 * math.pi) * p[4])
-        level = p[3] - scene
-        edge = -level * gauss  # d mu / d rho
-        jac = np.column_stack([edge * (-dx / rho), edge * (-dy / rho), -edge, c, level * gauss * (rho - p[2]) / p[4]])
-        resid = values - (scene * (1.0 - c) + p[3] * c)
-        inner = c > 0.99
-        if it < RING_PASSES and int(inner.sum()) >= MIN_INNER_PIXELS:  # held with the ring (a median's jumps
-            var_in = max(float(np.median(resid[inner] ** 2)) / 0.4549, 1.0 / 12.0)  # would make the steps cycle)
-        weight = 1.0 / (var_out * (1.0 - c) + (var_in if var_in is not None else var_out) * c)
-        wj = jac * weight[:, None]
-        fisher = wj.T @ jac
+        # the marker's noise is held with the ring (a median's jumps would make the steps cycle)
+        fisher, grad, jac, resid, weight, cover, var_in = _pass(xs, ys, values, scene, p, var_out, var_in,
+                                                                 it < RING_PASSES)
         if converged:
             break
-        try:
-            step = np.linalg.solve(fisher, wj.T @ resid)
-        except np.linalg.LinAlgError:
-            return None
-        if not np.all(np.isfinite(step)):
-            return None
+        step, ok = _lu_solve(fisher, grad)
+        if not ok:
+            return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
         # converged when the full step is small (one more pass then evaluates the weights, residuals and Fisher
         # matrix at the solution); a step is halved until the radius and the blur stay in range
         converged = abs(step[0]) < CONVERGED_PX and abs(step[1]) < CONVERGED_PX
+        inside = False
         for _ in range(12):
             if (p[2] + step[2] > 0.3 * r0 and 0.2 * sigma < p[4] + step[4] < sigma_max and abs(step[0]) <= r0
                     and abs(step[1]) <= r0):
+                inside = True
                 break
             step = step / 2
             converged = False
-        else:
-            return None
+        if not inside:
+            return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
         p = p + step
-    if not converged:
+    return converged, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
+
+
+def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int) -> _Solution | None:
+    """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring, the ring taken
+    again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  None when
+    a ring bin is empty, a step cannot be solved or kept in range, or the iterations do not converge."""
+    ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
+        win, float(xx[0, 0]), float(yy[0, 0]), np.ascontiguousarray(allowed), np.asarray(p, np.float64), float(r0),
+        float(sigma), float(sigma_max), int(iterations))
+    if not ok:
         return None
-
-    def window(v: np.ndarray) -> np.ndarray:
-        out = np.zeros(win.shape + v.shape[1:])
-        out.reshape((-1,) + v.shape[1:])[pick] = v
-        return out
-
-    return _Solution(p, converged, use, window(weight), window(jac), window(resid), fisher, bins, window(c))
+    return _Solution(p, True, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
 
 
 def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
@@ -278,14 +473,12 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
         return None
     foreign = _foreign_bins(sol.bins, sol.p[3])
     if foreign.any():  # another spot's light on the ring: its sectors (and one bin either side) are left out
-        near = foreign | np.roll(foreign, 1) | np.roll(foreign, -1)
-        th = np.arctan2(yy - sol.p[1], xx - sol.p[0])
-        sector = ((th + math.pi) / (2 * math.pi) * ANGLE_BINS).astype(int) % ANGLE_BINS
-        sol = _solve(win, xx, yy, allowed & ~near[sector], sol.p, r0, sigma, sigma_max, iterations)
+        allowed = _without_sectors(allowed, float(xx[0, 0]), float(yy[0, 0]), sol.p[0], sol.p[1], foreign)
+        sol = _solve(win, xx, yy, allowed, sol.p, r0, sigma, sigma_max, iterations)
         if sol is None:
             return None
-    p, use = sol.p, sol.use
-    if abs(p[0] - x0) > half or abs(p[1] - y0) > half or int(use.sum()) <= 8:
+    p, n_used = sol.p, sol.pick.size
+    if abs(p[0] - x0) > half or abs(p[1] - y0) > half or n_used <= 8:
         return None
     background = float(np.median(sol.bins))
     contrast = p[3] - background
@@ -299,9 +492,9 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
     rough = _edge_roughness(win, xx, yy, sol)
     if not math.isfinite(rough):
         return None
-    cov = (sandwich_covariance(sol.jac, sol.weight, sol.resid, finv)
-           + _scene_covariance(xx, yy, sol, finv))[:2, :2] + rough * np.eye(2)
-    chi2 = float(np.sum(sol.resid[use] ** 2 * sol.weight[use])) / max(int(use.sum()) - 5, 1)
+    cov = (sandwich_covariance(sol.pick, win.shape, sol.jac, sol.weight, sol.resid, finv, parameters=2)
+           + _scene_covariance(sol, finv)[:2, :2] + rough * np.eye(2))
+    chi2 = float(np.sum(sol.resid ** 2 * sol.weight)) / max(n_used - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
                    bool(saturated.any()), sol.converged, blended, chi2_own=chi2)
 

@@ -210,11 +210,17 @@ def spot_window(image: np.ndarray, x0: float, y0: float, half: int, cam: Trackin
     win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
     yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
     border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
-    bg = float(np.median(border))
-    amp = float(np.percentile(win, 99)) - bg
+    bg, top = _levels(border, win)
+    amp = top - bg
     if amp <= 0:
         return None
     return win, xx, yy, win >= cam.max_adu, border, bg, amp
+
+
+@njit(cache=True)
+def _levels(border, win):
+    """The border's median and the window's 99th percentile."""
+    return np.median(border), np.percentile(win, 99.0)
 
 
 def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,

@@ -172,11 +172,14 @@ class _Tables:
         self.psi: dict[int, tuple[float, float]] = {}
         #: the frames the follower saw since the last duplicate, latest last: (row, index, t_frame, threshold)
         self.seen: list[tuple[int, int, float, Detection]] = []
+        #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
+        self.others: tuple | None = ()
 
     def frame(self, camera: TrackingCamera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
-        located = follower.locate(frame, threshold)
+        located = follower.locate(frame, threshold, self.others)
+        self.others = () if dots is None else None
         for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
             # this frame completed an acquisition: the frames searched before it get the tip's positions back
             self._tip_rows(camera, tip, follower, None, None, *seen, fit, located.quality, row=row)
@@ -212,6 +215,8 @@ class _Tables:
             if dots is not None:
                 psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
                 self.psi[row] = (psi, psi_sigma)
+                if len(found) == len(dots.dots):
+                    self.others = tuple((f.x_px, f.y_px, f.radius_px) for _, f in found)
                 for name, dfit in found:
                     t_dot = t_frame + camera.exposure_s / 2 + camera.row_delay_s(dfit.y_px)
                     self.markers.append(_marker_row(index, t_dot, name, dfit, "blended" if dfit.blended else "ok"))
