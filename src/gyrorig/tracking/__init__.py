@@ -25,7 +25,8 @@ from .pose import camera_modes, estimate_pose
 from .rays import tip_from_pixel, tips_from_pixels
 from .sources import FrameArrays, ImageFolder, VideoFile
 from .scatter import SigmaCheck, check_sigmas
-from .spot import SpotFit, fit_spot, spot_crb_px, warm_up
+from .scene_spot import warm_up
+from .spot import SpotFit, fit_spot, spot_crb_px
 from .tracker import TrackResult, track, track_video
 
 __all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",

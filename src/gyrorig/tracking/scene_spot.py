@@ -27,9 +27,10 @@ import numpy as np
 from numba import njit
 
 from .camera_file import TrackingCamera
+from . import spot
 from .spot import SpotFit, fit_spot, spot_window
 
-__all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "ANGLE_BINS", "RING_WIDTH_PX"]
+__all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX"]
 
 #: angular bins of the ring that gives the scene behind the disc's edge
 ANGLE_BINS = 32
@@ -331,26 +332,6 @@ def _edge_radii(win, cx, cy, r, blur, marker_level, bins):
     return out
 
 
-def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution") -> float:
-    """The variance [px^2] per axis of the centre that the edge's own departures from a circle imply: the edge
-    points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a shift of the centre and is
-    therefore absorbed by the fit; its unseen power is taken as the mean power per coefficient of harmonics
-    2 to :data:`EDGE_HARMONICS`.  Noise independent from bin to bin gives ``2 var / bins`` (what the pixels' own
-    covariance already holds); a bump of another spot's light merged with the edge, a bulge of texture under it
-    or something in front of the disc spread over neighbouring harmonics and give what they shift the centre by.
-    NaN when fewer than half the bins have an edge point."""
-    x0, y0 = float(xx[0, 0]), float(yy[0, 0])
-    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], sol.p[3], sol.bins)
-    good = np.isfinite(radii)
-    if np.count_nonzero(good) < MIN_ARC_FRACTION * ANGLE_BINS:
-        return math.nan
-    ang = _BIN_ANGLES[good]
-    basis = np.column_stack([np.ones(len(ang))] + [f(n * ang) for n in range(1, EDGE_HARMONICS + 1)
-                                                    for f in (np.cos, np.sin)])
-    coef = np.linalg.lstsq(basis, radii[good], rcond=None)[0]
-    return float(np.mean(coef[3:] ** 2))
-
-
 @njit(cache=True)
 def _lu_solve(a, b):
     """``a x = b`` for a small square matrix by Gaussian elimination with partial pivoting; ``(x, ok)``, ``ok``
@@ -383,6 +364,46 @@ def _lu_solve(a, b):
         if not math.isfinite(x[k]):
             return x, False
     return x, True
+
+
+#: the harmonic basis of :func:`_edge_roughness` at the bins' angles: 1, cos(n a), sin(n a) for n = 1..EDGE_HARMONICS
+_HARMONICS = np.column_stack([np.ones(ANGLE_BINS)] + [f(n * _BIN_ANGLES) for n in range(1, EDGE_HARMONICS + 1)
+                                                      for f in (np.cos, np.sin)])
+
+
+@njit(cache=True)
+def _harmonic_power(radii):
+    """The mean power per coefficient of harmonics 2 to :data:`EDGE_HARMONICS` of the finite ``radii`` (least
+    squares on :data:`_HARMONICS`' rows, by its normal equations); NaN when fewer than
+    :data:`MIN_ARC_FRACTION` of the bins are finite."""
+    m = _HARMONICS.shape[1]
+    good = np.isfinite(radii)
+    if np.count_nonzero(good) < MIN_ARC_FRACTION * ANGLE_BINS:
+        return math.nan
+    a = np.zeros((m, m))
+    rhs = np.zeros(m)
+    for b in range(ANGLE_BINS):
+        if good[b]:
+            for i in range(m):
+                rhs[i] += _HARMONICS[b, i] * radii[b]
+                for j in range(m):
+                    a[i, j] += _HARMONICS[b, i] * _HARMONICS[b, j]
+    coef, ok = _lu_solve(a, rhs)
+    if not ok:
+        return math.nan
+    return float(np.mean(coef[3:] ** 2))
+
+
+def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution") -> float:
+    """The variance [px^2] per axis of the centre that the edge's own departures from a circle imply: the edge
+    points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a shift of the centre and is
+    therefore absorbed by the fit; its unseen power is taken as the mean power per coefficient of harmonics
+    2 to :data:`EDGE_HARMONICS`.  Noise independent from bin to bin gives ``2 var / bins`` (what the pixels' own
+    covariance already holds); a bump of another spot's light merged with the edge, a bulge of texture under it
+    or something in front of the disc spread over neighbouring harmonics and give what they shift the centre by.
+    NaN when fewer than half the bins have an edge point."""
+    x0, y0 = float(xx[0, 0]), float(yy[0, 0])
+    return _harmonic_power(_edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], sol.p[3], sol.bins))
 
 
 @njit(cache=True)
@@ -507,3 +528,24 @@ def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
     if cam.sensor_known:
         return fit_spot(image, x0, y0, r0, cam, neighbour=neighbour)
     return fit_scene_spot(image, x0, y0, r0, cam)
+
+
+def warm_up() -> None:
+    """Load every compiled spot-fit kernel now (numba; compiled once and cached on disk, then loaded in ~0.05 s
+    each per process), not in the first frames: a disc of radius 5 px on a flat scene, fitted."""
+    spot.warm_up()
+    yy, xx = np.mgrid[0:41, 0:41].astype(np.float64)
+    win = 20.0 + 100.0 * (np.hypot(xx - 20.2, yy - 19.9) < 5.0)
+    allowed = np.ones(win.shape, bool)
+    ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
+        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15)
+    _foreign_bins(bins, float(p[3]))
+    _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))
+    _harmonic_power(_edge_radii(win, float(p[0]), float(p[1]), float(p[2]), float(p[4]), float(p[3]), bins))
+    _projected_meat(pick, win.shape, jac, weight, resid, np.eye(5)[:2].copy())
+    _sector_effects(xs, ys, float(p[0]), float(p[1]), jac, weight, cover)
+    spot_window(win.astype(np.float32), 20.0, 20.0, 10, _WarmCamera())
+
+
+class _WarmCamera:
+    max_adu = 255
