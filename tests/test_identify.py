@@ -18,7 +18,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrorig.bench.identify import _rigs, identify_pulls, simulated_nutation_frequency, simulated_precession_period
+from gyrorig.bench.identify import (_rigs, identify_pulls, simulated_circling_rate, simulated_nutation_frequency,
+                                    simulated_precession_period)
 from gyrorig.cli import main
 from gyrorig.identify import IdentifyInputError, read_table
 from gyrorig.protocols import load_protocol
@@ -33,7 +34,7 @@ def _band(n: int) -> tuple[float, float]:
     return 1 - half, 1 + half
 
 
-@pytest.mark.parametrize("rig", ["air-45deg"])
+@pytest.mark.parametrize("rig", ["air-45deg", "balanced-gyro"])
 def test_pulls_of_identified_parameters_are_unit_normal(tmp_path, rig):
     n = 60
     runs = identify_pulls(rig, n, tmp_path, seed=11)
@@ -372,21 +373,6 @@ def test_a_fit_json_with_a_text_tilt_is_refused(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def _circling_rate(protocol) -> tuple[float, float]:
-    """The simulator's kicked, balanced top: the rate at which the axis circles its mean direction (the angular
-    momentum) [rad/s], and the cone's half-angle [rad]."""
-    from gyrorig import simulate
-
-    df = simulate(protocol, duration_s=1.0, rate_hz=4000)
-    tip = df[["tip_x", "tip_y", "tip_z"]].to_numpy()
-    axis = tip.mean(axis=0) / np.linalg.norm(tip.mean(axis=0))
-    e1 = np.cross(axis, [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
-    rate = np.polyfit(df.t_s, np.unwrap(np.arctan2(tip @ e2, tip @ e1)), 1)[0]
-    return float(abs(rate)), float(np.mean(np.arccos(np.clip(tip @ axis, -1.0, 1.0))))
-
-
 def test_a_balanced_gyros_nutation_identifies_its_transverse_inertia(tmp_path):
     """Issue 32: with the centre of mass on the pivot the nutation model (released from rest) predicted 0 for every
     row and identify returned the prior.  A balanced gyro, kicked at five spins (the simulator: the axis circles
@@ -399,8 +385,7 @@ def test_a_balanced_gyros_nutation_identifies_its_transverse_inertia(tmp_path):
     rng = np.random.default_rng(4)
     rows = []
     for spin in (150.0, 200.0, 260.0, 320.0, 400.0):
-        launch = replace(balanced.launch, tilt_rad=0.5, tilt_rate_rad_s=1.5, spin_rate_rad_s=spin)
-        rate, cone = _circling_rate(replace(balanced, launch=launch))
+        rate, cone = simulated_circling_rate(balanced, spin, 0.5, 1.5)
         rows.append(f"{spin},{rate * (1 + 0.003 * rng.normal())},{0.003 * rate},{math.degrees(cone)}\n")
     table = tmp_path / "nutation.csv"
     table.write_text("spin_rad_s,nutation_frequency_rad_s,nutation_frequency_rad_s_sd,cone_angle_deg\n" + "".join(rows))

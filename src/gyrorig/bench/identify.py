@@ -4,8 +4,9 @@ The true values of each row come from simulating the rig (never from the formula
 ``gyrorig identify`` fits): a precession period is the mean azimuth rate of a simulated top
 launched in steady precession at the row's tilt (a wrong steady-precession formula shows as
 nutation and a different mean rate); a nutation frequency is measured from the tilt maxima of a
-simulated release from rest; a spin-down curve is integrated from ``d omega/dt = -k omega - f`` by
-scipy.  Noise of the stated standard deviations is then added to the observed values and to the
+simulated release from rest; a balanced gyro's nutation (``balanced-gyro``: centre of mass on the pivot,
+kicked) is the rate at which its simulated axis circles its mean direction, with the cone's half-angle; a
+spin-down curve is integrated from ``d omega/dt = -k omega - f`` by scipy.  Noise of the stated standard deviations is then added to the observed values and to the
 recorded conditions, and the priors are drawn about the truth with their own standard deviations.
 """
 
@@ -27,7 +28,8 @@ from ..physics import simulate
 from ..protocols import Launch, Protocol, load_protocol, BUNDLED_PROTOCOL_DIR
 from ..theory import exact_steady_precession_rates
 
-__all__ = ["SyntheticRig", "simulated_precession_period", "simulated_nutation_frequency", "synthetic_tables",
+__all__ = ["SyntheticRig", "simulated_precession_period", "simulated_nutation_frequency", "simulated_circling_rate",
+           "synthetic_tables",
            "identify_pulls", "RIGS"]
 
 
@@ -63,6 +65,23 @@ def simulated_nutation_frequency(rig: Protocol, spin_rad_s: float, tilt_rad: flo
     return 2 * math.pi / float(np.mean(np.diff(peaks)))
 
 
+def simulated_circling_rate(rig: Protocol, spin_rad_s: float, tilt_rad: float, kick_rad_s: float
+                            ) -> tuple[float, float]:
+    """A kicked top (tilt rate ``kick_rad_s`` at the tilt) simulated for 1 s: the rate at which its axis circles its
+    mean direction [rad/s] and the cone's half-angle about it [rad].  For a balanced rig the mean direction is the
+    angular momentum and the circling its torque-free nutation."""
+    launch = Launch(tilt_rad=tilt_rad, azimuth_rad=0.0, tilt_rate_rad_s=kick_rad_s, precession_rate_rad_s=0.0,
+                    spin_rate_rad_s=spin_rad_s)
+    df = simulate(replace(rig, launch=launch), duration_s=1.0, rate_hz=4000.0, rtol=1e-11)
+    tip = df[["tip_x", "tip_y", "tip_z"]].to_numpy()
+    axis = tip.mean(axis=0) / np.linalg.norm(tip.mean(axis=0))
+    e1 = np.cross(axis, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    rate = np.polyfit(df.t_s.to_numpy(), np.unwrap(np.arctan2(tip @ e2, tip @ e1)), 1)[0]
+    return float(abs(rate)), float(np.mean(np.arccos(np.clip(tip @ axis, -1.0, 1.0))))
+
+
 def _spin_down(t_s: np.ndarray, omega0: float, k: float, f: float) -> np.ndarray:
     sol = solve_ivp(lambda t, w: -k * w - f, (0.0, float(t_s[-1])), [omega0], t_eval=t_s, rtol=1e-12, atol=1e-12)
     return sol.y[0]
@@ -79,6 +98,9 @@ class SyntheticRig:
     precession_rows: tuple = ()     # (spin, tilt, added mass, lever arm)
     nutation_rows: tuple = ()       # (spin, tilt, added mass, lever arm)
     spin_down: tuple | None = None  # (omega0, k, f, duration)
+    kicked_rows: tuple = ()         # (spin, tilt, kick): nutation of a kicked top, with its cone angle
+    #: rig parameters known exactly (held at the truth, no prior sd), e.g. a balanced rig's com_distance_m = 0
+    held: tuple = ()
 
 
 def _bundled(name: str) -> Protocol:
@@ -91,20 +113,25 @@ def _rigs() -> dict[str, SyntheticRig]:
     at45 = tuple((s, math.pi / 4, m, 0.12) for s in (250.0, 400.0) for m in (0.0, 0.05))
     nut = tuple((s, math.pi / 4, m, 0.12) for s in (300.0, 500.0) for m in (0.0, 0.05))
     eddy = _bundled("eddy-damped-top-b2")
+    balanced = replace(air, rig=replace(air.rig, com_distance_m=0.0))
+    kicked = tuple((s, 0.5, 1.5) for s in (150.0, 200.0, 260.0, 320.0, 400.0))
     return {
+        "balanced-gyro": SyntheticRig("balanced-gyro", balanced, 0.2, kicked_rows=kicked,
+                                      held=("rig.com_distance_m",)),
         "air-horizontal": SyntheticRig("air-horizontal", air, 0.2, horizontal, nut, (502.65, 2e-3, 0.2, 600.0)),
         "air-45deg": SyntheticRig("air-45deg", air, 0.2, at45, nut),
         "eddy-rig": SyntheticRig("eddy-rig", eddy, 0.2, horizontal[::2] + at45, nut[:2], (400.0, 5e-3, 0.0, 300.0)),
     }
 
 
-RIGS = ("air-horizontal", "air-45deg", "eddy-rig")
+RIGS = ("air-horizontal", "air-45deg", "eddy-rig", "balanced-gyro")
 
 
 def _truth_rows(rig: SyntheticRig) -> dict[str, list]:
     p = rig.protocol
     return {"precession": [simulated_precession_period(p, *r) for r in rig.precession_rows],
-            "nutation": [simulated_nutation_frequency(p, *r) for r in rig.nutation_rows]}
+            "nutation": [simulated_nutation_frequency(p, *r) for r in rig.nutation_rows],
+            "kicked": [simulated_circling_rate(p, *r) for r in rig.kicked_rows]}
 
 
 def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, truth: dict | None = None,
@@ -127,6 +154,13 @@ def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, 
                 for (s, th, m, ell), y in zip(rows_in, truth[kind])]
         files.append(folder / f"{kind}.csv")
         pd.DataFrame(rows).to_csv(files[-1], index=False)
+    if rig.kicked_rows:  # a video or stroboscope gives the circling rate and the cone (to 0.2 deg)
+        rows = [{"spin_rad_s": noisy(s, spin_rel_sd), "spin_rad_s_sd": s * spin_rel_sd,
+                 "nutation_frequency_rad_s": noisy(y, rel_sd), "nutation_frequency_rad_s_sd": y * rel_sd,
+                 "cone_angle_deg": math.degrees(cone) + 0.2 * rng.normal(), "cone_angle_deg_sd": 0.2}
+                for (s, _, _), (y, cone) in zip(rig.kicked_rows, truth["kicked"])]
+        files.append(folder / "nutation.csv")
+        pd.DataFrame(rows).to_csv(files[-1], index=False)
     if rig.spin_down:
         w0, k, f, dur = rig.spin_down
         t = np.linspace(0.0, dur, 13)
@@ -137,13 +171,13 @@ def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, 
         files.append(folder / "spin_down.csv")
     p = rig.protocol
     names, values, sds = [], [], []
-    for n in RIG_PARAMETERS:
+    for n in (n for n in RIG_PARAMETERS if n not in rig.held):
         v = getattr(p.rig, n.split(".")[1])
         sd = rig.prior_rel_sd * v
         names.append(n)
         values.append(v + sd * rng.normal())
         sds.append(sd)
-    eye = tuple(tuple(float(i == j) for j in range(3)) for i in range(3))
+    eye = tuple(tuple(float(i == j) for j in range(len(names))) for i in range(len(names)))
     prior = replace(p, rig=replace(p.rig, **{n.split(".")[1]: v for n, v in zip(names, values)}),
                     uncertainty=Uncertainty(tuple(names), tuple(values), tuple(sds), eye))
     return files, prior
@@ -154,13 +188,15 @@ def identify_pulls(rig_name: str, draws: int, folder: Path, seed: int = 0, fast_
     rig = _rigs()[rig_name]
     truth_rows = _truth_rows(rig)
     rng = np.random.default_rng(seed)
-    truth = {n: getattr(rig.protocol.rig, n.split(".")[1]) for n in RIG_PARAMETERS}
+    truth = {n: getattr(rig.protocol.rig, n.split(".")[1]) for n in RIG_PARAMETERS if n not in rig.held}
     if rig.spin_down:
         truth["spin_down.viscous_rate_per_s"] = rig.spin_down[1]
         truth["spin_down.friction_rad_s2"] = rig.spin_down[2]
-    m, g = rig.protocol.rig.mass_kg, rig.protocol.rig.gravity_m_s2
-    truth_derived = {"io_over_i": truth[RIG_PARAMETERS[0]] / truth[RIG_PARAMETERS[1]],
-                     "mgh_over_io_rad2_s2": m * g * truth[RIG_PARAMETERS[2]] / truth[RIG_PARAMETERS[0]]}
+    r = rig.protocol.rig
+    truth_derived = {"io_over_i": r.inertia_axial_kg_m2 / r.inertia_transverse_kg_m2,
+                     "mgh_over_io_rad2_s2": r.mgh_N_m / r.inertia_axial_kg_m2}
+    if r.mgh_N_m == 0.0:
+        del truth_derived["mgh_over_io_rad2_s2"]
     rows = []
     for d in range(draws):
         files, prior = synthetic_tables(rig, folder / f"{rig_name}-{d}", rng, truth_rows)
