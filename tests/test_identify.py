@@ -34,7 +34,7 @@ def _band(n: int) -> tuple[float, float]:
     return 1 - half, 1 + half
 
 
-@pytest.mark.parametrize("rig", ["air-45deg", "balanced-gyro"])
+@pytest.mark.parametrize("rig", ["air-45deg", "balanced-gyro", "gimbal-gyro"])
 def test_pulls_of_identified_parameters_are_unit_normal(tmp_path, rig):
     n = 60
     runs = identify_pulls(rig, n, tmp_path, seed=11)

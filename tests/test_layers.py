@@ -65,14 +65,15 @@ def test_identification_cannot_reach_the_simulator():
 
     reached = closure("gyrorig.identify")
     forbidden = {m for m in reached if m.startswith(("gyrorig.render", "gyrorig.bench", "gyrorig.montecarlo",
-                                                     "gyrorig.pipeline", "gyrorig.validation", "gyrorig.expectation"))}
+                                                     "gyrorig.pipeline", "gyrorig.validation", "gyrorig.expectation",
+                                                     "gyrorig.physics.gimbal"))}
     assert not forbidden, sorted(forbidden)
     # the elliptic solution's module imports the simulator's state helpers; identify itself never takes simulate
     # (nor predict, which simulates damped scenes)
     for f in (SRC / "identify").glob("*.py"):
         names = {a.asname or a.name for node in ast.walk(ast.parse(f.read_text()))
                  if isinstance(node, ast.ImportFrom) for a in node.names}
-        assert not names & {"simulate", "predict"}, f
+        assert not names & {"simulate", "predict", "simulate_gimbal"}, f
 
 
 @pytest.mark.parametrize("module", ["gyrorig.tracking", "gyrorig.calibration", "gyrorig.board_pose", "gyrorig.smooth",
@@ -86,7 +87,7 @@ def test_tracking_cannot_reach_the_truth(module):
 
 
 @pytest.mark.parametrize("module", ["gyrorig.physics.simulate", "gyrorig.physics.exact", "gyrorig.physics.phasor",
-                                    "gyrorig.physics._jit", "gyrorig.theory"])
+                                    "gyrorig.physics._jit", "gyrorig.physics.gimbal", "gyrorig.theory"])
 def test_physics_core_has_no_video_filtering_or_plotting(module):
     reached = {m.split(".")[0] for m in closure(module)}
     assert not reached & {"cv2", "matplotlib", "filterpy"}, sorted(reached & {"cv2", "matplotlib", "filterpy"})

@@ -31,7 +31,7 @@ from ._validate import ProtocolError
 __all__ = ["Uncertainty", "split_uncertain", "UNCERTAIN_SECTIONS"]
 
 #: the sections whose numbers may carry a standard deviation
-UNCERTAIN_SECTIONS = ("rig", "launch", "pivot")
+UNCERTAIN_SECTIONS = ("rig", "launch", "pivot", "gimbal")
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Union
 
 from ._validate import ProtocolError, angle, boolean, check_keys, finite, number, vector3
+from .gimbals import Gimbal, parse_gimbal
 from .parameters import Uncertainty, split_uncertain
 
 logger = logging.getLogger(__name__)
@@ -291,6 +292,8 @@ class Protocol:
     #: standard deviations (and correlations) of the parameters given as ``{ value, sd }``
     #: (:mod:`gyrorig.parameters`); empty: every number exact
     uncertainty: Uncertainty = field(default_factory=Uncertainty)
+    #: a gyro in gimbals (:mod:`gyrorig.gimbals`); None: a top on a pivot
+    gimbal: Gimbal | None = None
 
     @property
     def has_gravity(self) -> bool:
@@ -313,6 +316,8 @@ def protocol_summary(p: Protocol) -> dict:
            "launch": asdict(p.launch), "pivot": asdict(p.pivot), "scene": asdict(p.scene)}
     if p.uncertainty:
         out["uncertainty"] = p.uncertainty.as_dict()
+    if p.gimbal is not None:
+        out["gimbal"] = asdict(p.gimbal)
     return out
 
 
@@ -461,7 +466,7 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     ----------
     data : mapping
         Top-level tables ``protocol`` (optional: ``name``, ``description``), ``rig``,
-        ``launch``, ``scene`` (required), ``pivot`` (optional), ``uncertainty`` (optional:
+        ``launch``, ``scene`` (required), ``pivot``, ``gimbal`` (optional), ``uncertainty`` (optional:
         correlations of the numbers given as ``{ value, sd }``, :mod:`gyrorig.parameters`), and
         the sections read by later stages (``camera``, ``markers``, ``measure``).
     source : str
@@ -476,7 +481,7 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     ProtocolError
         Naming the offending key, its value and the allowed range.
     """
-    known = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty"} | _LATER_SECTIONS
+    known = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty", "gimbal"} | _LATER_SECTIONS
     unknown = sorted(set(data) - known)
     data, uncertainty = split_uncertain(data)
     if unknown:
@@ -494,7 +499,9 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
         raise ProtocolError("pivot acceleration given but rig.com_distance_m = 0: it would exert no torque")
     extra = {k: v for k, v in data.items() if k in _LATER_SECTIONS}
     name = str(meta.get("name", Path(source).stem if source else "protocol"))
-    return Protocol(name, str(meta.get("description", "")), rig, launch, pivot, scene, source, extra, uncertainty)
+    gimbal = parse_gimbal(data["gimbal"]) if "gimbal" in data else None
+    return Protocol(name, str(meta.get("description", "")), rig, launch, pivot, scene, source, extra, uncertainty,
+                    gimbal)
 
 
 def checked_rig(rig: Rig) -> Rig:

@@ -21,10 +21,12 @@ import pandas as pd
 from scipy.integrate import solve_ivp
 
 from ..identify import identify_parameters, observations_from_table, read_table
-from ..identify.estimate import RIG_PARAMETERS
+from ..gimbals import Gimbal, gimbal_nutation_frequency, gimbal_precession_rate
+from ..identify.estimate import prior_rig_values
 from ..identify.observations import rig_with
 from ..parameters import Uncertainty
 from ..physics import simulate
+from ..physics.gimbal import simulate_gimbal
 from ..protocols import Launch, Protocol, load_protocol, BUNDLED_PROTOCOL_DIR
 from ..theory import exact_steady_precession_rates
 
@@ -58,11 +60,7 @@ def simulated_nutation_frequency(rig: Protocol, spin_rad_s: float, tilt_rad: flo
     duration = (periods + 1.5) * 2 * math.pi / guess
     rate = 400 * guess / (2 * math.pi)
     df = simulate(replace(p, launch=launch), duration_s=duration, rate_hz=rate, rtol=1e-11)
-    th, t = df.theta_rad.to_numpy(), df.t_s.to_numpy()
-    i = np.flatnonzero((th[1:-1] > th[:-2]) & (th[1:-1] >= th[2:])) + 1
-    a, b, c = th[i - 1], th[i], th[i + 1]
-    peaks = t[i] + 0.5 * (a - c) / (a - 2 * b + c) * (t[1] - t[0])
-    return 2 * math.pi / float(np.mean(np.diff(peaks)))
+    return _peak_frequency(df.t_s.to_numpy(), df.theta_rad.to_numpy())
 
 
 def simulated_circling_rate(rig: Protocol, spin_rad_s: float, tilt_rad: float, kick_rad_s: float
@@ -82,6 +80,39 @@ def simulated_circling_rate(rig: Protocol, spin_rad_s: float, tilt_rad: float, k
     return float(abs(rate)), float(np.mean(np.arccos(np.clip(tip @ axis, -1.0, 1.0))))
 
 
+def simulated_gimbal_nutation(rig: Protocol, spin_rad_s: float, tilt_rad: float, kick_rad_s: float,
+                              added_outer_inertia_kg_m2: float = 0.0, periods: int = 12) -> float:
+    """A balanced gyro in gimbals kicked at the tilt (``rig.gimbal``, cylinders of ``added_outer_inertia_kg_m2`` on
+    its outer ring): its nutation frequency from the simulated tilt maxima. [rad/s]"""
+    g = replace(rig.gimbal, outer_inertia_kg_m2=rig.gimbal.outer_inertia_kg_m2 + added_outer_inertia_kg_m2)
+    guess = gimbal_nutation_frequency(rig.rig, g, spin_rad_s, tilt_rad)  # sets the record's length and sampling
+    launch = Launch(tilt_rad=tilt_rad, azimuth_rad=0.0, tilt_rate_rad_s=kick_rad_s, precession_rate_rad_s=0.0,
+                    spin_rate_rad_s=spin_rad_s)
+    df = simulate_gimbal(replace(rig, gimbal=g, launch=launch), duration_s=(periods + 1.5) * 2 * math.pi / guess,
+                         rate_hz=400 * guess / (2 * math.pi))
+    return _peak_frequency(df.t_s.to_numpy(), df.theta_rad.to_numpy())
+
+
+def simulated_gimbal_precession_period(rig: Protocol, spin_rad_s: float, tilt_rad: float, added_mass_kg: float = 0.0,
+                                       lever_arm_m: float = 0.0) -> float:
+    """Period of the mean azimuth motion of a gyro in gimbals launched in steady precession at the tilt (a weight
+    ``added_mass_kg`` at ``lever_arm_m`` on the spin axis). [s]"""
+    p = rig_with(rig, {}, added_mass_kg, lever_arm_m)
+    slow = gimbal_precession_rate(p.rig, p.gimbal, spin_rad_s, tilt_rad)
+    launch = Launch(tilt_rad=tilt_rad, azimuth_rad=0.0, tilt_rate_rad_s=0.0, precession_rate_rad_s=slow,
+                    spin_rate_rad_s=spin_rad_s)
+    df = simulate_gimbal(replace(p, launch=launch), duration_s=min(2 * math.pi / abs(slow), 2.0), rate_hz=2000.0)
+    return 2 * math.pi / abs(np.polyfit(df.t_s.to_numpy(), df.phi_rad.to_numpy(), 1)[0])
+
+
+def _peak_frequency(t: np.ndarray, th: np.ndarray) -> float:
+    """The frequency of a record's maxima (parabola through each sample maximum and its neighbours). [rad/s]"""
+    i = np.flatnonzero((th[1:-1] > th[:-2]) & (th[1:-1] >= th[2:])) + 1
+    a, b, c = th[i - 1], th[i], th[i + 1]
+    peaks = t[i] + 0.5 * (a - c) / (a - 2 * b + c) * (t[1] - t[0])
+    return 2 * math.pi / float(np.mean(np.diff(peaks)))
+
+
 def _spin_down(t_s: np.ndarray, omega0: float, k: float, f: float) -> np.ndarray:
     sol = solve_ivp(lambda t, w: -k * w - f, (0.0, float(t_s[-1])), [omega0], t_eval=t_s, rtol=1e-12, atol=1e-12)
     return sol.y[0]
@@ -99,6 +130,7 @@ class SyntheticRig:
     nutation_rows: tuple = ()       # (spin, tilt, added mass, lever arm)
     spin_down: tuple | None = None  # (omega0, k, f, duration)
     kicked_rows: tuple = ()         # (spin, tilt, kick): nutation of a kicked top, with its cone angle
+    gimbal_rows: tuple = ()         # (spin, tilt, kick, added outer inertia): a balanced gyro in gimbals nutating
     #: rig parameters known exactly (held at the truth, no prior sd), e.g. a balanced rig's com_distance_m = 0
     held: tuple = ()
 
@@ -115,7 +147,14 @@ def _rigs() -> dict[str, SyntheticRig]:
     eddy = _bundled("eddy-damped-top-b2")
     balanced = replace(air, rig=replace(air.rig, com_distance_m=0.0))
     kicked = tuple((s, 0.5, 1.5) for s in (150.0, 200.0, 260.0, 320.0, 400.0))
+    gimballed = replace(balanced, gimbal=Gimbal(outer_inertia_kg_m2=4.0e-4, cross_inertia_kg_m2=2.6e-3))
     return {
+        "gimbal-gyro": SyntheticRig(
+            "gimbal-gyro", gimballed, 0.2, tuple((s, th, m, 0.12) for s in (300.0, 450.0)
+                                                 for th in (math.pi / 2, math.pi / 3) for m in (0.03, 0.06)),
+            gimbal_rows=tuple((s, th, 0.5, j) for s in (250.0, 400.0) for th in (math.pi / 2, math.pi / 3)
+                              for j in (0.0, 5.0e-4)),
+            held=("rig.com_distance_m",)),
         "balanced-gyro": SyntheticRig("balanced-gyro", balanced, 0.2, kicked_rows=kicked,
                                       held=("rig.com_distance_m",)),
         "air-horizontal": SyntheticRig("air-horizontal", air, 0.2, horizontal, nut, (502.65, 2e-3, 0.2, 600.0)),
@@ -124,11 +163,14 @@ def _rigs() -> dict[str, SyntheticRig]:
     }
 
 
-RIGS = ("air-horizontal", "air-45deg", "eddy-rig", "balanced-gyro")
+RIGS = ("air-horizontal", "air-45deg", "eddy-rig", "balanced-gyro", "gimbal-gyro")
 
 
 def _truth_rows(rig: SyntheticRig) -> dict[str, list]:
     p = rig.protocol
+    if p.gimbal is not None:
+        return {"precession": [simulated_gimbal_precession_period(p, *r) for r in rig.precession_rows],
+                "gimbal": [simulated_gimbal_nutation(p, *r) for r in rig.gimbal_rows]}
     return {"precession": [simulated_precession_period(p, *r) for r in rig.precession_rows],
             "nutation": [simulated_nutation_frequency(p, *r) for r in rig.nutation_rows],
             "kicked": [simulated_circling_rate(p, *r) for r in rig.kicked_rows]}
@@ -154,6 +196,13 @@ def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, 
                 for (s, th, m, ell), y in zip(rows_in, truth[kind])]
         files.append(folder / f"{kind}.csv")
         pd.DataFrame(rows).to_csv(files[-1], index=False)
+    if rig.gimbal_rows:
+        rows = [{"spin_rad_s": noisy(s, spin_rel_sd), "spin_rad_s_sd": s * spin_rel_sd, "tilt_deg": math.degrees(th),
+                 "added_outer_inertia_g_cm2": 1e7 * j, "nutation_frequency_rad_s": noisy(y, rel_sd),
+                 "nutation_frequency_rad_s_sd": y * rel_sd}
+                for (s, th, _, j), y in zip(rig.gimbal_rows, truth["gimbal"])]
+        files.append(folder / "nutation.csv")
+        pd.DataFrame(rows).to_csv(files[-1], index=False)
     if rig.kicked_rows:  # a video or stroboscope gives the circling rate and the cone (to 0.2 deg)
         rows = [{"spin_rad_s": noisy(s, spin_rel_sd), "spin_rad_s_sd": s * spin_rel_sd,
                  "nutation_frequency_rad_s": noisy(y, rel_sd), "nutation_frequency_rad_s_sd": y * rel_sd,
@@ -171,14 +220,15 @@ def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, 
         files.append(folder / "spin_down.csv")
     p = rig.protocol
     names, values, sds = [], [], []
-    for n in (n for n in RIG_PARAMETERS if n not in rig.held):
-        v = getattr(p.rig, n.split(".")[1])
+    for n in (n for n in prior_rig_values(p) if n not in rig.held):
+        v = prior_rig_values(p)[n]
         sd = rig.prior_rel_sd * v
         names.append(n)
         values.append(v + sd * rng.normal())
         sds.append(sd)
     eye = tuple(tuple(float(i == j) for j in range(len(names))) for i in range(len(names)))
-    prior = replace(p, rig=replace(p.rig, **{n.split(".")[1]: v for n, v in zip(names, values)}),
+    drawn = rig_with(p, dict(zip(names, values)))
+    prior = replace(p, rig=drawn.rig, gimbal=drawn.gimbal,
                     uncertainty=Uncertainty(tuple(names), tuple(values), tuple(sds), eye))
     return files, prior
 
@@ -188,7 +238,7 @@ def identify_pulls(rig_name: str, draws: int, folder: Path, seed: int = 0, fast_
     rig = _rigs()[rig_name]
     truth_rows = _truth_rows(rig)
     rng = np.random.default_rng(seed)
-    truth = {n: getattr(rig.protocol.rig, n.split(".")[1]) for n in RIG_PARAMETERS if n not in rig.held}
+    truth = {n: v for n, v in prior_rig_values(rig.protocol).items() if n not in rig.held}
     if rig.spin_down:
         truth["spin_down.viscous_rate_per_s"] = rig.spin_down[1]
         truth["spin_down.friction_rad_s2"] = rig.spin_down[2]

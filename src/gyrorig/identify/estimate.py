@@ -1,7 +1,7 @@
 """Weighted least squares of the rig's parameters from observations and the prior protocol.
 
 Free parameters: the rig's ``inertia_axial_kg_m2``, ``inertia_transverse_kg_m2`` and
-``com_distance_m`` where the prior gives them a standard deviation (their priors, with the
+``com_distance_m`` (and a gyro in gimbals' ``[gimbal]`` inertias) where the prior gives them a standard deviation (their priors, with the
 prior's correlations, enter as whitened residuals; a number without one is known and held),
 and, with spin-down tables, the viscous rate ``k``, the constant friction ``f`` (only when the
 data need it: a chi-square gain above the 1 % point of chi-square with one degree of freedom, or with
@@ -25,8 +25,8 @@ from ..protocols import Protocol, ProtocolError, checked_rig
 from .observations import FORMULAS, Observation
 from .tables import IdentifyInputError
 
-__all__ = ["Identification", "identify_parameters", "prior_rig_values", "RIG_PARAMETERS", "FRICTION_P_VALUE",
-           "LACK_OF_FIT_P"]
+__all__ = ["Identification", "identify_parameters", "prior_rig_values", "RIG_PARAMETERS", "GIMBAL_PARAMETERS",
+           "FRICTION_P_VALUE", "LACK_OF_FIT_P"]
 
 RIG_PARAMETERS = ("rig.inertia_axial_kg_m2", "rig.inertia_transverse_kg_m2", "rig.com_distance_m")
 #: the constant friction is kept when dropping it raises the chi-square by more than this quantile's value (stated
@@ -36,9 +36,25 @@ FRICTION_P_VALUE = 0.01
 LACK_OF_FIT_P = 1e-3
 
 
+#: a gyro in gimbals (the prior's ``[gimbal]``): what turns only in azimuth, and the tilting assembly's inertia across
+#: the inner gimbal axis and the spin axis (:mod:`gyrorig.gimbals`)
+GIMBAL_PARAMETERS = ("gimbal.outer_inertia_kg_m2", "gimbal.cross_inertia_kg_m2")
+
+
 def prior_rig_values(prior: Protocol) -> dict[str, float]:
-    """The prior's values of :data:`RIG_PARAMETERS`, by name."""
-    return {n: getattr(prior.rig, n.split(".")[1]) for n in RIG_PARAMETERS}
+    """The prior's values of :data:`RIG_PARAMETERS` (and of :data:`GIMBAL_PARAMETERS` for a gyro in gimbals; the
+    cross inertia only where the prior states it), by name."""
+    out = {n: getattr(prior.rig, n.split(".")[1]) for n in RIG_PARAMETERS}
+    if prior.gimbal is not None:
+        for n in GIMBAL_PARAMETERS:
+            v = getattr(prior.gimbal, n.split(".")[1])
+            if v is not None:
+                out[n] = v
+    return out
+
+
+def _is_model_parameter(name: str) -> bool:
+    return name.startswith(("rig.", "gimbal."))
 
 
 @dataclass(frozen=True)
@@ -110,7 +126,7 @@ class Identification:
 
 
 def _free_rig(prior: Protocol) -> list[str]:
-    return [n for n in RIG_PARAMETERS if prior.uncertainty.sd_of(n) > 0]
+    return [n for n in prior_rig_values(prior) if prior.uncertainty.sd_of(n) > 0]
 
 
 def _prior_whitener(prior: Protocol, names: list[str]):
@@ -125,8 +141,8 @@ def _prior_whitener(prior: Protocol, names: list[str]):
 def _start(obs: list[Observation], prior: Protocol, names: list[str]) -> np.ndarray:
     x0 = []
     for n in names:
-        if n.startswith("rig."):
-            x0.append(getattr(prior.rig, n.split(".")[1]))
+        if _is_model_parameter(n):
+            x0.append(prior_rig_values(prior)[n])
         elif n.startswith("spin["):
             x0.append(next(o.table_prior[0] for o in obs if o.table_key == n))
         elif n.startswith("spin_down.initial_spin_rad_s"):
@@ -144,7 +160,7 @@ def _start(obs: list[Observation], prior: Protocol, names: list[str]) -> np.ndar
 
 def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool, sd_scatter: dict[str, float],
            x0: np.ndarray | None = None):
-    rig_free = [n for n in names if n.startswith("rig.")]
+    rig_free = [n for n in names if _is_model_parameter(n)]
     mean, Linv = _prior_whitener(prior, rig_free) if rig_free else (np.zeros(0), np.zeros((0, 0)))
     ridx = [names.index(n) for n in rig_free]
     fixed = {n: v for n, v in prior_rig_values(prior).items() if n not in names}

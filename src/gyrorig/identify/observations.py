@@ -18,7 +18,11 @@ mass ``m`` at ``l`` along the axis (``M' = M + m``, ``M' h' = M h + m l``, ``I' 
   ``theta_c`` the cone angle (a ``cone_angle`` column; 0 when not given); fast top: ``Io Omega / I'``;
 * a video's fit.json: its mean precession rate and nutation frequency from the elliptic solution of
   its protocol's launch; fast top: ``Mgh / (Io Omega)`` and ``Io Omega / I``;
-* spin-down: ``omega(t) = omega_0 exp(-k t) - f (1 - exp(-k t)) / k`` (``d omega / dt = -k omega - f``).
+* spin-down: ``omega(t) = omega_0 exp(-k t) - f (1 - exp(-k t)) / k`` (``d omega / dt = -k omega - f``);
+* a gyro in gimbals (the prior's ``[gimbal]``, :mod:`gyrorig.gimbals`): precession by the slow root of its steady
+  precession at the tilt (horizontal when no tilt is given), nutation (balanced, at the tilt, horizontal when none
+  is given) by ``Io Omega sin theta / sqrt(a(theta) I)`` with ``a`` the inertia about the vertical (an
+  ``added_outer_inertia`` column adds to it: cylinders on the outer ring); no video.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..gimbals import gimbal_nutation_frequency, gimbal_precession_rate
 from ..physics.exact import ExactSolutionError, exact_solution
 from ..protocols import Launch, Pivot, Protocol, ProtocolError
 from ..theory import exact_steady_precession_rates
@@ -92,12 +97,17 @@ def rig_with(prior: Protocol, params: dict, added_mass_kg: float = 0.0, lever_ar
     through that bound, so the solver can cross it on its way (:func:`~gyrorig.identify.estimate.identify_parameters`
     checks the result)."""
     rig = replace(prior.rig, **{k.split(".", 1)[1]: v for k, v in params.items() if k.startswith("rig.")})
+    gimbal = prior.gimbal
+    if gimbal is not None:
+        gimbal = replace(gimbal, **{k.split(".", 1)[1]: v for k, v in params.items() if k.startswith("gimbal.")})
     if added_mass_kg:
         mass = rig.mass_kg + added_mass_kg
         rig = replace(rig, mass_kg=mass, com_distance_m=(rig.mass_kg * rig.com_distance_m
                                                          + added_mass_kg * lever_arm_m) / mass,
                       inertia_transverse_kg_m2=rig.inertia_transverse_kg_m2 + added_mass_kg * lever_arm_m ** 2)
-    return replace(prior, rig=rig, pivot=Pivot())
+        if gimbal is not None and gimbal.cross_inertia_kg_m2 is not None:  # a point on the spin axis: both axes
+            gimbal = replace(gimbal, cross_inertia_kg_m2=gimbal.cross_inertia_kg_m2 + added_mass_kg * lever_arm_m ** 2)
+    return replace(prior, rig=rig, pivot=Pivot(), gimbal=gimbal)
 
 
 def _mgh_inertias(prior: Protocol, params: dict, x: dict) -> tuple[float, float, float]:
@@ -133,6 +143,29 @@ def _released(prior: Protocol, params: dict, x: dict, launch=None):
     launch = launch or replace(p.launch, tilt_rad=x["tilt"], spin_rate_rad_s=x["spin"], tilt_rate_rad_s=0.0,
                                precession_rate_rad_s=0.0)
     return exact_solution(replace(p, launch=launch))
+
+
+def _gimbal_precession(prior: Protocol):
+    def exact(params, x):
+        p = rig_with(prior, params, x.get("added_mass", 0.0), x.get("lever_arm", 0.0))
+        return 2 * math.pi / abs(gimbal_precession_rate(p.rig, p.gimbal, x["spin"], x.get("tilt", math.pi / 2)))
+
+    def fast(params, x):
+        mgh, _, i_o = _mgh_inertias(prior, params, x)
+        return 2 * math.pi * i_o * x["spin"] / mgh
+    return _guard(exact), _guard(fast)
+
+
+def _gimbal_nutation(prior: Protocol):
+    def exact(params, x):
+        p = rig_with(prior, params)
+        gimbal = replace(p.gimbal, outer_inertia_kg_m2=p.gimbal.outer_inertia_kg_m2 + x.get("added_outer_inertia", 0.0))
+        return gimbal_nutation_frequency(p.rig, gimbal, x["spin"], x["tilt"])
+
+    def fast(params, x):
+        _, i_t, i_o = _mgh_inertias(prior, params, x)
+        return i_o * x["spin"] / i_t
+    return _guard(exact), _guard(fast)
 
 
 def _nutation(prior: Protocol):
@@ -180,13 +213,19 @@ def observations_from_table(table: Table, prior: Protocol) -> list[Observation]:
             x_sd["spin"] = 0.5 * math.hypot(sa, sb)
         if table.kind == "precession":
             y, y_sd = x.pop("precession_period"), x_sd.pop("precession_period")
-            exact, fast = _precession(prior)
+            exact, fast = _precession(prior) if prior.gimbal is None else _gimbal_precession(prior)
+        elif prior.gimbal is not None:
+            y, y_sd = _nutation_value(x, x_sd)
+            x.setdefault("tilt", math.pi / 2)
+            x_sd.setdefault("tilt", 0.0)
+            if prior.rig.com_distance_m != 0.0 or x.get("added_mass", 0.0) != 0.0:
+                raise IdentifyInputError(
+                    f"{table.path}, line {line}: a gyro in gimbals nutates by the model only when balanced "
+                    f"(the prior's rig.com_distance_m = {prior.rig.com_distance_m!r}, added mass "
+                    f"{x.get('added_mass', 0.0)!r} kg): measure its nutation with the weight removed")
+            exact, fast = _gimbal_nutation(prior)
         else:
-            if "nutation_frequency" in x:
-                y, y_sd = x.pop("nutation_frequency"), x_sd.pop("nutation_frequency")
-            else:
-                period, s = x.pop("nutation_period"), x_sd.pop("nutation_period")
-                y, y_sd = 2 * math.pi / period, 2 * math.pi * s / period ** 2
+            y, y_sd = _nutation_value(x, x_sd)
             x.setdefault("tilt", prior.launch.tilt_rad)
             x_sd.setdefault("tilt", 0.0)
             exact, fast = _nutation(prior)
@@ -194,8 +233,19 @@ def observations_from_table(table: Table, prior: Protocol) -> list[Observation]:
     return out
 
 
+def _nutation_value(x: dict, x_sd: dict) -> tuple[float, float]:
+    """A nutation row's frequency and its sd [rad/s], from a frequency or a period column (removed from ``x``)."""
+    if "nutation_frequency" in x:
+        return x.pop("nutation_frequency"), x_sd.pop("nutation_frequency")
+    period, s = x.pop("nutation_period"), x_sd.pop("nutation_period")
+    return 2 * math.pi / period, 2 * math.pi * s / period ** 2
+
+
 def observations_from_fit(path: str, doc: dict, prior: Protocol) -> list[Observation]:
     """A video's fit.json: its mean precession rate and nutation frequency, for its protocol's launch."""
+    if prior.gimbal is not None:
+        raise IdentifyInputError(f"{path}: a video's fit.json describes a top on a pivot; the prior is a gyro in "
+                                 "gimbals ([gimbal]): give its lab tables")
     summary = doc.get("protocol_summary")
     if not isinstance(summary, dict) or "launch" not in summary:
         raise IdentifyInputError(f"{path}: no protocol_summary with the launch (fit.json from an older gyrorig?): "

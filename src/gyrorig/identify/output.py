@@ -43,17 +43,21 @@ def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observa
 
 
 def identified_toml(prior_text: str, ident: Identification, prior: Protocol, inputs: list[str] | None = None) -> str:
-    """The prior protocol (parsed from its text) with each identified ``[rig]`` value as ``{ value, sd }`` and their
+    """The prior protocol (parsed from its text) with each identified ``[rig]`` (and ``[gimbal]``) value as
+    ``{ value, sd }`` and their
     correlations in ``[uncertainty]``, written by a TOML serialiser (tomli-w): it loads as a protocol, and serves
     again as a prior.  Comments of the prior are not kept; a header says where the values come from."""
     data = tomllib.loads(prior_text)
     se = ident.standard_errors
-    rig = dict(data.get("rig", {}))
-    for i, n in enumerate(ident.names):
-        if n.startswith("rig."):
-            rig[n.split(".", 1)[1]] = {"value": float(ident.values[i]), "sd": float(se[i])}
-    data["rig"] = rig
-    rig_names = [n for n in ident.names if n.startswith("rig.")]
+    rig_names = [n for n in ident.names if n.startswith(("rig.", "gimbal."))]
+    for section in ("rig", "gimbal"):
+        table = dict(data.get(section, {}))
+        for n in rig_names:
+            if n.startswith(section + "."):
+                i = ident.names.index(n)
+                table[n.split(".", 1)[1]] = {"value": float(ident.values[i]), "sd": float(se[i])}
+        if table:
+            data[section] = table
     corr = ident.correlation
     pairs = [[a, b, float(max(-0.999999, min(0.999999, corr[ident.names.index(a), ident.names.index(b)])))]
              for i, a in enumerate(rig_names) for b in rig_names[i + 1:]]
@@ -63,7 +67,7 @@ def identified_toml(prior_text: str, ident: Identification, prior: Protocol, inp
         data["uncertainty"] = {"correlations": pairs}
     header = (f"# {prior.name}: the rig identified by gyrorig identify"
               + (f" from {', '.join(map(str, inputs))}" if inputs else "") + "\n"
-              "# the identified [rig] values are { value, sd }; their correlations are in [uncertainty]\n\n")
+              "# the identified [rig] (and [gimbal]) values are { value, sd }; their correlations are in [uncertainty]\n\n")
     return header + tomli_w.dumps(data)
 
 

@@ -27,18 +27,19 @@ class IdentifyInputError(ValueError):
 UNITS = {"_rev_per_min": ("rate", 2 * math.pi / 60), "_rad_s": ("rate", 1.0), "_hz": ("rate", 2 * math.pi),
          "_min": ("time", 60.0), "_s": ("time", 1.0), "_kg": ("mass", 1.0), "_g": ("mass", 1e-3),
          "_cm": ("length", 1e-2), "_mm": ("length", 1e-3), "_m": ("length", 1.0),
-         "_deg": ("angle", math.pi / 180), "_rad": ("angle", 1.0)}
+         "_deg": ("angle", math.pi / 180), "_rad": ("angle", 1.0),
+         "_kg_m2": ("inertia", 1.0), "_g_cm2": ("inertia", 1e-7)}
 #: what each column measures
 COLUMNS = {"t": "time", "spin": "rate", "spin_start": "rate", "spin_end": "rate", "precession_period": "time",
            "added_mass": "mass", "lever_arm": "length", "tilt": "angle", "nutation_frequency": "rate",
-           "nutation_period": "time", "cone_angle": "angle"}
+           "nutation_period": "time", "cone_angle": "angle", "added_outer_inertia": "inertia"}
 #: the kinds, with their required columns (alternatives as tuples) and optional ones
 KINDS = {
     "spin_down": {"required": ("t", "spin"), "optional": ()},
     "precession": {"required": (("spin", ("spin_start", "spin_end")), "precession_period"),
                    "optional": ("added_mass", "lever_arm", "tilt")},
     "nutation": {"required": ("spin", ("nutation_frequency", "nutation_period")),
-                 "optional": ("added_mass", "lever_arm", "tilt", "cone_angle")},
+                 "optional": ("added_mass", "lever_arm", "tilt", "cone_angle", "added_outer_inertia")},
 }
 #: columns whose values must be > 0
 POSITIVE = ("precession_period", "nutation_period", "nutation_frequency", "spin", "spin_start", "spin_end")
@@ -46,7 +47,8 @@ POSITIVE = ("precession_period", "nutation_period", "nutation_frequency", "spin"
 RANGES = {"tilt": (0.0, math.pi, "the tilt's range [0, 180] deg (from the vertical)"),
           "cone_angle": (0.0, 0.5 * math.pi, "a nutation cone's half-angle, [0, 90) deg"),
           "t": (0.0, math.inf, "times from the start, >= 0"),
-          "added_mass": (0.0, math.inf, "an added mass, >= 0")}
+          "added_mass": (0.0, math.inf, "an added mass, >= 0"),
+          "added_outer_inertia": (0.0, math.inf, "an inertia added to the outer gimbal ring, >= 0")}
 
 
 @dataclass(frozen=True)

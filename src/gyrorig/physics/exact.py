@@ -45,6 +45,7 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ellipj, ellipk, elliprf, elliprj
 
+from ..gimbals import refuse_gimbal
 from ..protocols import Protocol
 from .rotations import euler_from_matrix, euler_matrix_cs, euler_to_matrix
 from .simulate import initial_state, rot_z, trajectory_frame
@@ -305,6 +306,7 @@ def exact_solution(protocol: Protocol, t_s: ArrayLike | None = None) -> Lagrange
     ok, why = exact_solution_applies(protocol)
     if not ok:
         raise ExactSolutionError(f"no exact solution for {protocol.name}: {why}")
+    refuse_gimbal(protocol, "the exact solution of the heavy top")
     sol = _build(protocol)
     return sol if t_s is None else sol.evaluate(t_s)
 

@@ -45,6 +45,7 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from .._methods import METHODS
+from ..gimbals import refuse_gimbal
 from ..protocols import EddyFieldDamping, Protocol
 from .rotations import unwrapped_angles_from_tip, euler_from_matrix, euler_to_matrix, matrix_to_quaternion, quaternion_to_matrix
 from ._jit import STATUS_MESSAGES, integrate_dop853, pack_torques
@@ -341,6 +342,7 @@ def simulate(
         The solver failed or the quaternion norm drifted beyond
         :data:`QUATERNION_NORM_TOLERANCE`.
     """
+    refuse_gimbal(protocol, "the rigid-body simulator")
     if method == "auto":
         method = choose_method(protocol)
     if method not in METHODS:
