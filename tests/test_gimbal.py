@@ -156,3 +156,72 @@ def test_identify_refuses_what_its_gimbal_models_do_not_cover(tmp_path, capsys):
     fit = tmp_path / "fit.json"
     fit.write_text(json.dumps({"protocol_summary": {"launch": {}}, "quantities": {}}))
     assert main(["identify", str(fit), "--protocol", str(_gimbal_prior(tmp_path)), "--out", str(tmp_path / "o2")]) == 2
+
+
+def test_configurations_share_what_they_share(tmp_path):
+    """Issue 32: one gyro measured in two configurations, its rod on (nutation, and precession with weights) and off
+    (nutation: the rod's inertia gone from both transverse axes).  The prior's [[configuration]] gives the rod-off
+    tables their own transverse inertias (with priors) and shares Io and the outer ring: every parameter within 4 of
+    its standard errors of the simulator's truth, one Io for both, and identified.toml carries the configuration's
+    identified values."""
+    from gyrorig.bench.identify import simulated_gimbal_precession_period
+
+    rng = np.random.default_rng(7)
+    p = load_protocol(AIR)
+    rod = replace(p, rig=replace(p.rig, com_distance_m=0.0), gimbal=Gimbal(4e-4, 2.6e-3))
+    off = replace(rod, rig=replace(rod.rig, inertia_transverse_kg_m2=2.9e-3), gimbal=Gimbal(4e-4, 1.7e-3))
+
+    def noisy(v):
+        return v * (1 + 0.003 * rng.normal())
+    head = "spin_rad_s,spin_rad_s_sd,tilt_deg,added_outer_inertia_g_cm2,nutation_frequency_rad_s,nutation_frequency_rad_s_sd\n"
+    for name, q in (("nutation.csv", rod), ("nutation-no-rod.csv", off)):
+        rows = [(s, th, j, simulated_gimbal_nutation(q, s, math.radians(th), 0.5, j * 1e-7))
+                for s in (250.0, 400.0) for th in (90.0, 60.0) for j in (0.0, 5000.0)]
+        (tmp_path / name).write_text(head + "".join(f"{noisy(s)},{0.003 * s},{th},{j},{noisy(y)},{0.003 * y}\n"
+                                                    for s, th, j, y in rows))
+    rows = [(s, m, simulated_gimbal_precession_period(rod, s, math.pi / 2, m, 0.12)) for s in (300.0, 450.0)
+            for m in (0.03, 0.06)]
+    (tmp_path / "precession.csv").write_text(
+        "spin_rad_s,spin_rad_s_sd,added_mass_g,lever_arm_cm,precession_period_s,precession_period_s_sd\n"
+        + "".join(f"{noisy(s)},{0.003 * s},{1e3 * m},12,{noisy(t)},{0.003 * t}\n" for s, m, t in rows))
+    prior = _gimbal_prior(tmp_path)
+    prior.write_text(prior.read_text() + '\n[[configuration]]\nname = "no rod"\ntables = ["nutation-no-rod.csv"]\n'
+                     "[configuration.rig]\ninertia_transverse_kg_m2 = { value = 2.5e-3, sd = 0.8e-3 }\n"
+                     "[configuration.gimbal]\ncross_inertia_kg_m2 = { value = 2.0e-3, sd = 0.6e-3 }\n")
+    out = tmp_path / "out"
+    inputs = [str(tmp_path / f) for f in ("nutation.csv", "nutation-no-rod.csv", "precession.csv")]
+    assert main(["identify", *inputs, "--protocol", str(prior), "--out", str(out)]) == 0
+    par = json.loads((out / "identify.json").read_text())["parameters"]
+    truth = {"rig.inertia_axial_kg_m2": p.rig.inertia_axial_kg_m2, "rig.inertia_transverse_kg_m2": 3.839e-3,
+             "gimbal.outer_inertia_kg_m2": 4e-4, "gimbal.cross_inertia_kg_m2": 2.6e-3,
+             "configuration[no rod].rig.inertia_transverse_kg_m2": 2.9e-3,
+             "configuration[no rod].gimbal.cross_inertia_kg_m2": 1.7e-3}
+    assert set(truth) <= set(par)
+    for key, true in truth.items():
+        assert abs(par[key]["value"] - true) < 4 * par[key]["standard_error"], key
+    written = tomllib.loads((out / "identified.toml").read_text())["configuration"][0]
+    assert written["rig"]["inertia_transverse_kg_m2"]["value"] == pytest.approx(
+        par["configuration[no rod].rig.inertia_transverse_kg_m2"]["value"])
+    assert load_protocol(out / "identified.toml").gimbal is not None
+
+
+@pytest.mark.parametrize("config", [
+    'name = "a"\ntables = ["t.csv"]\nwheels = 2\n',                                   # unknown key
+    'tables = ["t.csv"]\n',                                                            # no name
+    'name = "a"\ntables = []\n',                                                       # no tables
+    'name = "a"\ntables = ["t.csv"]\n[configuration.rig]\nspin_rad_s = 3.0\n',        # not a rig key
+    'name = "a"\ntables = ["t.csv"]\n[configuration.rig]\nmass_kg = { value = 1.0, sd = -0.1 }\n',
+    'name = "a"\ntables = ["t.csv"]\n[configuration.rig]\nmass_kg = "heavy"\n',
+    'name = "a"\ntables = ["t.csv"]\n[configuration.rig]\ninertia_transverse_kg_m2 = 1e-9\n',  # not a rigid body
+    'name = "a"\ntables = ["t.csv"]\n[[configuration]]\nname = "a"\ntables = ["u.csv"]\n',   # the same name twice
+    'name = "a"\ntables = ["t.csv"]\n[[configuration]]\nname = "b"\ntables = ["t.csv"]\n',   # a table in two
+])
+def test_a_bad_configuration_is_refused(tmp_path, config):
+    """Each malformed [[configuration]] exits 2 (bad input), never runs on a guess."""
+    table = tmp_path / "t.csv"
+    table.write_text("spin_rad_s,nutation_frequency_rad_s,nutation_frequency_rad_s_sd\n300,40,0.1\n400,53,0.1\n"
+                     "500,66,0.1\n")
+    prior = _gimbal_prior(tmp_path)
+    prior.write_text(prior.read_text() + "\n[[configuration]]\n" + config)
+    assert main(["identify", str(table), "--protocol", str(prior), "--out", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()

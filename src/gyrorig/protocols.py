@@ -321,7 +321,7 @@ def protocol_summary(p: Protocol) -> dict:
     return out
 
 
-_LATER_SECTIONS = {"camera", "markers", "measure"}
+_LATER_SECTIONS = {"camera", "markers", "measure", "configuration"}
 
 
 def _parse_rig(t: Mapping[str, Any]) -> Rig:

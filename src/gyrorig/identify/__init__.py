@@ -3,6 +3,8 @@
 * :mod:`~gyrorig.identify.tables`: lab tables (CSV, units in the column names) read into SI;
 * :mod:`~gyrorig.identify.observations`: each measurement with its exact model and the fast-top formula;
 * :mod:`~gyrorig.identify.estimate`: weighted least squares with the prior protocol's priors;
+* :mod:`~gyrorig.identify.configurations`: several configurations of one rig (``[[configuration]]``) sharing
+  what they share;
 * :mod:`~gyrorig.identify.output`: the command on files (``identified.toml``, ``identify.json``, ``identify.png``).
 
 Estimation only: nothing here reaches the simulator (synthetic tables for its tests come from

@@ -25,8 +25,8 @@ from ..protocols import Protocol, ProtocolError, checked_rig
 from .observations import FORMULAS, Observation
 from .tables import IdentifyInputError
 
-__all__ = ["Identification", "identify_parameters", "prior_rig_values", "RIG_PARAMETERS", "GIMBAL_PARAMETERS",
-           "FRICTION_P_VALUE", "LACK_OF_FIT_P"]
+__all__ = ["Identification", "identify_parameters", "prior_rig_values", "extra_priors", "RIG_PARAMETERS",
+           "GIMBAL_PARAMETERS", "FRICTION_P_VALUE", "LACK_OF_FIT_P"]
 
 RIG_PARAMETERS = ("rig.inertia_axial_kg_m2", "rig.inertia_transverse_kg_m2", "rig.com_distance_m")
 #: the constant friction is kept when dropping it raises the chi-square by more than this quantile's value (stated
@@ -143,8 +143,8 @@ def _start(obs: list[Observation], prior: Protocol, names: list[str]) -> np.ndar
     for n in names:
         if _is_model_parameter(n):
             x0.append(prior_rig_values(prior)[n])
-        elif n.startswith("spin["):
-            x0.append(next(o.table_prior[0] for o in obs if o.table_key == n))
+        elif n in (extra := extra_priors(obs)):
+            x0.append(extra[n][0])
         elif n.startswith("spin_down.initial_spin_rad_s"):
             rows = sorted((o for o in obs if o.table_key == n), key=lambda o: o.x["t"])
             x0.append(rows[0].y)
@@ -156,6 +156,13 @@ def _start(obs: list[Observation], prior: Protocol, names: list[str]) -> np.ndar
         else:
             x0.append(0.0)
     return np.array(x0, float)
+
+
+def extra_priors(obs: list[Observation]) -> dict[str, tuple[float, float]]:
+    """Priors ``(mean, sd)`` beside the prior protocol's: each video's spin, each configuration's own parameters."""
+    out = {o.table_key: o.table_prior for o in obs if o.table_prior is not None}
+    out.update({n: (m, s) for o in obs for n, m, s in o.own_priors})
+    return out
 
 
 def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool, sd_scatter: dict[str, float],
@@ -179,7 +186,7 @@ def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool
         p = params(x)
         return np.array([math.hypot(o.effective_sd(p, fast), sd_scatter.get(o.kind, 0.0)) for o in obs])
 
-    spin_priors = {n: next(o.table_prior for o in obs if o.table_key == n) for n in names if n.startswith("spin[")}
+    spin_priors = {n: v for n, v in extra_priors(obs).items() if n in names}
     sidx = [names.index(n) for n in spin_priors]
     s_mean = np.array([m for m, _ in spin_priors.values()])
     s_sd = np.array([sd for _, sd in spin_priors.values()])
@@ -216,7 +223,7 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
         raise IdentifyInputError("no observations")
     spin_tables = sorted({o.table_key for o in obs if o.kind == "spin_down"})
     rig_names = _free_rig(prior)
-    video_spins = sorted({o.table_key for o in obs if o.table_prior is not None})
+    video_spins = sorted(extra_priors(obs))  # and the configurations' own parameters
     base = rig_names + video_spins + ([*spin_tables, "spin_down.viscous_rate_per_s"] if spin_tables else [])
     if not base:
         raise IdentifyInputError(f"{prior.source or prior.name}: no rig parameter has a standard deviation, so there is "

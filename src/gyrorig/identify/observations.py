@@ -74,6 +74,8 @@ class Observation:
     table_key: str = ""
     #: that parameter's prior (mean, sd) where it has one (a video's spin, not measured directly)
     table_prior: tuple[float, float] | None = None
+    #: parameters of the configuration this was measured in, with their priors: ``(name, mean, sd)``
+    own_priors: tuple[tuple[str, float, float], ...] = ()
 
     def predict(self, params: dict, x: dict | None = None, fast: bool = False) -> float:
         f = self.fast if fast and self.fast is not None else self.exact

@@ -13,7 +13,8 @@ import tomli_w
 
 from .. import _io
 from ..protocols import Protocol, ProtocolError, load_protocol
-from .estimate import Identification, formulas_used, identify_parameters, prior_rig_values
+from .configurations import configuration_of, configured, configured_prior, parse_configurations
+from .estimate import Identification, extra_priors, formulas_used, identify_parameters, prior_rig_values
 from .observations import Observation, observations_from_fit, observations_from_table
 from .tables import IdentifyInputError, read_table
 
@@ -21,9 +22,15 @@ __all__ = ["read_observations", "identify_files", "identified_toml", "identify_d
 
 
 def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observation]:
-    """Every observation of the inputs: lab tables (``.csv``) and fit.json files."""
+    """Every observation of the inputs: lab tables (``.csv``) and fit.json files, each with the configuration it was
+    measured in (:mod:`~gyrorig.identify.configurations`)."""
     obs: list[Observation] = []
+    configurations = parse_configurations(prior)
     for path in map(Path, inputs):
+        cfg = configuration_of(path, configurations)
+        if cfg is not None:
+            obs += configured(read_observations([path], configured_prior(prior, cfg)), cfg)
+            continue
         if path.suffix.lower() == ".json":
             try:
                 _io.check_settings_size(path, "fit.json")
@@ -58,6 +65,13 @@ def identified_toml(prior_text: str, ident: Identification, prior: Protocol, inp
                 table[n.split(".", 1)[1]] = {"value": float(ident.values[i]), "sd": float(se[i])}
         if table:
             data[section] = table
+    for cfg in data.get("configuration", []) if isinstance(data.get("configuration"), list) else []:
+        for n in ident.names:
+            head = f"configuration[{cfg.get('name')}]."
+            if n.startswith(head):
+                section, key = n[len(head):].split(".", 1)
+                i = ident.names.index(n)
+                cfg.setdefault(section, {})[key] = {"value": float(ident.values[i]), "sd": float(se[i])}
     corr = ident.correlation
     pairs = [[a, b, float(max(-0.999999, min(0.999999, corr[ident.names.index(a), ident.names.index(b)])))]
              for i, a in enumerate(rig_names) for b in rig_names[i + 1:]]
@@ -105,7 +119,7 @@ def _prior_of(name: str, ident: Identification, prior: Protocol) -> dict | None:
     u = prior.uncertainty
     if name in u.names:
         return {"value": u.values[u.names.index(name)], "sd": u.sd_of(name)}
-    mean, sd = next(o.table_prior for o in ident.observations if o.table_key == name)
+    mean, sd = extra_priors(list(ident.observations))[name]
     return {"value": mean, "sd": sd}
 
 
