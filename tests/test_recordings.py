@@ -9,6 +9,7 @@ front of a drifting photograph, encoded by libx264/libx265 with jittered 90 kHz 
 import math
 from dataclasses import replace
 from fractions import Fraction
+from pathlib import Path
 
 import av
 import cv2
@@ -234,6 +235,40 @@ def test_the_tip_is_found_again_after_it_was_hidden(tmp_path):
     after = m[m.frame >= 55]
     assert after.theta_rad.notna().mean() >= 0.9
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
+
+
+def _write_ffv1(path, frames, rotation: int = 0) -> None:
+    """Grey frames as lossless FFV1 at 200 fps; with ``rotation`` the stream's display matrix turns them (degrees
+    counter-clockwise, as a phone held upright says of its stored landscape picture)."""
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("ffv1", rate=200)
+        stream.width, stream.height = frames[0].shape[1], frames[0].shape[0]
+        stream.pix_fmt = "gray"
+        if rotation:
+            stream.set_display_rotation(rotation)
+        for f in frames:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(f, format="gray")):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+
+
+@pytest.mark.parametrize("rotation", [90, 180, -90])
+def test_a_phone_video_stored_turned_is_tracked_as_displayed(tmp_path, phone_clip, rotation):
+    """A phone held upright stores its sensor's landscape picture and a display matrix saying how to turn it.  The
+    phone clip's frames stored turned the other way with that matrix track exactly as the same frames stored
+    upright (frames delivered as displayed: the camera file and the user's view describe them); before, the
+    stored picture's size was compared with the camera file and refused (or tracked sideways when square)."""
+    scene, user, rendered = phone_clip
+    with VideoFile(rendered["video"]).open() as frames:
+        upright = [f for f, _ in frames]
+    _write_ffv1(tmp_path / "upright.mkv", upright)
+    _write_ffv1(tmp_path / "turned.mkv", [np.ascontiguousarray(np.rot90(f, -rotation // 90)) for f in upright],
+                rotation)
+    cam = load_camera(Path(rendered["video"]).parent / "camera.json")
+    a = track(tmp_path / "upright.mkv", cam, parse_protocol(user)).angles
+    b = track(tmp_path / "turned.mkv", cam, parse_protocol(user)).angles
+    pd.testing.assert_frame_equal(a, b)
 
 
 def test_dropped_frames_are_gaps_and_times_are_the_capture_grid(phone_clip):

@@ -145,8 +145,29 @@ class VideoFile:
         if not count and stream.duration and stream.time_base and math.isfinite(fps):  # Matroska states no count
             count = int(round(float(stream.duration * stream.time_base) * fps))
         types: list[str] = []
-        return Frames(int(ctx.width), int(ctx.height), fps, count, _decoded_frames(container, stream, colour, types),
+        turns = self.display_turns()
+        width, height = (int(ctx.height), int(ctx.width)) if turns % 2 else (int(ctx.width), int(ctx.height))
+        return Frames(width, height, fps, count, _decoded_frames(container, stream, colour, types, turns=turns),
                       lossy=lossy, bit_depth=bits, frame_types=types)
+
+    def display_turns(self) -> int:
+        """Quarter turns counter-clockwise from the stored picture to the displayed one: a phone held upright stores
+        its sensor's landscape picture and says in the stream's display matrix how to turn it (PyAV's
+        ``VideoFrame.rotation``, read from the first frame).  Frames are delivered as displayed, so what the user
+        sees, what camera.json describes and what is tracked agree.  A rotation that is not a quarter turn is
+        refused."""
+        import av
+
+        try:
+            with av.open(str(self.path), "r") as container:
+                frame = next(container.decode(video=0), None)
+        except (av.FFmpegError, IndexError, ValueError) as exc:
+            raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})") from exc
+        degrees = int(round(float(frame.rotation))) if frame is not None else 0
+        if degrees % 90:
+            raise BadInputError(f"video {self.path}: its display matrix turns the picture by {degrees} degrees; only "
+                                "quarter turns are supported (re-encode it upright)")
+        return (degrees // 90) % 4
 
 
 def _plane_image(frame, colour: bool) -> np.ndarray:
@@ -427,11 +448,12 @@ def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
 PICTURE_TYPES = {1: "I", 2: "P", 3: "B", 4: "S", 5: "SI", 6: "SP", 7: "BI"}
 
 
-def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8
+def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8, turns: int = 0
                     ) -> Iterator[tuple[np.ndarray, float]]:
     """Yield ``(frame, start time s)``, decoding in a background thread (decoding the next frames overlaps
     with tracking this one: two cores give the slower of the two, not their sum); each yielded frame's
     picture type (:data:`PICTURE_TYPES`, '' when the codec does not say) is appended to ``types`` first.
+    Each picture is turned by ``turns`` quarter turns counter-clockwise (its display orientation).
 
     Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
     then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there.
@@ -453,7 +475,10 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
                 else:
                     first = frame.pts if first is None else first
                     t = float((frame.pts - first) * base)
-                q.put((_plane_image(frame, colour), t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
+                image = _plane_image(frame, colour)
+                if turns:
+                    image = np.ascontiguousarray(np.rot90(image, turns))
+                q.put((image, t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
         except (av.FFmpegError, ValueError, MemoryError):
             pass  # a truncated or damaged stream: the frames decoded so far stand
         finally:
