@@ -346,6 +346,28 @@ def test_a_videos_spin_keeps_its_error_beside_a_lab_table(tmp_path):
         assert abs(par[key]["value"] - true) < 3 * par[key]["standard_error"], key
 
 
+def test_a_precession_rate_in_degrees_per_second_is_a_period(tmp_path):
+    """Issue 32: precession measured as a rate (a protractor and a stopwatch, deg/s) rather than a period: the same
+    rows as rates identify the same rig as the periods (to 1e-6), each rate's sd carried as the period's."""
+    files = _tables(tmp_path)
+    prec = next(f for f in files if "precession" in f.name)
+    table = pd.read_csv(prec)
+    rate = 360.0 / table.precession_period_s
+    table["precession_rate_deg_per_s"] = rate
+    table["precession_rate_deg_per_s_sd"] = rate * table.precession_period_s_sd / table.precession_period_s
+    as_rates = tmp_path / "rates" / "precession.csv"
+    as_rates.parent.mkdir()
+    table.drop(columns=["precession_period_s", "precession_period_s_sd"]).to_csv(as_rates, index=False)
+    prior = str(_prior(tmp_path))
+    docs = []
+    for inputs, out in ((files, "a"), ([as_rates if f == prec else f for f in files], "b")):
+        assert main(["identify", *map(str, inputs), "--protocol", prior, "--out", str(tmp_path / out)]) == 0
+        docs.append(json.loads((tmp_path / out / "identify.json").read_text())["parameters"])
+    for key, a in docs[0].items():
+        assert docs[1][key]["value"] == pytest.approx(a["value"], rel=1e-6), key
+        assert docs[1][key]["standard_error"] == pytest.approx(a["standard_error"], rel=1e-4), key
+
+
 def test_rates_in_hz_under_rad_s_are_flagged_not_passed(tmp_path, capsys):
     """Issue 32: spins in Hz under a _rad_s column gave chi2_red 130 and exit 0 with nothing said.  The fit still
     exits 0 (the numbers are what the table says), but identify.json flags the lack of fit, a note names the likely

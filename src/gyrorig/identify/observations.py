@@ -214,7 +214,11 @@ def observations_from_table(table: Table, prior: Protocol) -> list[Observation]:
             x["spin"] = (a - b) / math.log(a / b) if a != b else a
             x_sd["spin"] = 0.5 * math.hypot(sa, sb)
         if table.kind == "precession":
-            y, y_sd = x.pop("precession_period"), x_sd.pop("precession_period")
+            if "precession_period" in x:
+                y, y_sd = x.pop("precession_period"), x_sd.pop("precession_period")
+            else:  # a rate read off a protractor and a stopwatch: the period of one turn at that rate
+                rate, s = x.pop("precession_rate"), x_sd.pop("precession_rate")
+                y, y_sd = 2 * math.pi / rate, 2 * math.pi * s / rate ** 2
             exact, fast = _precession(prior) if prior.gimbal is None else _gimbal_precession(prior)
         elif prior.gimbal is not None:
             y, y_sd = _nutation_value(x, x_sd)

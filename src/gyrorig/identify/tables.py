@@ -2,8 +2,8 @@
 
 One file per kind (``spin_down``, ``precession``, ``nutation``), given by a ``kind`` column or by
 the file name containing the kind.  A column is ``<name>_<unit>`` (``spin_rev_per_min``,
-``precession_period_s``, ``added_mass_g``, ``lever_arm_cm``, ``tilt_deg``), its standard deviation
-``<name>_<unit>_sd`` in the same unit.  Every problem is an :class:`IdentifyInputError` naming
+``precession_period_s`` or ``precession_rate_deg_per_s``, ``added_mass_g``, ``lever_arm_cm``, ``tilt_deg``), its
+standard deviation ``<name>_<unit>_sd`` in the same unit.  Every problem is an :class:`IdentifyInputError` naming
 the file, the row (as the line number in the file) and the column.
 """
 
@@ -25,24 +25,27 @@ class IdentifyInputError(ValueError):
 
 #: unit suffix -> (dimension, factor to SI); longest suffixes are matched first
 UNITS = {"_rev_per_min": ("rate", 2 * math.pi / 60), "_rad_s": ("rate", 1.0), "_hz": ("rate", 2 * math.pi),
+         "_deg_per_s": ("rate", math.pi / 180),
          "_min": ("time", 60.0), "_s": ("time", 1.0), "_kg": ("mass", 1.0), "_g": ("mass", 1e-3),
          "_cm": ("length", 1e-2), "_mm": ("length", 1e-3), "_m": ("length", 1.0),
          "_deg": ("angle", math.pi / 180), "_rad": ("angle", 1.0),
          "_kg_m2": ("inertia", 1.0), "_g_cm2": ("inertia", 1e-7)}
 #: what each column measures
 COLUMNS = {"t": "time", "spin": "rate", "spin_start": "rate", "spin_end": "rate", "precession_period": "time",
+           "precession_rate": "rate",
            "added_mass": "mass", "lever_arm": "length", "tilt": "angle", "nutation_frequency": "rate",
            "nutation_period": "time", "cone_angle": "angle", "added_outer_inertia": "inertia"}
 #: the kinds, with their required columns (alternatives as tuples) and optional ones
 KINDS = {
     "spin_down": {"required": ("t", "spin"), "optional": ()},
-    "precession": {"required": (("spin", ("spin_start", "spin_end")), "precession_period"),
+    "precession": {"required": (("spin", ("spin_start", "spin_end")), ("precession_period", "precession_rate")),
                    "optional": ("added_mass", "lever_arm", "tilt")},
     "nutation": {"required": ("spin", ("nutation_frequency", "nutation_period")),
                  "optional": ("added_mass", "lever_arm", "tilt", "cone_angle", "added_outer_inertia")},
 }
 #: columns whose values must be > 0
-POSITIVE = ("precession_period", "nutation_period", "nutation_frequency", "spin", "spin_start", "spin_end")
+POSITIVE = ("precession_period", "precession_rate", "nutation_period", "nutation_frequency", "spin", "spin_start",
+            "spin_end")
 #: the physical range of other columns (SI): ``(low, high, what it is)``
 RANGES = {"tilt": (0.0, math.pi, "the tilt's range [0, 180] deg (from the vertical)"),
           "cone_angle": (0.0, 0.5 * math.pi, "a nutation cone's half-angle, [0, 90) deg"),
