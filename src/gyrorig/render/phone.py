@@ -72,6 +72,10 @@ class PhoneStyle:
     drop_fraction: float = 0.02
     #: the container's frame rate when it differs from the capture rate (slow motion); None: the capture rate
     container_fps: float | None = None
+    #: a hand-held phone: the whole picture (rig and scene) moves by this RMS per axis [px] (a small rotation of the
+    #: camera), smoothly at about ``shake_hz``; 0: on a tripod
+    shake_px: float = 0.0
+    shake_hz: float = 3.0
 
     def check(self) -> None:
         if self.photo is not None and self.photo not in PHOTOS:
@@ -84,6 +88,22 @@ class PhoneStyle:
             raise ValueError(f"drop_fraction = {self.drop_fraction}: allowed [0, 0.5)")
         if not 0.0 <= self.jitter_fraction < 0.25:
             raise ValueError(f"jitter_fraction = {self.jitter_fraction}: allowed [0, 0.25)")
+        if not 0.0 <= self.shake_px < 50.0 or not self.shake_hz > 0.0:
+            raise ValueError(f"shake_px = {self.shake_px}, shake_hz = {self.shake_hz}: allowed [0, 50) px, > 0 Hz")
+
+
+def _shake(style: PhoneStyle, rng: np.random.Generator):
+    """The picture's displacement ``(dx, dy)`` [px] at a time: per axis two sines (``shake_hz`` and 2.3 times it,
+    the second at half the amplitude) with random phases, ``shake_px`` RMS.  None without shake (no draws)."""
+    if style.shake_px == 0.0:
+        return None
+    phases = rng.uniform(0.0, 2 * math.pi, (2, 2))
+    amp = style.shake_px / math.sqrt(0.5 * (1.0 + 0.25))
+
+    def at(t: float) -> tuple[float, float]:
+        w = 2 * math.pi * style.shake_hz * t
+        return tuple(amp * (math.sin(w + p[0]) + 0.5 * math.sin(2.3 * w + p[1])) for p in phases)
+    return at
 
 
 def photo_background(name: str | None, width_px: int, height_px: int, margin_px: int) -> np.ndarray:
@@ -151,6 +171,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     duration = protocol.scene.duration_s if duration_s is None else float(duration_s)
     n = int(math.floor(duration * cam.fps + 1e-9))
     keep, t_store = _frame_times(n, cam.fps, style, rng)
+    shake = _shake(style, rng)
     margin = int(math.ceil(abs(style.drift_px_per_s) * duration)) + 2
     photo = photo_background(style.photo, cam.width_px, cam.height_px, margin)
     peak = _COVERAGE_E_PER_S * cam.exposure_s
@@ -188,6 +209,12 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
             light = 1.0 + style.flicker_fraction * math.sin(2 * math.pi * style.flicker_hz * t)
             alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
             linear = (bg * (1.0 - alpha) + alpha * rgb) * light
+            if shake is not None:  # the camera turned a little: the whole picture moves (the truth's pixels with it)
+                dx, dy = shake(t + cam.exposure_s / 2)
+                linear = cv2.warpAffine(linear, np.float32([[1, 0, dx], [0, 1, dy]]), (cam.width_px, cam.height_px),
+                                        flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                truth = truth.assign(x_px=truth.x_px + dx, y_px=truth.y_px + dy)
+                truths[-1] = truth
             electrons = rng.poisson(np.clip(linear, 0.0, 1.0) * style.full_well_e).astype(np.float32)
             electrons += rng.normal(0.0, style.read_noise_e, electrons.shape).astype(np.float32)
             value = np.clip(electrons / style.full_well_e, 0.0, 1.0) ** (1.0 / style.gamma)

@@ -205,6 +205,8 @@ class TipFollower:
         self.camera, self.tip = camera, tip
         #: images of the protocol's lab-fixed markers (x, y, radius) [px]: a spot there is never the tip
         self.lab_px = _lab_images(camera, lab_markers)
+        #: how far the picture has moved from where the pose puts it (a hand-held camera; :mod:`.steady`) [px]
+        self.shift_px = (0.0, 0.0)
         self.length_m = tip.position_m[2]
         axial = tip.shape == "disc" and abs(abs(tip.normal[2]) - 1.0) < 1e-9
         #: the disc model, for a disc facing along the stem; None: a sphere, or followed as a blob
@@ -312,7 +314,7 @@ class TipFollower:
         if others is None:
             return False
         reach = CLEAR_RADII * self.last_r + gate
-        return all(math.hypot(x - at[0], y - at[1]) > reach + r for x, y, r in (*others, *self.lab_px))
+        return all(math.hypot(x - at[0], y - at[1]) > reach + r for x, y, r in (*others, *self._lab_now()))
 
     # ------------------------------------------------------------------------------- search
     def _candidates(self, frame: np.ndarray, threshold, centre=None, reach: int = 0,
@@ -338,11 +340,16 @@ class TipFollower:
                 refused.append(Candidate(c.x, c.y, c.r, why))
         return out
 
+    def _lab_now(self) -> list[tuple[float, float, float]]:
+        """Where the lab markers appear in this frame: the pose's places moved with the picture (:attr:`shift_px`)."""
+        sx, sy = self.shift_px
+        return [(x + sx, y + sy, r) for x, y, r in self.lab_px]
+
     def _verdict(self, x: float, y: float, r: float) -> Verdict | None:
         """Why a spot at ``(x, y)`` of radius ``r`` [px] cannot be the tip whatever its size: where a lab marker
         appears and nearer its size (the tip may pass in front of one, visible or not), or off the tip's sphere;
         None when it can be."""
-        if any(math.hypot(x - lx, y - ly) <= lr + 2.0 and self._nearer_size(r, lr) for lx, ly, lr in self.lab_px):
+        if any(math.hypot(x - lx, y - ly) <= lr + 2.0 and self._nearer_size(r, lr) for lx, ly, lr in self._lab_now()):
             return Verdict.LAB_MARKER
         if tip_from_pixel(x, y, self.camera, self.length_m) is None:
             return Verdict.OFF_SPHERE
@@ -416,7 +423,7 @@ class TipFollower:
         if pairs:
             pairs = self._unlike_the_scene(pairs, scene_shift(self.pending_frame, frame), busy)
         if pairs:  # a top's tip moves: a spot of the scene (a highlight, a screw head) of its size does not
-            pairs = self._moved_since_anchor(pairs, frame)
+            pairs = self._moved_since_anchor(pairs, frame, fits)
         best = min(pairs, key=lambda p: p[:3]) if pairs else None  # the confirmed one nearest the tip's size
         if self.first_look is not None and not self.first_look.settled:
             self.first_look.settle(self.pending, near, [best] if best else [])
@@ -430,17 +437,20 @@ class TipFollower:
         self.pending, self.pending_frame = fits, frame
         self.anchors = [a for a in self.anchors if self.searched - a[2] <= ANCHOR_FRAMES]
         for f in fits:
-            if self._anchor_of(f) is None:
+            if self._anchor_of(f, fits) is None:
                 self.anchors.append((f, frame, self.searched))
         self.history = [*self.history[-ANCHOR_FRAMES:], fits]
         return None
 
-    def _anchor_of(self, fit: SpotFit) -> tuple[SpotFit, np.ndarray, int] | None:
-        """The anchor nearest the fit within :data:`ANCHOR_REACH_RADII` expected radii (None: a spot not seen
-        before)."""
+    def _anchor_of(self, fit: SpotFit, fits: list[SpotFit]) -> tuple[SpotFit, np.ndarray, int] | None:
+        """The anchor nearest the fit within :data:`ANCHOR_REACH_RADII` expected radii, of which no other of this
+        frame's ``fits`` is nearer (None: a spot not seen before; two spots close together each keep their own)."""
         reach = ANCHOR_REACH_RADII * self.r_expected
-        near = [a for a in self.anchors if math.hypot(fit.x_px - a[0].x_px, fit.y_px - a[0].y_px) <= reach]
-        return min(near, key=lambda a: math.hypot(fit.x_px - a[0].x_px, fit.y_px - a[0].y_px)) if near else None
+
+        def dist(f, a):
+            return math.hypot(f.x_px - a[0].x_px, f.y_px - a[0].y_px)
+        near = [a for a in self.anchors if dist(fit, a) <= reach and all(dist(g, a) >= dist(fit, a) for g in fits)]
+        return min(near, key=lambda a: dist(fit, a)) if near else None
 
     def _trace_back(self, confirmed: SpotFit) -> tuple[SpotFit, ...]:
         """The tip's fits in the frames searched before the acquisition, the latest first: from the candidate the
@@ -456,9 +466,9 @@ class TipFollower:
             chain.append(min(near, key=lambda f: math.hypot(f.x_px - last.x_px, f.y_px - last.y_px)))
         return tuple(chain)
 
-    def _moved_since_anchor(self, pairs: list, frame: np.ndarray) -> list:
+    def _moved_since_anchor(self, pairs: list, frame: np.ndarray, fits: list[SpotFit]) -> list:
         """The confirmed spots that moved unlike the scene since they were first seen in this search (their anchor,
-        :meth:`_anchor_of`): by more than :data:`SCENE_MOTION_PX` and 5 of the two fits' combined SDs, the scene's
+        :meth:`_anchor_of` among this frame's ``fits``): by more than :data:`SCENE_MOTION_PX` and 5 of the two fits' combined SDs, the scene's
         own motion since then taken off.  A top released from rest barely moves in its first frames, and a
         highlight in the scene of the tip's size and shape never does; until the tip has moved, nothing is taken
         (those frames get their positions back when it is: :meth:`_trace_back`).  A spot where a sleeping top's tip
@@ -466,7 +476,7 @@ class TipFollower:
         out, shifts = [], {}
         for p in pairs:
             f = p[3]
-            anchor = self._anchor_of(f)
+            anchor = self._anchor_of(f, fits)
             if anchor is None:
                 if self._at_the_pole(f):
                     out.append(p)

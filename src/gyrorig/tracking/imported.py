@@ -34,7 +34,8 @@ from .camera_file import TrackingCamera
 from .errors import BadInputError
 from .rays import angle_covariances
 from .scatter import check_sigmas
-from .tracker import SIGMA_CHECK_Z, _add_camera_modes, tip_marker
+from .pose import add_camera_modes
+from .tracker import SIGMA_CHECK_Z, tip_marker
 
 __all__ = ["read_pixel_track", "angles_from_pixel_track", "import_pixel_track", "is_pixel_track", "POINT_MASS"]
 
@@ -218,7 +219,7 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: TrackingCamera, protoco
         "phi_sigma_rad": np.where(ok, sph, np.nan), "theta_phi_corr": np.where(ok, c[:, 0, 1] / (sth * sph), np.nan),
         "tip_x": tips[:, 0], "tip_y": tips[:, 1], "tip_z": tips[:, 2], "quality": quality})
     pixels = {i: xy[i] for i in np.flatnonzero(ok)}
-    camera_sigma = _add_camera_modes(angles, pixels, camera, length, camera.pose_points, False)
+    camera_sigma = add_camera_modes(angles, pixels, camera, length, camera.pose_points, False)
     summary = {"frames": len(angles), "tracked_fraction": float(ok.mean()), "outliers": len(outliers),
                "off_sphere": int(np.sum(quality == "off-sphere")), "sigma_px": float(np.median(sigma)),
                "sigma_source": source, "sigma_check": check.as_dict(), "camera_sigma_rad": camera_sigma,

@@ -19,18 +19,21 @@ from dataclasses import replace
 
 import cv2
 import numpy as np
+import pandas as pd
 
 from ..geometry import angles_from_tip, wrap_angle
 from ..markers import MarkerSet, parse_markers
 from ..protocols import Protocol
+from ..tables import camera_mode_columns, camera_mode_prior_column
 from .camera_file import TrackingCamera
 from .detect import find_blobs
 from .errors import TrackingError
 from .rays import tips_from_pixels
+from .scatter import neighbour_positions
 from .sources import as_source
 from .spot import fit_spot
 
-__all__ = ["estimate_pose", "camera_modes", "camera_modes_by_source"]
+__all__ = ["estimate_pose", "camera_modes", "camera_modes_by_source", "add_camera_modes"]
 
 
 def _median_image(source, fps: float, span_s: float, samples: int) -> np.ndarray:
@@ -225,3 +228,24 @@ def camera_modes_by_source(xy_px: np.ndarray, cam: TrackingCamera, radius_m: flo
             out.append(dv)
             is_pose.append(kind)
     return np.array(out).reshape(len(out), len(xy), 2), np.array(is_pose, bool)
+
+
+def add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera, length_m: float,
+                      pose: dict | None, pose_from_these_frames: bool) -> list[float]:
+    """Add the camera-model modes' columns (the pose's without a prior when ``pose_from_these_frames``);
+    returns their RMS effect on (theta, phi) [rad] (NaN without)."""
+    rows = np.array(sorted(tip_px))
+    min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
+    xy = np.array([tip_px[r] for r in rows], float).reshape(-1, 2)
+    if len(rows) > 1:  # the shifts at the neighbours' prediction: free of the frame's own noise
+        xy = neighbour_positions(angles.t_s.to_numpy(float)[rows], angles.frame.to_numpy()[rows], xy)
+    modes, is_pose = camera_modes_by_source(xy, camera, length_m, pose, min_effect)
+    for mode in range(len(modes)):
+        for j, col in enumerate(camera_mode_columns(mode + 1)):
+            v = np.full(len(angles), np.nan)
+            v[rows] = modes[mode, :, j]
+            angles[col] = v
+        angles[camera_mode_prior_column(mode + 1)] = 0.0 if (is_pose[mode] and pose_from_these_frames) else 1.0
+    if len(modes):
+        return np.sqrt(np.mean(np.sum(modes**2, axis=0), axis=0)).tolist()
+    return [float("nan"), float("nan")]

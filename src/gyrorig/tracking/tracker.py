@@ -37,16 +37,17 @@ import pandas as pd
 from .. import _io
 from ..markers import Marker, MarkerSet, parse_markers
 from ..protocols import Protocol, ProtocolError
-from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_columns, camera_mode_count, camera_mode_prior_column
+from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_count, camera_mode_prior_column
 from .camera_file import TrackingCamera
 from .detect import Detection, detection_threshold, opening_size_px
 from .appearance import MarkerImage
 from .follow import ANCHOR_FRAMES, SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
-from .pose import camera_modes_by_source, estimate_pose
+from .pose import add_camera_modes, estimate_pose
 from .rays import angle_covariances, angles_with_covariance
-from .scatter import SigmaCheck, check_sigmas, neighbour_positions
+from .scatter import SigmaCheck, check_sigmas
+from .steady import CameraMotion, CameraWatch, steady_angle_rows
 from .sources import as_source, fingerprint
 from .spot import SpotFit
 
@@ -98,6 +99,8 @@ class TrackResult:
     sigma_check: SigmaCheck | None = None
     #: the measured frame intervals against camera.json's fps (:func:`frame_interval_stats`)
     frame_times: dict = field(default_factory=dict)
+    #: the camera's motion seen on its fiducials (:mod:`gyrorig.tracking.steady`; None: none in view)
+    camera_motion: CameraMotion | None = None
 
     @property
     def camera_modes(self) -> int:
@@ -317,27 +320,6 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
 
 
-def _add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera, length_m: float,
-                      pose: dict | None, pose_from_these_frames: bool) -> list[float]:
-    """Add the camera-model modes' columns (the pose's without a prior when ``pose_from_these_frames``);
-    returns their RMS effect on (theta, phi) [rad] (NaN without)."""
-    rows = np.array(sorted(tip_px))
-    min_effect = 1e-3 * float(np.nanmedian(angles.theta_sigma_rad))
-    xy = np.array([tip_px[r] for r in rows], float).reshape(-1, 2)
-    if len(rows) > 1:  # the shifts at the neighbours' prediction: free of the frame's own noise
-        xy = neighbour_positions(angles.t_s.to_numpy(float)[rows], angles.frame.to_numpy()[rows], xy)
-    modes, is_pose = camera_modes_by_source(xy, camera, length_m, pose, min_effect)
-    for mode in range(len(modes)):
-        for j, col in enumerate(camera_mode_columns(mode + 1)):
-            v = np.full(len(angles), np.nan)
-            v[rows] = modes[mode, :, j]
-            angles[col] = v
-        angles[camera_mode_prior_column(mode + 1)] = 0.0 if (is_pose[mode] and pose_from_these_frames) else 1.0
-    if len(modes):
-        return np.sqrt(np.mean(np.sum(modes**2, axis=0), axis=0)).tolist()
-    return [float("nan"), float("nan")]
-
-
 def _follower(camera: TrackingCamera, tip: Marker, markers: MarkerSet, source) -> TipFollower:
     """The tip's follower, refusing a tip that would fill the image (:data:`MAX_TIP_IMAGE_FRACTION`)."""
     follower = TipFollower(camera, tip, markers.fiducials())
@@ -346,6 +328,28 @@ def _follower(camera: TrackingCamera, tip: Marker, markers: MarkerSet, source) -
                             f"appear {2 * follower.r_expected:.0f} px wide in a {camera.width_px} x {camera.height_px} "
                             "image; check the tip's radius and the camera's pose and focal length")
     return follower
+
+
+def _matched(camera: TrackingCamera, frames, source) -> TrackingCamera:
+    """The camera at the video's bit depth; BadInputError when its picture size is not the video's."""
+    if frames.bit_depth is not None and frames.bit_depth < 16 and (1 << frames.bit_depth) - 1 != camera.max_adu:
+        logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
+                    frames.bit_depth, camera.max_adu.bit_length())
+        camera = replace(camera, max_adu=(1 << frames.bit_depth) - 1)
+    if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
+        raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
+                            f"{frames.width_px} x {frames.height_px}")
+    return camera
+
+
+def _steadied(rows: _Tables, watch: CameraWatch, camera: TrackingCamera, length_m: float, source) -> CameraMotion | None:
+    """The camera's motion seen on the fiducials; where it moved, the tip's rows steadied (and a warning)."""
+    motion = watch.motion()
+    if motion is not None and motion.moved:
+        logger.warning("%s: the camera moved during the recording (its fiducials by %.2g px RMS): each tip pixel is "
+                       "taken back by their displacement in its frame", source, motion.rms_px)
+        steady_angle_rows(rows.angles, rows.tip_px, rows.tip_cov, motion, camera, length_m)
+    return motion
 
 
 def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progress | None = None,
@@ -372,19 +376,14 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     camera = _protocol_exposure(camera, protocol)
     with source.open(colour=tip.colour != "any") as frames:
         camera, time_scale = _timing(camera, frames, source)
-        if frames.bit_depth is not None and frames.bit_depth < 16 and (1 << frames.bit_depth) - 1 != camera.max_adu:
-            logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
-                        frames.bit_depth, camera.max_adu.bit_length())
-            camera = replace(camera, max_adu=(1 << frames.bit_depth) - 1)
-        if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
-            raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
-                                f"{frames.width_px} x {frames.height_px}")
+        camera = _matched(camera, frames, source)
         lossy = frames.lossy
         appearance = MarkerImage(tip, camera)
         if (lossy or not appearance.keeps_sensor_model) and camera.sensor_known:
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = replace(camera, gain_e_per_adu=math.nan)
         follower = _follower(camera, tip, markers, source)
+        watch = CameraWatch(camera, follower.lab_px)
         dot_markers = markers.frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
@@ -417,6 +416,8 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
             frame = appearance(frame)
             if k % 100 == 0:  # the contrast's spread, refreshed every 100 frames (drifting light, moving scenes)
                 threshold = detection_threshold(frame, scale_px, floor=4.0 * camera.max_adu / 255.0)
+            watch.observe(frame, k, index)
+            follower.shift_px = watch.last
             rows.frame(camera, tip, follower, dots, frame, index, t_frame, threshold)
             t_track += time.perf_counter() - t1
             k += 1
@@ -425,6 +426,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     if k == 0:
         raise TrackingError(f"{source}: no frame could be decoded (unreadable or truncated video)")
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
+    motion = _steadied(rows, watch, camera, tip.position_m[2], source)
     angles, markers = rows.tables(camera, dots is not None)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
@@ -436,7 +438,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
     check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2])
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
-    camera_sigma = _add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
+    camera_sigma = add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
                                      pose_info or camera.pose_points, own_pose)
     if progress:
         progress(k, k)
@@ -447,7 +449,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
     if not times.get("agrees_with_camera", True):
         logger.warning("%s: %s", source, times["warning"])
     return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
-                       pose_info, camera_sigma, check, times)
+                       pose_info, camera_sigma, check, times, motion)
 
 
 #: frames slower than this (a frame rate from the frames' own times) are taken as times in ms and warned of [1/s]

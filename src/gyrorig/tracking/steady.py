@@ -1,0 +1,139 @@
+"""Whether the camera held still: a hand-held phone turns a little from frame to frame.
+
+The tip's direction comes from its pixel through the camera's pose; a camera that turns by a fraction of a
+degree moves every pixel by several (``f`` times the angle) and the tip's direction with them, in every frame, by
+far more than its error bars: each such frame would be wrong and flagged ``ok``.  The protocol's lab-fixed markers
+(fiducials) do not move, so their images show the camera's motion: every :data:`CHECK_EVERY` frames (every frame
+once they have moved) each fiducial in view is fitted near where the pose puts it (plus the motion found so far)
+and the frame's displacement is the mean of theirs (one far from the others' median left out), its error the
+larger of their scatter about it and the displacements' scatter about their own smooth path.  A small turn of the
+camera moves the whole picture alike (a rotation about the camera's centre maps the image by a homography that is
+a shift to first order, whatever the depth), so where the displacements
+scatter about their median by more than :data:`MIN_MOTION_PX` and 4 of their own errors, the camera moved: each
+tip pixel is taken back by its frame's displacement (interpolated between checks) before its direction is found,
+and the displacement's error joins the tip's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera_file import TrackingCamera
+from .rays import angles_with_covariance
+from .scatter import path_residuals
+from .scene_spot import fit_round_spot
+
+__all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "MIN_MOTION_PX"]
+
+#: the fiducials are fitted in every this many frames
+CHECK_EVERY = 4
+#: the camera moved when the displacements' RMS about their median exceeds this [px] (and 4 of their errors)
+MIN_MOTION_PX = 0.3
+#: a fiducial's fit counts when it lies within this many of its radii (and 3 px) of where it was expected
+REACH_RADII = 1.5
+#: ... and within this distance of the median of the others' displacements [px]
+OUTLIER_PX = 1.0
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """The camera's motion over a record, from its fiducials: the ``frame`` numbers of the checks and the picture's
+    displacement
+    there from where the pose puts the fiducials, ``dx_px, dy_px``, its standard error per axis ``sd_px``;
+    ``rms_px`` the displacements' RMS about their median (how much the camera moved), ``moved`` whether that is
+    beyond :data:`MIN_MOTION_PX` and 4 of ``sd_px``."""
+
+    frame: np.ndarray
+    dx_px: np.ndarray
+    dy_px: np.ndarray
+    sd_px: float
+    rms_px: float
+    moved: bool
+
+    def at(self, frame: float) -> tuple[float, float]:
+        """The displacement in a frame [px] (its own check's; linear between checks, held beyond them)."""
+        return float(np.interp(frame, self.frame, self.dx_px)), float(np.interp(frame, self.frame, self.dy_px))
+
+
+class CameraWatch:
+    """Collects the fiducials' displacements while the record is tracked (module docstring)."""
+
+    def __init__(self, camera: TrackingCamera, fiducials_px: list[tuple[float, float, float]]):
+        margin = 10.0
+        self.camera = camera
+        self.spots = [(x, y, r) for x, y, r in fiducials_px
+                      if margin + 3 * r < x < camera.width_px - margin - 3 * r
+                      and margin + 3 * r < y < camera.height_px - margin - 3 * r]
+        self.samples: list[tuple] = []  # (frame, dx, dy, each fiducial's displacement about theirs)
+        self.last = (0.0, 0.0)
+        self.every = CHECK_EVERY
+
+    def observe(self, frame: np.ndarray, count: int, index: int) -> None:
+        """Fit the fiducials in every :data:`CHECK_EVERY`-th frame (``count`` the frames seen before this one), and
+        in every frame once they have moved by :data:`MIN_MOTION_PX` from where they were first seen (a shaking
+        camera's displacement is then measured in each frame, not interpolated); ``index`` the frame's number."""
+        if len(self.spots) < 2 or count % self.every:
+            return
+        moves = []
+        for x, y, r in self.spots:
+            x0, y0 = x + self.last[0], y + self.last[1]
+            fit = fit_round_spot(frame, x0, y0, r, self.camera)
+            if (fit is None or not 0.6 * r <= fit.radius_px <= 1.6 * r
+                    or math.hypot(fit.x_px - x0, fit.y_px - y0) > max(3.0, REACH_RADII * r)):
+                continue
+            moves.append((fit.x_px - x, fit.y_px - y, 0.0))
+        m = np.array(moves).reshape(-1, 3)
+        if len(m):  # a fiducial far from the others' median (another spot taken for it) is left out
+            m = m[np.hypot(m[:, 0] - np.median(m[:, 0]), m[:, 1] - np.median(m[:, 1])) <= OUTLIER_PX]
+        if len(m) < 2:
+            return
+        dx, dy = float(np.mean(m[:, 0])), float(np.mean(m[:, 1]))
+        self.samples.append((index, dx, dy, m[:, :2] - [dx, dy]))
+        self.last = (dx, dy)
+        if math.hypot(dx - self.samples[0][1], dy - self.samples[0][2]) > MIN_MOTION_PX:
+            self.every = 1
+
+    def motion(self) -> CameraMotion | None:
+        """The record's :class:`CameraMotion` (None with fewer than 3 checks: the fiducials were not seen)."""
+        if len(self.samples) < 3:
+            return None
+        samples = sorted(self.samples, key=lambda v: v[0])
+        s = np.array([v[:3] for v in samples], float)
+        # each check's displacement is the mean of its fiducials': its error from their scatter about it, pooled
+        # over the record (their own fits' covariances leave out the scene under their edges)
+        resid = np.concatenate([v[3] for v in samples])
+        dof = sum(len(v[3]) - 1 for v in samples)
+        var = float(np.sum(resid ** 2)) / (2 * dof) / float(np.mean([len(v[3]) for v in samples]))
+        dx, dy = s[:, 1] - np.median(s[:, 1]), s[:, 2] - np.median(s[:, 2])
+        # ... and from the displacements' own scatter about their smooth path (a hand's tremor is smooth from frame
+        # to frame): an error common to the fiducials (the codec's treatment of a moving picture) shows there
+        idx, z = path_residuals(s[:, 0], s[:, 0].astype(int), s[:, 1:3], np.ones((len(s), 2)), np.ones(len(s), bool))
+        sd = math.sqrt(max(var, float(np.mean(z ** 2)) if len(idx) >= 10 else 0.0))
+        rms = math.sqrt(float(np.mean(dx * dx + dy * dy)) / 2)
+        return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(rms > max(MIN_MOTION_PX, 4.0 * sd)))
+
+
+def steady_angle_rows(rows: list, tip_px: dict, tip_cov: dict, motion: CameraMotion, camera: TrackingCamera,
+                      length_m: float) -> None:
+    """Each tracked row's direction found again from its tip pixel taken back by the camera's displacement in its
+    frame (``rows[r] = (frame, t, theta, phi, sd theta, sd phi, corr, tip x, y, z, quality)``, replaced in place; the
+    pixel in ``tip_px`` taken back too, and the displacement's variance added to its covariance in ``tip_cov``: the
+    record's checks then see the steadied path).  A pixel whose ray then misses the tip's sphere keeps its row but
+    loses its angles (quality ``off-sphere``)."""
+    extra = motion.sd_px ** 2 * np.eye(2)
+    for r in sorted(tip_px):
+        row = rows[r]
+        dx, dy = motion.at(row[0])
+        cov = np.asarray(tip_cov[r], float) + extra
+        geo = angles_with_covariance(tip_px[r][0] - dx, tip_px[r][1] - dy, cov, camera, length_m)
+        if geo is None:
+            rows[r] = (row[0], row[1], *([math.nan] * 8), "off-sphere")
+            del tip_px[r], tip_cov[r]
+            continue
+        th, ph, n, c = geo
+        sth, sph = math.sqrt(c[0, 0]), math.sqrt(c[1, 1])
+        rows[r] = (row[0], row[1], th, ph, sth, sph, c[0, 1] / (sth * sph), n[0], n[1], n[2], row[10])
+        tip_px[r], tip_cov[r] = (tip_px[r][0] - dx, tip_px[r][1] - dy), cov
