@@ -31,6 +31,7 @@ from ..protocols import Launch, Protocol, load_protocol, BUNDLED_PROTOCOL_DIR
 from ..theory import exact_steady_precession_rates
 
 __all__ = ["SyntheticRig", "simulated_precession_period", "simulated_nutation_frequency", "simulated_circling_rate",
+           "simulated_kicked_nutation",
            "synthetic_tables",
            "identify_pulls", "RIGS"]
 
@@ -111,6 +112,25 @@ def _peak_frequency(t: np.ndarray, th: np.ndarray) -> float:
     a, b, c = th[i - 1], th[i], th[i + 1]
     peaks = t[i] + 0.5 * (a - c) / (a - 2 * b + c) * (t[1] - t[0])
     return 2 * math.pi / float(np.mean(np.diff(peaks)))
+
+
+def simulated_kicked_nutation(rig: Protocol, spin_rad_s: float, tilt_rad: float, kick_rad_s: float,
+                              periods: int = 12) -> tuple[float, float, float]:
+    """A heavy top kicked (tilt rate ``kick_rad_s``) at the tilt, its rotor at ``omega_3 = spin_rad_s``: its
+    nutation frequency [rad/s] from the simulated tilt maxima, and the tilt's extremes [rad] (parabola through the
+    sampled extremes)."""
+    guess = rig.rig.inertia_axial_kg_m2 * spin_rad_s / rig.rig.inertia_transverse_kg_m2
+    launch = Launch(tilt_rad=tilt_rad, azimuth_rad=0.0, tilt_rate_rad_s=kick_rad_s, precession_rate_rad_s=0.0,
+                    spin_rate_rad_s=spin_rad_s)
+    df = simulate(replace(rig, launch=launch), duration_s=(periods + 1.5) * 2 * math.pi / guess,
+                  rate_hz=400 * guess / (2 * math.pi), rtol=1e-11)
+    t, th = df.t_s.to_numpy(), df.theta_rad.to_numpy()
+
+    def extreme(v):
+        i = int(np.argmax(v[1:-1])) + 1
+        a, b, c = v[i - 1], v[i], v[i + 1]
+        return b + 0.125 * (a - c) ** 2 / (2 * b - a - c) if 2 * b - a - c > 0 else b
+    return _peak_frequency(t, th), -extreme(-th), extreme(th)
 
 
 def _spin_down(t_s: np.ndarray, omega0: float, k: float, f: float) -> np.ndarray:

@@ -13,7 +13,8 @@ mass ``m`` at ``l`` along the axis (``M' = M + m``, ``M' h' = M h + m l``, ``I' 
   tilt (``Mgh' = phi' (Io omega_o - I' phi' cos theta)``, ``omega_o = Omega + phi' cos theta``;
   horizontal when no tilt is given); fast top: ``2 pi Io Omega / (M' g h')``;
 * nutation frequency: the elliptic solution's, for a release from rest at the tilt (the protocol's
-  launch tilt when none is given); for a balanced rig (``M h = 0``: no torque, the nutation set off by a kick)
+  launch tilt when none is given), or for a kicked top swinging between measured extremes (``tilt_min`` and
+  ``tilt_max`` columns; its spin is then ``omega_3``, the rotor's rate about its axis: :func:`launch_between`); for a balanced rig (``M h = 0``: no torque, the nutation set off by a kick)
   the rate at which the axis circles the angular momentum, ``L / I = Io Omega / (I cos theta_c)`` with
   ``theta_c`` the cone angle (a ``cone_angle`` column; 0 when not given); fast top: ``Io Omega / I'``;
 * a video's fit.json: its mean precession rate and nutation frequency from the elliptic solution of
@@ -40,13 +41,13 @@ from ..theory import exact_steady_precession_rates
 from .tables import IdentifyInputError, Table
 
 __all__ = ["Observation", "observations_from_table", "observations_from_fit", "rig_with", "FORMULAS",
-           "spin_down_model"]
+           "spin_down_model", "launch_between"]
 
 #: which formula serves each kind of observation
 FORMULAS = {
     "precession": "exact steady precession at the finite tilt (slow root; Goldstein eq. 5.76)",
-    "nutation": "exact elliptic solution of the heavy top released from rest at the tilt; a balanced rig's "
-                "torque-free nutation L / I",
+    "nutation": "exact elliptic solution of the heavy top released from rest at the tilt, or turning at the "
+                "measured tilt extremes (a kick); a balanced rig's torque-free nutation L / I",
     "fit_precession": "exact elliptic solution's mean precession rate for the video's launch",
     "fit_nutation": "exact elliptic solution's nutation frequency for the video's launch",
     "spin_down": "d omega/dt = -k omega - f (viscous, plus constant friction when the data need it)",
@@ -170,11 +171,46 @@ def _gimbal_nutation(prior: Protocol):
     return _guard(exact), _guard(fast)
 
 
+def launch_between(rig, spin_rad_s: float, tilt_min_rad: float, tilt_max_rad: float) -> Launch:
+    """The launch of a heavy top spinning at ``omega_3 = spin_rad_s`` (the rotor's rate about its axis, a constant
+    of the motion; a gyrostat's frame not turning about it) whose tilt swings between ``tilt_min_rad`` and ``tilt_max_rad``: at the smaller tilt, tilt rate
+    0, with the precession rate that makes the larger one the other turning point.  In ``u = cos theta``
+    (Goldstein's ``u'^2 = (1 - u^2)(alpha - beta u) - (b - a u)^2``, ``a = Io omega_3 / I``) both ``u`` are roots,
+    which fixes ``b`` by a quadratic: of its two roots (a wavy and a looping motion) the one whose precession at the
+    top turning point is the slower is taken (the release from rest where the swing is a release's).  ValueError
+    where no motion turns at both tilts."""
+    i_t, i_o = rig.inertia_transverse_kg_m2, rig.inertia_axial_kg_m2
+    u1, u2 = math.cos(tilt_min_rad), math.cos(tilt_max_rad)
+    s1, s2 = 1.0 - u1 * u1, 1.0 - u2 * u2
+    if not (s1 > 0 and s2 > 0 and u1 > u2):
+        raise ValueError(f"tilts {tilt_min_rad!r} < {tilt_max_rad!r} strictly inside (0, pi) are needed")
+    beta, a = 2.0 * rig.mgh_N_m / i_t, i_o * spin_rad_s / i_t
+    # (b - a u1)^2 / s1 - (b - a u2)^2 / s2 = beta (u2 - u1): A b^2 + B b + C = 0
+    qa, qb = 1.0 / s1 - 1.0 / s2, -2.0 * a * (u1 / s1 - u2 / s2)
+    qc = a * a * (u1 * u1 / s1 - u2 * u2 / s2) - beta * (u2 - u1)
+    if abs(qa) <= 1e-12 * abs(qb):
+        roots = [-qc / qb]
+    else:
+        disc = qb * qb - 4.0 * qa * qc
+        if disc < 0:
+            raise ValueError("no motion of this top turns at these two tilts")
+        roots = [(-qb + sgn * math.sqrt(disc)) / (2.0 * qa) for sgn in (1.0, -1.0)]
+    phid = min(((b - a * u1) / s1 for b in roots), key=abs)
+    # a gyrostat's frame does not turn about the axis (its axial rate psi_f' + phi' cos theta is 0)
+    return Launch(tilt_rad=tilt_min_rad, azimuth_rad=0.0, tilt_rate_rad_s=0.0, precession_rate_rad_s=phid,
+                  spin_rate_rad_s=spin_rad_s - phid * u1,
+                  frame_spin_rate_rad_s=-phid * u1 if rig.is_gyrostat else 0.0)
+
+
 def _nutation(prior: Protocol):
     def exact(params, x):
         mgh, i_t, i_o = _mgh_inertias(prior, params, x)
         if mgh == 0.0:  # balanced: no torque; a kick sets the axis circling the angular momentum at L / I
             return i_o * x["spin"] / (i_t * math.cos(x.get("cone_angle", 0.0)))
+        if "tilt_min" in x:  # a kicked heavy top: the tilt's measured extremes
+            p = rig_with(prior, params, x.get("added_mass", 0.0), x.get("lever_arm", 0.0))
+            launch = launch_between(p.rig, x["spin"], x["tilt_min"], x["tilt_max"])
+            return exact_solution(replace(p, launch=launch)).nutation_frequency_rad_s
         return _released(prior, params, x).nutation_frequency_rad_s
 
     def fast(params, x):
@@ -232,6 +268,9 @@ def observations_from_table(table: Table, prior: Protocol) -> list[Observation]:
             exact, fast = _gimbal_nutation(prior)
         else:
             y, y_sd = _nutation_value(x, x_sd)
+            if ("tilt_min" in x) != ("tilt_max" in x) or ("tilt_min" in x and not x["tilt_min"] < x["tilt_max"]):
+                raise IdentifyInputError(f"{table.path}, line {line}: a kicked top's nutation needs both tilt_min and "
+                                         "tilt_max (the tilt's extremes), the first the smaller")
             x.setdefault("tilt", prior.launch.tilt_rad)
             x_sd.setdefault("tilt", 0.0)
             exact, fast = _nutation(prior)

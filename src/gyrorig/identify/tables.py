@@ -32,7 +32,7 @@ UNITS = {"_rev_per_min": ("rate", 2 * math.pi / 60), "_rad_s": ("rate", 1.0), "_
          "_kg_m2": ("inertia", 1.0), "_g_cm2": ("inertia", 1e-7)}
 #: what each column measures
 COLUMNS = {"t": "time", "spin": "rate", "spin_start": "rate", "spin_end": "rate", "precession_period": "time",
-           "precession_rate": "rate",
+           "precession_rate": "rate", "tilt_min": "angle", "tilt_max": "angle",
            "added_mass": "mass", "lever_arm": "length", "tilt": "angle", "nutation_frequency": "rate",
            "nutation_period": "time", "cone_angle": "angle", "added_outer_inertia": "inertia"}
 #: the kinds, with their required columns (alternatives as tuples) and optional ones
@@ -41,13 +41,16 @@ KINDS = {
     "precession": {"required": (("spin", ("spin_start", "spin_end")), ("precession_period", "precession_rate")),
                    "optional": ("added_mass", "lever_arm", "tilt")},
     "nutation": {"required": ("spin", ("nutation_frequency", "nutation_period")),
-                 "optional": ("added_mass", "lever_arm", "tilt", "cone_angle", "added_outer_inertia")},
+                 "optional": ("added_mass", "lever_arm", "tilt", "cone_angle", "added_outer_inertia", "tilt_min",
+                              "tilt_max")},
 }
 #: columns whose values must be > 0
 POSITIVE = ("precession_period", "precession_rate", "nutation_period", "nutation_frequency", "spin", "spin_start",
             "spin_end")
 #: the physical range of other columns (SI): ``(low, high, what it is)``
 RANGES = {"tilt": (0.0, math.pi, "the tilt's range [0, 180] deg (from the vertical)"),
+          "tilt_min": (0.0, math.pi, "the tilt's range [0, 180] deg (from the vertical)"),
+          "tilt_max": (0.0, math.pi, "the tilt's range [0, 180] deg (from the vertical)"),
           "cone_angle": (0.0, 0.5 * math.pi, "a nutation cone's half-angle, [0, 90) deg"),
           "t": (0.0, math.inf, "times from the start, >= 0"),
           "added_mass": (0.0, math.inf, "an added mass, >= 0"),
