@@ -9,6 +9,7 @@ import tomllib
 from dataclasses import replace
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from gyrorig.bench.identify import simulated_gimbal_nutation
@@ -225,3 +226,19 @@ def test_a_bad_configuration_is_refused(tmp_path, config):
     prior.write_text(prior.read_text() + "\n[[configuration]]\n" + config)
     assert main(["identify", str(table), "--protocol", str(prior), "--out", str(tmp_path / "out")]) == 2
     assert not (tmp_path / "out").exists()
+
+
+def test_gyrorig_simulate_runs_a_gyro_in_gimbals(tmp_path):
+    """``gyrorig simulate`` on a protocol with [gimbal] uses the gimbal simulator (energy kept to 1e-9), refuses the
+    rigid-body methods and pivot torques it does not model (exit 2, nothing written)."""
+    text = AIR.read_text() + "\n[gimbal]\nouter_inertia_kg_m2 = 4e-4\ncross_inertia_kg_m2 = 2.6e-3\n"
+    proto = tmp_path / "gimbal.toml"
+    proto.write_text(text)
+    assert main(["simulate", str(proto), "--out", str(tmp_path / "a"), "--duration", "1", "--rate", "200"]) == 0
+    energy = pd.read_csv(tmp_path / "a" / "trajectory.csv").energy_J.to_numpy()
+    assert len(energy) == 201 and np.ptp(energy) < 1e-9 * abs(energy[0])
+    assert main(["simulate", str(proto), "--out", str(tmp_path / "b"), "--method", "gyro"]) == 2
+    damped = tmp_path / "damped.toml"
+    damped.write_text(text + '\n[pivot.damping]\nmodel = "paper"\ngamma_per_s = 0.01\n')
+    assert main(["simulate", str(damped), "--out", str(tmp_path / "c")]) == 2
+    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()

@@ -101,4 +101,4 @@ def refuse_gimbal(protocol, what: str) -> None:
     if getattr(protocol, "gimbal", None) is not None:
         raise ProtocolError(f"{protocol.source or protocol.name}: [gimbal]: {what} models a top on a pivot, not a gyro "
                             "in gimbals; gimbals are modelled by 'gyrorig identify' (lab tables) and simulated by "
-                            "gyrorig.physics.gimbal.simulate_gimbal")
+                            "'gyrorig simulate' (gyrorig.physics.gimbal)")

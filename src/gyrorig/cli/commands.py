@@ -50,7 +50,9 @@ def terms_arg(value: str):
 def _cmd_simulate(args: argparse.Namespace) -> int:
     protocol = load_protocol(args.protocol)
     out = Path(args.out)
-    if args.method == "exact":
+    if protocol.gimbal is not None:
+        df, info = _simulate_gimbal(protocol, args)
+    elif args.method == "exact":
         ok, why = exact_solution_applies(protocol)
         if not ok:
             raise ExactSolutionError(f"--method exact: no exact solution for {protocol.name}: {why}")
@@ -69,6 +71,21 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     print(f"{protocol.name}: {len(df)} rows, method {info['method']}, {info['wall_time_s']:.3f} s wall "
           f"-> {out / 'trajectory.csv'}")
     return EXIT_OK
+
+
+def _simulate_gimbal(protocol, args: argparse.Namespace):
+    """A gyro in gimbals through its own simulator (:mod:`gyrorig.physics.gimbal`): ``(table, info)``."""
+    from ..physics.gimbal import simulate_gimbal
+
+    if args.method != "auto":
+        raise ValueError(f"--method {args.method}: a gyro in gimbals has its own simulator; allowed: auto")
+    number("", "--rtol", args.rtol if args.rtol is not None else 1e-11, lo=1e-14, hi=1e-3)
+    start = time.perf_counter()
+    df = simulate_gimbal(protocol, duration_s=protocol.scene.duration_s if args.duration is None else args.duration,
+                         rate_hz=protocol.scene.output_rate_hz if args.rate is None else args.rate,
+                         rtol=args.rtol if args.rtol is not None else 1e-11)
+    return df, {"method": "gimbal (Lagrange's equations in the gimbal angles, DOP853)",
+                "wall_time_s": time.perf_counter() - start}
 
 
 def _cmd_bench_methods(args: argparse.Namespace) -> int:

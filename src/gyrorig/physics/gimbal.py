@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 from scipy.integrate import solve_ivp
 
+from .._validate import ProtocolError
 from ..gimbals import Gimbal, azimuth_inertia
 from .simulate import SimulationError
 
@@ -42,6 +43,9 @@ def simulate_gimbal(protocol, *, duration_s: float, rate_hz: float, rtol: float 
     gimbals lock)."""
     rig, launch = protocol.rig, protocol.launch
     gimbal = protocol.gimbal if getattr(protocol, "gimbal", None) is not None else Gimbal()
+    if protocol.pivot.damping or protocol.pivot.acceleration is not None:
+        raise ProtocolError(f"{protocol.source or protocol.name}: [pivot]: the gimbal simulator has no damping or "
+                            "pivot acceleration (the gimbals' bearings are taken as free)")
     if not duration_s > 0 or not rate_hz > 0:
         raise ValueError(f"duration_s = {duration_s!r} and rate_hz = {rate_hz!r} must be > 0")
     io, b, mgh = rig.inertia_axial_kg_m2, rig.inertia_transverse_kg_m2, rig.mgh_N_m
