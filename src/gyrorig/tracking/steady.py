@@ -28,8 +28,8 @@ from .scene_spot import fit_round_spot
 
 __all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "MIN_MOTION_PX"]
 
-#: the fiducials are fitted in every this many frames
-CHECK_EVERY = 4
+#: the fiducials are fitted in every this many frames (until they move; five fits cost about as much as the tip's)
+CHECK_EVERY = 8
 #: the camera moved when the displacements' RMS about their median exceeds this [px] (and 4 of their errors)
 MIN_MOTION_PX = 0.3
 #: a fiducial's fit counts when it lies within this many of its radii (and 3 px) of where it was expected
