@@ -11,7 +11,7 @@ camera moves the whole picture alike (a rotation about the camera's centre maps 
 a shift to first order, whatever the depth), so where the displacements
 scatter about their median by more than :data:`MIN_MOTION_PX` and 4 of their own errors, the camera moved: each
 tip pixel is taken back by its frame's displacement (interpolated between checks) before its direction is found,
-and the displacement's error joins the tip's.
+and the displacement's error joins the tip's (between checks, the interpolation's too).
 """
 
 from __future__ import annotations
@@ -52,10 +52,19 @@ class CameraMotion:
     sd_px: float
     rms_px: float
     moved: bool
+    #: the displacement's RMS change per frame between checks [px] (what a frame between checks may differ by)
+    speed_px: float = 0.0
 
     def at(self, frame: float) -> tuple[float, float]:
         """The displacement in a frame [px] (its own check's; linear between checks, held beyond them)."""
         return float(np.interp(frame, self.frame, self.dx_px)), float(np.interp(frame, self.frame, self.dy_px))
+
+    def sd_at(self, frame: float) -> float:
+        """The displacement's error per axis in a frame [px]: ``sd_px`` where the frame was checked; between or
+        beyond checks the interpolation's too, taken as half the RMS change per frame times the frames to the
+        nearest check (the checks are sparse until the camera is seen to move)."""
+        gap = float(np.min(np.abs(self.frame - frame)))
+        return math.hypot(self.sd_px, 0.5 * self.speed_px * gap)
 
 
 class CameraWatch:
@@ -113,7 +122,9 @@ class CameraWatch:
         idx, z = path_residuals(s[:, 0], s[:, 0].astype(int), s[:, 1:3], np.ones((len(s), 2)), np.ones(len(s), bool))
         sd = math.sqrt(max(var, float(np.mean(z ** 2)) if len(idx) >= 10 else 0.0))
         rms = math.sqrt(float(np.mean(dx * dx + dy * dy)) / 2)
-        return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(rms > max(MIN_MOTION_PX, 4.0 * sd)))
+        steps = np.diff(s[:, 0])
+        speed = math.sqrt(float(np.mean((np.diff(s[:, 1]) ** 2 + np.diff(s[:, 2]) ** 2) / (2 * steps ** 2))))
+        return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(rms > max(MIN_MOTION_PX, 4.0 * sd)), speed)
 
 
 def steady_angle_rows(rows: list, tip_px: dict, tip_cov: dict, motion: CameraMotion, camera: TrackingCamera,
@@ -123,11 +134,10 @@ def steady_angle_rows(rows: list, tip_px: dict, tip_cov: dict, motion: CameraMot
     pixel in ``tip_px`` taken back too, and the displacement's variance added to its covariance in ``tip_cov``: the
     record's checks then see the steadied path).  A pixel whose ray then misses the tip's sphere keeps its row but
     loses its angles (quality ``off-sphere``)."""
-    extra = motion.sd_px ** 2 * np.eye(2)
     for r in sorted(tip_px):
         row = rows[r]
         dx, dy = motion.at(row[0])
-        cov = np.asarray(tip_cov[r], float) + extra
+        cov = np.asarray(tip_cov[r], float) + motion.sd_at(row[0]) ** 2 * np.eye(2)
         geo = angles_with_covariance(tip_px[r][0] - dx, tip_px[r][1] - dy, cov, camera, length_m)
         if geo is None:
             rows[r] = (row[0], row[1], *([math.nan] * 8), "off-sphere")
