@@ -36,7 +36,7 @@ from typing import Any
 from ._validate import ProtocolError, check_keys, number
 
 __all__ = ["Gimbal", "parse_gimbal", "azimuth_inertia", "gimbal_nutation_frequency", "gimbal_precession_rate",
-           "refuse_gimbal"]
+           "refuse_gimbal", "gimbal_prediction"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,5 +100,28 @@ def refuse_gimbal(protocol, what: str) -> None:
     """ProtocolError when ``protocol`` describes a gyro in gimbals, which ``what`` does not model."""
     if getattr(protocol, "gimbal", None) is not None:
         raise ProtocolError(f"{protocol.source or protocol.name}: [gimbal]: {what} models a top on a pivot, not a gyro "
-                            "in gimbals; gimbals are modelled by 'gyrorig identify' (lab tables) and simulated by "
-                            "'gyrorig simulate' (gyrorig.physics.gimbal)")
+                            "in gimbals; gimbals are modelled by 'gyrorig identify' (lab tables), 'gyrorig theory' "
+                            "and 'gyrorig simulate' (gyrorig.physics.gimbal)")
+
+
+def gimbal_prediction(protocol) -> dict:
+    """What the closed forms say of a gyro in gimbals at its launch tilt and spin: the balanced gyro's nutation
+    frequency (small oscillations; for a weighted one only when its centre of mass is on the pivot) and, with a
+    weight, the slow steady precession rate; each beside the fast-top formula of a top on a pivot (``Io Omega /
+    I``, ``M g h / (Io Omega)``).  No error bars (the protocol's standard deviations are not carried yet)."""
+    rig, launch = protocol.rig, protocol.launch
+    spin, tilt = launch.spin_rate_rad_s, launch.tilt_rad
+    out: dict = {"protocol": protocol.name, "kind": "gyro in gimbals", "tilt_rad": tilt, "spin_rate_rad_s": spin}
+    if rig.mgh_N_m == 0.0:
+        out["nutation_frequency_rad_s"] = {
+            "gimbal": gimbal_nutation_frequency(rig, protocol.gimbal, spin, tilt),
+            "fast_top": rig.inertia_axial_kg_m2 * abs(spin) / rig.inertia_transverse_kg_m2,
+            "note": "small oscillations about the launch tilt (the error grows as the nutation's amplitude squared)"}
+    else:
+        try:
+            rate = gimbal_precession_rate(rig, protocol.gimbal, spin, tilt)
+        except ValueError as exc:
+            rate, out["precession_note"] = math.nan, str(exc)
+        out["precession_rate_slow_rad_s"] = {"gimbal": rate,
+                                             "fast_top": rig.mgh_N_m / (rig.inertia_axial_kg_m2 * spin)}
+    return out

@@ -532,12 +532,32 @@ def _cmd_theory(args: argparse.Namespace) -> int:
     from ..plausibility import protocol_doubts
 
     protocol = load_protocol(args.protocol)  # logs its doubts as warnings
+    if protocol.gimbal is not None:
+        return _gimbal_theory(protocol, args)
     pred = predict_with_uncertainty(protocol, simulate_damping=not args.no_simulate)
     if args.json:
         doubts = [d.as_dict() for d in protocol_doubts(protocol)]
         print_data(json.dumps(_io.json_safe({**pred, "doubts": doubts}), indent=2))
     else:
         print_prediction(pred)
+    return EXIT_OK
+
+
+def _gimbal_theory(protocol, args: argparse.Namespace) -> int:
+    """``gyrorig theory`` for a gyro in gimbals: its closed forms (:func:`gyrorig.gimbals.gimbal_prediction`)."""
+    from ..gimbals import gimbal_prediction
+
+    pred = gimbal_prediction(protocol)
+    if args.json:
+        print_data(json.dumps(_io.json_safe(pred), indent=2))
+        return EXIT_OK
+    print(f"{protocol.name}: a gyro in gimbals, tilt {math.degrees(pred['tilt_rad']):.4g} deg, spin "
+          f"{pred['spin_rate_rad_s']:.6g} rad/s (no error bars for gimbals yet)")
+    for key in ("nutation_frequency_rad_s", "precession_rate_slow_rad_s"):
+        if key in pred:
+            q = pred[key]
+            print(f"  {key}: {q['gimbal']:.6g} (a top on a pivot, fast-top formula: {q['fast_top']:.6g})"
+                  + (f"; {q['note']}" if "note" in q else ""))
     return EXIT_OK
 
 
