@@ -22,6 +22,7 @@ from .._validate import number
 from ..protocols import load_protocol, protocol_summary
 from .codes import EXIT_FAILED, EXIT_OK
 from .camera_commands import _cmd_calibrate, _cmd_pose  # noqa: F401 (dispatched by name)
+from .gimbal_commands import gimbal_theory, simulate_gimbal_scene
 from .parser import clipped
 from .printing import print_data, print_fit, print_plan, print_prediction, progress_printer
 
@@ -51,7 +52,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     protocol = load_protocol(args.protocol)
     out = Path(args.out)
     if protocol.gimbal is not None:
-        df, info = _simulate_gimbal(protocol, args)
+        df, info = simulate_gimbal_scene(protocol, args)
     elif args.method == "exact":
         ok, why = exact_solution_applies(protocol)
         if not ok:
@@ -71,21 +72,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     print(f"{protocol.name}: {len(df)} rows, method {info['method']}, {info['wall_time_s']:.3f} s wall "
           f"-> {out / 'trajectory.csv'}")
     return EXIT_OK
-
-
-def _simulate_gimbal(protocol, args: argparse.Namespace):
-    """A gyro in gimbals through its own simulator (:mod:`gyrorig.physics.gimbal`): ``(table, info)``."""
-    from ..physics.gimbal import simulate_gimbal
-
-    if args.method != "auto":
-        raise ValueError(f"--method {args.method}: a gyro in gimbals has its own simulator; allowed: auto")
-    number("", "--rtol", args.rtol if args.rtol is not None else 1e-11, lo=1e-14, hi=1e-3)
-    start = time.perf_counter()
-    df = simulate_gimbal(protocol, duration_s=protocol.scene.duration_s if args.duration is None else args.duration,
-                         rate_hz=protocol.scene.output_rate_hz if args.rate is None else args.rate,
-                         rtol=args.rtol if args.rtol is not None else 1e-11)
-    return df, {"method": "gimbal (Lagrange's equations in the gimbal angles, DOP853)",
-                "wall_time_s": time.perf_counter() - start}
 
 
 def _cmd_bench_methods(args: argparse.Namespace) -> int:
@@ -533,31 +519,13 @@ def _cmd_theory(args: argparse.Namespace) -> int:
 
     protocol = load_protocol(args.protocol)  # logs its doubts as warnings
     if protocol.gimbal is not None:
-        return _gimbal_theory(protocol, args)
+        return gimbal_theory(protocol, args)
     pred = predict_with_uncertainty(protocol, simulate_damping=not args.no_simulate)
     if args.json:
         doubts = [d.as_dict() for d in protocol_doubts(protocol)]
         print_data(json.dumps(_io.json_safe({**pred, "doubts": doubts}), indent=2))
     else:
         print_prediction(pred)
-    return EXIT_OK
-
-
-def _gimbal_theory(protocol, args: argparse.Namespace) -> int:
-    """``gyrorig theory`` for a gyro in gimbals: its closed forms (:func:`gyrorig.gimbals.gimbal_prediction`)."""
-    from ..gimbals import gimbal_prediction
-
-    pred = gimbal_prediction(protocol)
-    if args.json:
-        print_data(json.dumps(_io.json_safe(pred), indent=2))
-        return EXIT_OK
-    print(f"{protocol.name}: a gyro in gimbals, tilt {math.degrees(pred['tilt_rad']):.4g} deg, spin "
-          f"{pred['spin_rate_rad_s']:.6g} rad/s (no error bars for gimbals yet)")
-    for key in ("nutation_frequency_rad_s", "precession_rate_slow_rad_s"):
-        if key in pred:
-            q = pred[key]
-            print(f"  {key}: {q['gimbal']:.6g} (a top on a pivot, fast-top formula: {q['fast_top']:.6g})"
-                  + (f"; {q['note']}" if "note" in q else ""))
     return EXIT_OK
 
 
