@@ -112,7 +112,8 @@ def _gimbal_prior(tmp_path, com_distance: float = 0.0):
     text = text.replace("inertia_axial_kg_m2 = 4.725e-4", "inertia_axial_kg_m2 = { value = 4.9e-4, sd = 1e-4 }")
     text = text.replace("inertia_transverse_kg_m2 = 3.839e-3",
                         "inertia_transverse_kg_m2 = { value = 3.5e-3, sd = 0.8e-3 }")
-    text += "\n[gimbal]\nouter_inertia_kg_m2 = { value = 3e-4, sd = 1.5e-4 }\ncross_inertia_kg_m2 = { value = 2.2e-3, sd = 0.6e-3 }\n"
+    text += ("\n[gimbal]\nouter_inertia_kg_m2 = { value = 3e-4, sd = 1.5e-4 }\n"
+             "cross_inertia_kg_m2 = { value = 2.2e-3, sd = 0.6e-3 }\n")
     path = tmp_path / "gimbal-prior.toml"
     path.write_text(text)
     return path
@@ -174,7 +175,8 @@ def test_configurations_share_what_they_share(tmp_path):
 
     def noisy(v):
         return v * (1 + 0.003 * rng.normal())
-    head = "spin_rad_s,spin_rad_s_sd,tilt_deg,added_outer_inertia_g_cm2,nutation_frequency_rad_s,nutation_frequency_rad_s_sd\n"
+    head = ("spin_rad_s,spin_rad_s_sd,tilt_deg,added_outer_inertia_g_cm2,nutation_frequency_rad_s,"
+            "nutation_frequency_rad_s_sd\n")
     for name, q in (("nutation.csv", rod), ("nutation-no-rod.csv", off)):
         rows = [(s, th, j, simulated_gimbal_nutation(q, s, math.radians(th), 0.5, j * 1e-7))
                 for s in (250.0, 400.0) for th in (90.0, 60.0) for j in (0.0, 5000.0)]

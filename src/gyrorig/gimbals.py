@@ -33,6 +33,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from ._validate import ProtocolError, check_keys, number
 
 __all__ = ["Gimbal", "parse_gimbal", "azimuth_inertia", "gimbal_nutation_frequency", "gimbal_precession_rate",
@@ -55,6 +57,10 @@ class Gimbal:
     outer_inertia_kg_m2: float = 0.0
     cross_inertia_kg_m2: float | None = None
 
+    def cross(self, rig) -> float:
+        """``I2``: the cross inertia, the rig's transverse one where none is given. [kg m^2]"""
+        return rig.inertia_transverse_kg_m2 if self.cross_inertia_kg_m2 is None else self.cross_inertia_kg_m2
+
 
 def parse_gimbal(t: Mapping[str, Any]) -> Gimbal:
     """The ``[gimbal]`` section: ``outer_inertia_kg_m2`` (>= 0) and ``cross_inertia_kg_m2`` (> 0), both optional."""
@@ -65,12 +71,12 @@ def parse_gimbal(t: Mapping[str, Any]) -> Gimbal:
     return Gimbal(outer, cross)
 
 
-def azimuth_inertia(rig, gimbal: Gimbal | None, tilt_rad: float) -> float:
-    """``a(theta)``: the inertia about the vertical of everything but the rotor's spin (module docstring). [kg m^2]"""
+def azimuth_inertia(rig, gimbal: Gimbal | None, tilt_rad):
+    """``a(theta)``: the inertia about the vertical of everything but the rotor's spin (module docstring), at a tilt
+    or an array of them. [kg m^2]"""
     g = gimbal or Gimbal()
-    cross = rig.inertia_transverse_kg_m2 if g.cross_inertia_kg_m2 is None else g.cross_inertia_kg_m2
     frame = rig.frame_axial_inertia_kg_m2 or 0.0
-    return g.outer_inertia_kg_m2 + cross * math.sin(tilt_rad) ** 2 + frame * math.cos(tilt_rad) ** 2
+    return g.outer_inertia_kg_m2 + g.cross(rig) * np.sin(tilt_rad) ** 2 + frame * np.cos(tilt_rad) ** 2
 
 
 def gimbal_nutation_frequency(rig, gimbal: Gimbal | None, spin_rad_s: float, tilt_rad: float) -> float:
@@ -84,10 +90,8 @@ def gimbal_precession_rate(rig, gimbal: Gimbal | None, spin_rad_s: float, tilt_r
     """The slow steady precession rate at the tilt for the rotor's spin ``psi' = spin_rad_s``: the root of
     ``(I2 - Cf - Io) cos theta x^2 - Io psi' x + M g h = 0`` that tends to ``M g h / (Io psi')``; ValueError where
     the spin is too slow for steady precession. [rad/s]"""
-    g = gimbal or Gimbal()
-    cross = rig.inertia_transverse_kg_m2 if g.cross_inertia_kg_m2 is None else g.cross_inertia_kg_m2
     io = rig.inertia_axial_kg_m2
-    k = (cross - (rig.frame_axial_inertia_kg_m2 or 0.0) - io) * math.cos(tilt_rad)
+    k = ((gimbal or Gimbal()).cross(rig) - (rig.frame_axial_inertia_kg_m2 or 0.0) - io) * math.cos(tilt_rad)
     lw, mgh = io * spin_rad_s, rig.mgh_N_m
     disc = lw * lw - 4.0 * k * mgh
     if disc < 0:

@@ -1,13 +1,14 @@
 """Synthetic lab tables from the simulator, and the identification benchmark (``gyrorig bench identify``).
 
-The true values of each row come from simulating the rig (never from the formulas
-``gyrorig identify`` fits): a precession period is the mean azimuth rate of a simulated top
-launched in steady precession at the row's tilt (a wrong steady-precession formula shows as
-nutation and a different mean rate); a nutation frequency is measured from the tilt maxima of a
-simulated release from rest; a balanced gyro's nutation (``balanced-gyro``: centre of mass on the pivot,
-kicked) is the rate at which its simulated axis circles its mean direction, with the cone's half-angle; a
-spin-down curve is integrated from ``d omega/dt = -k omega - f`` by scipy.  Noise of the stated standard deviations is then added to the observed values and to the
-recorded conditions, and the priors are drawn about the truth with their own standard deviations.
+The true values of each row come from simulating the rig (never from the formulas ``gyrorig identify`` fits): a
+precession period is the mean azimuth rate of a simulated top launched in steady precession at the row's tilt (a
+wrong steady-precession formula shows as nutation and a different mean rate); a nutation frequency is measured
+from the tilt maxima of a simulated release from rest, or of a kick (with the tilt's extremes); a balanced gyro's
+nutation (``balanced-gyro``: centre of mass on the pivot, kicked) is the rate at which its simulated axis circles
+its mean direction, with the cone's half-angle; a gyro in gimbals (``gimbal-gyro``) is simulated by
+:mod:`gyrorig.physics.gimbal`; a spin-down curve is integrated from ``d omega/dt = -k omega - f`` by scipy.  Noise
+of the stated standard deviations is then added to the observed values and to the recorded conditions, and the
+priors are drawn about the truth with their own standard deviations.
 """
 
 from __future__ import annotations
@@ -240,8 +241,9 @@ def synthetic_tables(rig: SyntheticRig, folder: Path, rng: np.random.Generator, 
         files.append(folder / "spin_down.csv")
     p = rig.protocol
     names, values, sds = [], [], []
-    for n in (n for n in prior_rig_values(p) if n not in rig.held):
-        v = prior_rig_values(p)[n]
+    for n, v in prior_rig_values(p).items():
+        if n in rig.held:
+            continue
         sd = rig.prior_rel_sd * v
         names.append(n)
         values.append(v + sd * rng.normal())

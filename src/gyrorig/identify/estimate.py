@@ -1,14 +1,14 @@
 """Weighted least squares of the rig's parameters from observations and the prior protocol.
 
-Free parameters: the rig's ``inertia_axial_kg_m2``, ``inertia_transverse_kg_m2`` and
-``com_distance_m`` (and a gyro in gimbals' ``[gimbal]`` inertias) where the prior gives them a standard deviation (their priors, with the
-prior's correlations, enter as whitened residuals; a number without one is known and held),
-and, with spin-down tables, the viscous rate ``k``, the constant friction ``f`` (only when the
-data need it: a chi-square gain above the 1 % point of chi-square with one degree of freedom, or with
-errors from the scatter an F-test at 1 %) and each table's initial spin.  Residuals are ``(y - model) / sd_eff`` with the conditions' errors
-carried in as effective variance; a kind whose rows give no standard deviation gets one from
-its scatter (iterated with the fit).  The covariance is ``(J^T J)^-1``, scaled by the reduced chi-square when
-the chi-square's p-value is below :data:`LACK_OF_FIT_P` (flagged and noted).
+Free parameters: the rig's ``inertia_axial_kg_m2``, ``inertia_transverse_kg_m2`` and ``com_distance_m`` (and a
+gyro in gimbals' ``[gimbal]`` inertias) where the prior gives them a standard deviation (their priors, with the
+prior's correlations, enter as whitened residuals; a number without one is known and held); each video's spin and
+each configuration's own parameters, with their priors; and, with spin-down tables, the viscous rate ``k``, the
+constant friction ``f`` (only when the data need it: a chi-square gain above the 1 % point of chi-square with one
+degree of freedom, or with errors from the scatter an F-test at 1 %) and each table's initial spin.  Residuals are
+``(y - model) / sd_eff`` with the conditions' errors carried in as effective variance; a kind whose rows give no
+standard deviation gets one from its scatter (iterated with the fit).  The covariance is ``(J^T J)^-1``, scaled by
+the reduced chi-square when the chi-square's p-value is below :data:`LACK_OF_FIT_P` (flagged and noted).
 """
 
 from __future__ import annotations
@@ -139,11 +139,11 @@ def _prior_whitener(prior: Protocol, names: list[str]):
 
 
 def _start(obs: list[Observation], prior: Protocol, names: list[str]) -> np.ndarray:
-    x0 = []
+    x0, extra = [], extra_priors(obs)
     for n in names:
         if _is_model_parameter(n):
             x0.append(prior_rig_values(prior)[n])
-        elif n in (extra := extra_priors(obs)):
+        elif n in extra:
             x0.append(extra[n][0])
         elif n.startswith("spin_down.initial_spin_rad_s"):
             rows = sorted((o for o in obs if o.table_key == n), key=lambda o: o.x["t"])
@@ -186,10 +186,10 @@ def _solve(obs: list[Observation], prior: Protocol, names: list[str], fast: bool
         p = params(x)
         return np.array([math.hypot(o.effective_sd(p, fast), sd_scatter.get(o.kind, 0.0)) for o in obs])
 
-    spin_priors = {n: v for n, v in extra_priors(obs).items() if n in names}
-    sidx = [names.index(n) for n in spin_priors]
-    s_mean = np.array([m for m, _ in spin_priors.values()])
-    s_sd = np.array([sd for _, sd in spin_priors.values()])
+    extra = {n: v for n, v in extra_priors(obs).items() if n in names}  # video spins, configurations' own
+    sidx = [names.index(n) for n in extra]
+    s_mean = np.array([m for m, _ in extra.values()])
+    s_sd = np.array([sd for _, sd in extra.values()])
 
     def residuals(x):
         p = params(x)
@@ -223,13 +223,13 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
         raise IdentifyInputError("no observations")
     spin_tables = sorted({o.table_key for o in obs if o.kind == "spin_down"})
     rig_names = _free_rig(prior)
-    video_spins = sorted(extra_priors(obs))  # and the configurations' own parameters
-    base = rig_names + video_spins + ([*spin_tables, "spin_down.viscous_rate_per_s"] if spin_tables else [])
+    extra_names = sorted(extra_priors(obs))  # each video's spin, each configuration's own parameters
+    base = rig_names + extra_names + ([*spin_tables, "spin_down.viscous_rate_per_s"] if spin_tables else [])
     if not base:
         raise IdentifyInputError(f"{prior.source or prior.name}: no rig parameter has a standard deviation, so there is "
                                  "nothing to identify: give the numbers to identify as { value, sd } (e.g. "
                                  "inertia_transverse_kg_m2 = { value = 4e-3, sd = 1e-3 })")
-    n_res = len(obs) + len(rig_names) + len(video_spins)
+    n_res = len(obs) + len(rig_names) + len(extra_names)
     if n_res <= len(base) + (1 if spin_tables else 0):
         raise IdentifyInputError(f"{len(obs)} observation(s) and {len(rig_names)} prior(s) are too few for "
                                  f"{len(base) + (1 if spin_tables else 0)} parameters: "
@@ -288,7 +288,7 @@ def identify_parameters(obs: list[Observation], prior: Protocol, *, fast_top: bo
                      "units in the column names (a rate in Hz under _rad_s is 2 pi off, a period in ms under _s 1000x), "
                      "the stated errors, and whether the rig is the model's (a fixed pivot, one transverse inertia)")
     return Identification(tuple(names), x, cov, chi2, dof, tuple(obs), sd_eff,
-                          tuple(sorted(no_sd)), law, gain, fast_top, tuple(rig_names + video_spins), tuple(notes),
+                          tuple(sorted(no_sd)), law, gain, fast_top, tuple(rig_names + extra_names), tuple(notes),
                           p_value, lack_of_fit)
 
 

@@ -14,7 +14,8 @@ mass ``m`` at ``l`` along the axis (``M' = M + m``, ``M' h' = M h + m l``, ``I' 
   horizontal when no tilt is given); fast top: ``2 pi Io Omega / (M' g h')``;
 * nutation frequency: the elliptic solution's, for a release from rest at the tilt (the protocol's
   launch tilt when none is given), or for a kicked top swinging between measured extremes (``tilt_min`` and
-  ``tilt_max`` columns; its spin is then ``omega_3``, the rotor's rate about its axis: :func:`launch_between`); for a balanced rig (``M h = 0``: no torque, the nutation set off by a kick)
+  ``tilt_max`` columns; its spin is then ``omega_3``, the rotor's rate about its axis: :func:`launch_between`);
+  for a balanced rig (``M h = 0``: no torque, the nutation set off by a kick)
   the rate at which the axis circles the angular momentum, ``L / I = Io Omega / (I cos theta_c)`` with
   ``theta_c`` the cone angle (a ``cone_angle`` column; 0 when not given); fast top: ``Io Omega / I'``;
 * a video's fit.json: its mean precession rate and nutation frequency from the elliptic solution of
@@ -173,8 +174,9 @@ def _gimbal_nutation(prior: Protocol):
 
 def launch_between(rig, spin_rad_s: float, tilt_min_rad: float, tilt_max_rad: float) -> Launch:
     """The launch of a heavy top spinning at ``omega_3 = spin_rad_s`` (the rotor's rate about its axis, a constant
-    of the motion; a gyrostat's frame not turning about it) whose tilt swings between ``tilt_min_rad`` and ``tilt_max_rad``: at the smaller tilt, tilt rate
-    0, with the precession rate that makes the larger one the other turning point.  In ``u = cos theta``
+    of the motion; a gyrostat's frame not turning about it) whose tilt swings between ``tilt_min_rad`` and
+    ``tilt_max_rad``: at the smaller tilt, tilt rate 0, with the precession rate that makes the larger one the other
+    turning point.  In ``u = cos theta``
     (Goldstein's ``u'^2 = (1 - u^2)(alpha - beta u) - (b - a u)^2``, ``a = Io omega_3 / I``) both ``u`` are roots,
     which fixes ``b`` by a quadratic: of its two roots (a wavy and a looping motion) the one whose precession at the
     top turning point is the slower is taken (the release from rest where the swing is a release's).  ValueError

@@ -81,7 +81,8 @@ def identified_toml(prior_text: str, ident: Identification, prior: Protocol, inp
         data["uncertainty"] = {"correlations": pairs}
     header = (f"# {prior.name}: the rig identified by gyrorig identify"
               + (f" from {', '.join(map(str, inputs))}" if inputs else "") + "\n"
-              "# the identified [rig] (and [gimbal]) values are { value, sd }; their correlations are in [uncertainty]\n\n")
+              "# the identified [rig] (and [gimbal]) values are { value, sd }; their correlations are in "
+              "[uncertainty]\n\n")
     return header + tomli_w.dumps(data)
 
 

@@ -49,16 +49,14 @@ def simulate_gimbal(protocol, *, duration_s: float, rate_hz: float, rtol: float 
     if not duration_s > 0 or not rate_hz > 0:
         raise ValueError(f"duration_s = {duration_s!r} and rate_hz = {rate_hz!r} must be > 0")
     io, b, mgh = rig.inertia_axial_kg_m2, rig.inertia_transverse_kg_m2, rig.mgh_N_m
-    cross = rig.inertia_transverse_kg_m2 if gimbal.cross_inertia_kg_m2 is None else gimbal.cross_inertia_kg_m2
-    frame = rig.frame_axial_inertia_kg_m2 or 0.0
+    cross, frame = gimbal.cross(rig), rig.frame_axial_inertia_kg_m2 or 0.0
     th0, phid0 = launch.tilt_rad, launch.precession_rate_rad_s
     omega3 = launch.spin_rate_rad_s + phid0 * math.cos(th0)
     p_phi = azimuth_inertia(rig, gimbal, th0) * phid0 + io * omega3 * math.cos(th0)
 
-    def rates(th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        a = gimbal.outer_inertia_kg_m2 + cross * np.sin(th) ** 2 + frame * np.cos(th) ** 2
-        phid = (p_phi - io * omega3 * np.cos(th)) / a
-        return phid, a
+    def rates(th):
+        a = azimuth_inertia(rig, gimbal, th)
+        return (p_phi - io * omega3 * np.cos(th)) / a, a
 
     def rhs(_t, y):
         th, thd = y[0], y[1]

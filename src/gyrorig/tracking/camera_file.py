@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from .. import _io
-from .errors import CameraFileError, TrackingError
+from .errors import CameraFileError
 
 __all__ = ["TrackingCamera", "load_camera", "INTRINSIC_PARAMETERS"]
 

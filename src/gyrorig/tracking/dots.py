@@ -112,17 +112,17 @@ class DotTracker:
                     return psi
         return None
 
-    def _fit_dot(self, image, dot: Marker, n, psi_pred, tip_xy, r_tip, threshold, near=()) -> SpotFit | None:
-        """The dot near its predicted place.  Followed, and clear of the tip and of ``near`` (the other dots'
-        predictions, ``(x, y, r)`` [px]) by :data:`~gyrorig.tracking.follow.CLEAR_RADII` of its radii plus
-        theirs, the fit starts at the prediction and is taken when it stays there; otherwise the candidates
-        around the prediction are searched."""
+    def _fit_dot(self, image, dot: Marker, at, tip_xy, r_tip, threshold, near=()) -> SpotFit | None:
+        """The dot near its predicted place ``at`` (x, y) [px].  Followed, and clear of the tip and of ``near``
+        (the other dots' predictions, ``(x, y, r)`` [px]) by :data:`~gyrorig.tracking.follow.CLEAR_RADII` of its
+        radii plus theirs, the fit starts at the prediction and is taken when it stays there; otherwise the
+        candidates around the prediction are searched."""
         r = self.r_px[dot.name]
         h, w = image.shape
-        px, py = self._project(_dot_position(dot, n, psi_pred))[0]
+        px, py = float(at[0]), float(at[1])
         spots = ((tip_xy[0], tip_xy[1], r_tip), *near)
         if self.misses == 0 and all(math.hypot(x - px, y - py) > CLEAR_RADII * r + rr for x, y, rr in spots):
-            fit = fit_round_spot(image, float(px), float(py), self.last_r[dot.name], self.cam)
+            fit = fit_round_spot(image, px, py, self.last_r[dot.name], self.cam)
             if (fit is not None and not fit.blended and stands_out(fit, threshold)
                     and math.hypot(fit.x_px - px, fit.y_px - py) < max(2.0, 0.3 * fit.radius_px)
                     and 0.5 * r <= fit.radius_px <= 1.6 * r):
@@ -136,7 +136,7 @@ class DotTracker:
             return None
         cx, cy, cr, _ = min(cand, key=lambda c: (c.x - px) ** 2 + (c.y - py) ** 2)
         if self.misses == 0 and math.hypot(cx - px, cy - py) < max(2.0, 0.3 * cr):
-            cx, cy, cr = float(px), float(py), self.last_r[dot.name]  # sub-pixel prediction: fewer iterations
+            cx, cy, cr = px, py, self.last_r[dot.name]  # sub-pixel prediction: fewer iterations
         return fit_round_spot(image, cx, cy, cr, self.cam)
 
     def _psi_with_variance(self, fit: SpotFit, dot: Marker, n) -> tuple[float | None, float | None]:
@@ -164,10 +164,9 @@ class DotTracker:
         psi_pred = self.psi + self.rate * (t_s - self.t)
         found, est = [], []
         predicted = self._project(np.array([_dot_position(d, n, psi_pred) for d in self.dots]))
+        places = [(float(x), float(y), self.r_px[d.name]) for (x, y), d in zip(predicted, self.dots)]
         for k, dot in enumerate(self.dots):
-            near = tuple((float(x), float(y), self.r_px[d.name]) for j, ((x, y), d) in enumerate(zip(predicted, self.dots))
-                         if j != k)
-            fit = self._fit_dot(image, dot, n, psi_pred, tip_xy, r_tip, threshold, near)
+            fit = self._fit_dot(image, dot, predicted[k], tip_xy, r_tip, threshold, places[:k] + places[k + 1:])
             if fit is None:
                 continue
             self.last_r[dot.name] = fit.radius_px

@@ -468,8 +468,8 @@ class TipFollower:
 
     def _moved_since_anchor(self, pairs: list, frame: np.ndarray, fits: list[SpotFit]) -> list:
         """The confirmed spots that moved unlike the scene since they were first seen in this search (their anchor,
-        :meth:`_anchor_of` among this frame's ``fits``): by more than :data:`SCENE_MOTION_PX` and 5 of the two fits' combined SDs, the scene's
-        own motion since then taken off.  A top released from rest barely moves in its first frames, and a
+        :meth:`_anchor_of` among this frame's ``fits``): by more than :data:`SCENE_MOTION_PX` and 5 of the two fits'
+        combined SDs, the scene's own motion since then taken off.  A top released from rest barely moves in its first frames, and a
         highlight in the scene of the tip's size and shape never does; until the tip has moved, nothing is taken
         (those frames get their positions back when it is: :meth:`_trace_back`).  A spot where a sleeping top's tip
         would be passes unmoved (:meth:`_at_the_pole`)."""

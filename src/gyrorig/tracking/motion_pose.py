@@ -99,7 +99,8 @@ class MotionPose:
         if self.focal_scale_sd > 0:
             focal = {"focal_scale": self.focal_scale, "focal_scale_sd": self.focal_scale_sd}
         if self.camera_matrix is not None and self.intrinsics is not None:
-            intrinsics = {"camera_matrix": self.camera_matrix.tolist(), "intrinsics_parameters": list(self.intrinsics[0]),
+            intrinsics = {"camera_matrix": self.camera_matrix.tolist(),
+                          "intrinsics_parameters": list(self.intrinsics[0]),
                           "intrinsics_covariance": self.intrinsics[1].tolist()}
         return {**intrinsics, "rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(),
                 "pose_covariance": self.covariance.tolist(),

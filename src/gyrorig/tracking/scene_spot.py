@@ -117,6 +117,12 @@ def sandwich_covariance(pick: np.ndarray, shape: tuple[int, int], jac: np.ndarra
 
 
 @njit(cache=True)
+def _bin_of(dx, dy):
+    """The angular bin of the direction ``(dx, dy)`` (bins of :data:`ANGLE_BINS` from ``-pi``)."""
+    return int((math.atan2(dy, dx) + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS
+
+
+@njit(cache=True)
 def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
     """The ring about ``(cx, cy)`` starting at ``r_out``, and the pixels inside it: ``(ok, bins, pick, scene,
     spread)``.  ``bins`` the ring's bin means; ``pick`` the flat indices of the allowed pixels nearer than
@@ -142,7 +148,7 @@ def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
                     angle[n_pick] = math.atan2(dy, dx)
                     n_pick += 1
             elif rho < r_out + RING_WIDTH_PX:
-                b = int((math.atan2(dy, dx) + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS
+                b = _bin_of(dx, dy)
                 sums[b] += win[iy, ix]
                 counts[b] += 1.0
                 ring_values[n_ring] = win[iy, ix]
@@ -221,7 +227,7 @@ def _sector_effects(xs, ys, cx, cy, jac, weight, coverage):
     times ``weight (1 - c)``, summed over the pixels of each angular sector about ``(cx, cy)``."""
     v = np.zeros((ANGLE_BINS, jac.shape[1]))
     for k in range(xs.size):
-        b = int((math.atan2(ys[k] - cy, xs[k] - cx) + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS
+        b = _bin_of(xs[k] - cx, ys[k] - cy)
         f = weight[k] * (1.0 - coverage[k])
         for a in range(jac.shape[1]):
             v[b, a] += jac[k, a] * f
@@ -245,12 +251,11 @@ def _scene_covariance(sol: "_Solution", fisher_inv: np.ndarray) -> np.ndarray:
 
 @dataclass
 class _Solution:
-    """A converged fit: its parameters and, for each fitted pixel (flat indices ``pick`` into the window, at
+    """A converged fit (:func:`_solve` returns None otherwise): its parameters and, for each fitted pixel (flat indices ``pick`` into the window, at
     ``xs, ys``), its Jacobian row, weight, residual and the disc's coverage; the Fisher matrix and the ring's
     bins."""
 
     p: np.ndarray
-    converged: bool
     pick: np.ndarray
     xs: np.ndarray
     ys: np.ndarray
@@ -284,8 +289,7 @@ def _without_sectors(allowed, x_first, y_first, cx, cy, foreign):
     out = allowed.copy()
     for iy in range(h):
         for ix in range(w):
-            th = math.atan2(y_first + iy - cy, x_first + ix - cx)
-            if near[int((th + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS]:
+            if near[_bin_of(x_first + ix - cx, y_first + iy - cy)]:
                 out[iy, ix] = False
     return out
 
@@ -466,7 +470,7 @@ def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, i
         float(sigma), float(sigma_max), int(iterations))
     if not ok:
         return None
-    return _Solution(p, True, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
+    return _Solution(p, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
 
 
 def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
@@ -517,7 +521,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
            + _scene_covariance(sol, finv)[:2, :2] + rough * np.eye(2))
     chi2 = float(np.sum(sol.resid ** 2 * sol.weight)) / max(n_used - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
-                   bool(saturated.any()), sol.converged, blended, chi2_own=chi2)
+                   bool(saturated.any()), True, blended, chi2_own=chi2)
 
 
 def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
@@ -544,8 +548,3 @@ def warm_up() -> None:
     _harmonic_power(_edge_radii(win, float(p[0]), float(p[1]), float(p[2]), float(p[4]), float(p[3]), bins))
     _projected_meat(pick, win.shape, jac, weight, resid, np.eye(5)[:2].copy())
     _sector_effects(xs, ys, float(p[0]), float(p[1]), jac, weight, cover)
-    spot_window(win.astype(np.float32), 20.0, 20.0, 10, _WarmCamera())
-
-
-class _WarmCamera:
-    max_adu = 255

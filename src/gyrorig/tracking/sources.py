@@ -163,7 +163,8 @@ class VideoFile:
                 frame = next(container.decode(video=0), None)
         except (av.FFmpegError, IndexError, ValueError) as exc:
             raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})") from exc
-        degrees = int(round(float(frame.rotation))) if frame is not None else 0
+        # VideoFrame.rotation (the display matrix's turn) is read where this PyAV has it; older ones give none
+        degrees = int(round(float(getattr(frame, "rotation", 0) or 0))) if frame is not None else 0
         if degrees % 90:
             raise BadInputError(f"video {self.path}: its display matrix turns the picture by {degrees} degrees; only "
                                 "quarter turns are supported (re-encode it upright)")

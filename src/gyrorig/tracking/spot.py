@@ -139,9 +139,10 @@ def normal_equations(win, x_first, y_first, use, p, sigma, gain, read_var, backg
 
 
 def warm_up() -> None:
-    """Compile the spot-fit kernel now (numba; cached on disk after the first run), not in the first frame."""
+    """Compile the spot-fit kernels now (numba; cached on disk after the first run), not in the first frame."""
     normal_equations(np.zeros((3, 3)), 0.0, 0.0, np.ones((3, 3), bool), np.array([1.0, 1.0, 1.0, 1.0, 0.0]), 1.0,
                      float("nan"), 0.0, 1.0, np.empty((3, 3)))
+    _levels(np.zeros(4), np.zeros((3, 3)))
 
 
 def _sensor_terms(cam: TrackingCamera) -> tuple[float, float]:

@@ -8,10 +8,10 @@ once they have moved) each fiducial in view is fitted near where the pose puts i
 and the frame's displacement is the mean of theirs (one far from the others' median left out), its error the
 larger of their scatter about it and the displacements' scatter about their own smooth path.  A small turn of the
 camera moves the whole picture alike (a rotation about the camera's centre maps the image by a homography that is
-a shift to first order, whatever the depth), so where the displacements
-scatter about their median by more than :data:`MIN_MOTION_PX` and 4 of their own errors, the camera moved: each
-tip pixel is taken back by its frame's displacement (interpolated between checks) before its direction is found,
-and the displacement's error joins the tip's (between checks, the interpolation's too).
+a shift to first order, whatever the depth), so where the displacements scatter about their median by more than
+:data:`MIN_MOTION_PX` and 4 of their own errors, the camera moved: each tip pixel is taken back by its frame's
+displacement (interpolated between checks) before its direction is found, and the displacement's error joins the
+tip's (between checks, the interpolation's too).
 """
 
 from __future__ import annotations
@@ -41,9 +41,8 @@ OUTLIER_PX = 1.0
 @dataclass(frozen=True)
 class CameraMotion:
     """The camera's motion over a record, from its fiducials: the ``frame`` numbers of the checks and the picture's
-    displacement
-    there from where the pose puts the fiducials, ``dx_px, dy_px``, its standard error per axis ``sd_px``;
-    ``rms_px`` the displacements' RMS about their median (how much the camera moved), ``moved`` whether that is
+    displacement there from where the pose puts the fiducials, ``dx_px, dy_px``, its standard error per axis
+    ``sd_px``; ``rms_px`` the displacements' RMS about their median (how much the camera moved), ``moved`` whether that is
     beyond :data:`MIN_MOTION_PX` and 4 of ``sd_px``."""
 
     frame: np.ndarray

@@ -341,7 +341,8 @@ def _matched(camera: TrackingCamera, frames, source) -> TrackingCamera:
     return camera
 
 
-def _steadied(rows: _Tables, watch: CameraWatch, camera: TrackingCamera, length_m: float, source) -> CameraMotion | None:
+def _steadied(rows: _Tables, watch: CameraWatch, camera: TrackingCamera, length_m: float,
+              source) -> CameraMotion | None:
     """The camera's motion seen on the fiducials; where it moved, the tip's rows steadied (and a warning)."""
     motion = watch.motion()
     if motion is not None and motion.moved:
