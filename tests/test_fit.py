@@ -132,7 +132,7 @@ def test_free_top_fits_the_axis_and_no_nutation():
     assert scene.spec.fit_axis and not scene.nutation_expected
     r = fit_angles(angles, p, prediction=pred)
     q = r.quantities["precession_rate_rad_s"]
-    assert abs(q.value - pred["precession_rate_rad_s"]["exact"]) < 4 * q.standard_error
+    assert abs(q.value - pred.quantities["precession_rate_rad_s"].exact) < 4 * q.standard_error
     assert "nutation_frequency_rad_s" not in r.quantities
 
 

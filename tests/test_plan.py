@@ -12,6 +12,7 @@ import pytest
 from gyrorig.cli import main
 from gyrorig.fit import FitTerms
 from gyrorig.plan import parse_sweep, plan_experiment, sweep
+from gyrorig.plan_record import AdviceKind, DampingAssessment
 from gyrorig.protocols import load_protocol, parse_protocol
 
 from _stats import sd_ratio_band
@@ -25,29 +26,28 @@ def _with_camera(p, **kw):
 def test_plan_of_the_air_cushion_rig():
     p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     plan = plan_experiment(p, duration_s=4.0, simulate_damping=False)
-    cam = plan["camera"]
+    cam = plan.camera
     assert 10 < cam["radius_px"] < 30 and not cam["saturates"]
     assert 0 < cam["sigma_px"] < 0.05
     assert cam["frames_per_nutation_period"] == pytest.approx(200 / 9.4714, rel=1e-3)
-    q = plan["quantities"]
+    q = plan.quantities
     for name in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
-        assert q[name]["resolvable"] and 0 < q[name]["expected_standard_error"] < 1e-3 * abs(q[name]["simulated"])
+        assert q[name].resolvable and 0 < q[name].expected_standard_error < 1e-3 * abs(q[name].simulated)
     # the simulated value, not a formula, is what the camera would see
-    assert q["precession_rate_rad_s"]["simulated"] == pytest.approx(q["precession_rate_rad_s"]["predicted_exact"],
-                                                                    rel=1e-8)
+    assert q["precession_rate_rad_s"].simulated == pytest.approx(q["precession_rate_rad_s"].predicted_exact, rel=1e-8)
     assert "tilt_growth_rate_per_s" not in q  # undamped
     assert cam["resolves_nutation"] and cam["minimum_fps"] == pytest.approx(4 * 9.4714, rel=1e-3)
     # noisy records of this length, fitted in full, converge where the linearised fit puts them
-    draws = plan["recording"]["noisy_draws"]
-    assert draws["draws"] == 8 and draws["failed"] == 0 and draws["ok"] and plan["recording"]["linear_regime"]
+    draws = plan.recording["noisy_draws"]
+    assert draws["draws"] == 8 and draws["failed"] == 0 and draws["ok"] and plan.recording["linear_regime"]
     assert set(draws["rms_departure_se"]) == {"precession_rate_rad_s", "nutation_frequency_rad_s",
                                               "nutation_amplitude_rad", "cone_angle_rad"}
     assert max(draws["rms_departure_se"].values()) < 0.01
     # the undamped model describes the simulated record (to its harmonics)
-    assert plan["recording"]["model_misfit"]["chi2_per_dof"] < 0.01
+    assert plan.recording["model_misfit"]["chi2_per_dof"] < 0.01
     # reproducible: the same seed gives the same draws
     again = plan_experiment(p, duration_s=4.0, simulate_damping=False, rng=np.random.default_rng(0))
-    assert again["recording"]["noisy_draws"]["rms_departure_se"] == draws["rms_departure_se"]
+    assert again.recording["noisy_draws"]["rms_departure_se"] == draws["rms_departure_se"]
 
 
 def test_noisy_draws_see_a_fit_that_is_not_linear_where_the_noiseless_check_passes():
@@ -81,32 +81,34 @@ def test_noisy_draws_see_a_fit_that_is_not_linear_where_the_noiseless_check_pass
 def test_slow_camera_cannot_resolve_nutation_and_says_so():
     p = _with_camera(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), fps=15.0)
     plan = plan_experiment(p, duration_s=6.0, simulate_damping=False)
-    q = plan["quantities"]["nutation_amplitude_rad"]
-    assert not q["resolvable"] and q["reason_kind"] == "camera-too-slow"
-    assert not plan["camera"]["resolves_nutation"]
-    assert plan["quantities"]["precession_rate_rad_s"]["resolvable"]
+    q = plan.quantities["nutation_amplitude_rad"]
+    assert not q.resolvable and q.reason_kind == "camera-too-slow"
+    assert not plan.camera["resolves_nutation"]
+    assert plan.quantities["precession_rate_rad_s"].resolvable
+    assert [a.problem for a in plan.advice_of(AdviceKind.FRAME_RATE)] == [True]
 
 
 def test_expected_error_shrinks_with_record_length_as_t_to_the_three_halves():
     p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
-    a = plan_experiment(p, duration_s=4.0, simulate_damping=False)["quantities"]["precession_rate_rad_s"]
-    b = plan_experiment(p, duration_s=16.0, simulate_damping=False)["quantities"]["precession_rate_rad_s"]
-    ratio = a["expected_standard_error"] / b["expected_standard_error"]
+    a = plan_experiment(p, duration_s=4.0, simulate_damping=False).quantities["precession_rate_rad_s"]
+    b = plan_experiment(p, duration_s=16.0, simulate_damping=False).quantities["precession_rate_rad_s"]
+    ratio = a.expected_standard_error / b.expected_standard_error
     assert ratio == pytest.approx(4**1.5, rel=0.2)
 
 
 def test_no_camera_means_no_resolution_claims():
     p = load_protocol(PROTOCOL_DIR / "free-top.toml")
     plan = plan_experiment(p)
-    assert plan["camera"] is None and "no [camera]" in plan["recommendations"][0]
+    assert plan.camera is None and [a.kind for a in plan.advice] == [AdviceKind.NO_CAMERA]
+    assert not plan.quantities and not plan.measures_nothing
 
 
 def test_eddy_field_realisation_is_flagged_as_unable_to_test_eq_25a():
     p = load_protocol(PROTOCOL_DIR / "eddy-damped-top.toml")
     plan = plan_experiment(p, duration_s=3.0)
-    assert plan["damping"] == {"models": ["eddy-field"], "tests_tilt_drift": False}
+    assert plan.damping == DampingAssessment(("eddy-field",), tests_tilt_drift=False)
     b2 = plan_experiment(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"), duration_s=2.0, draws=0)
-    assert b2["damping"] == {"models": ["magnet-in-ball"], "tests_tilt_drift": True}
+    assert b2.damping == DampingAssessment(("magnet-in-ball",), tests_tilt_drift=True)
 
 
 def test_sweep_parsing_and_a_small_sweep(tmp_path, capsys):
@@ -124,10 +126,11 @@ def test_sweep_parsing_and_a_small_sweep(tmp_path, capsys):
     assert "expected errors" in capsys.readouterr().out
     doc = json.loads((tmp_path / "plan.json").read_text())
     direct = plan_experiment(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), duration_s=3.0)
-    for name, q in direct["quantities"].items():
-        assert doc["quantities"][name]["expected_standard_error"] == pytest.approx(q["expected_standard_error"],
+    for name, q in direct.quantities.items():
+        assert doc["quantities"][name]["expected_standard_error"] == pytest.approx(q.expected_standard_error,
                                                                                   rel=1e-9), name
-    assert FitTerms.from_dict(doc["fit_terms"]).harmonics == direct["fit_terms"]["harmonics"]
+    assert FitTerms.from_dict(doc["fit_terms"]).harmonics == direct.fit_terms["harmonics"]
+    assert [a["kind"] for a in doc["advice"]] == [str(a.kind) for a in direct.advice]
 
 
 @pytest.mark.slow
@@ -138,12 +141,13 @@ def test_plan_agrees_with_a_monte_carlo_of_the_full_chain(name):
     p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
     duration = 1.5
     plan = plan_experiment(p, duration_s=duration, simulate_damping=False)
-    if not plan["recording"]["linear_regime"]:
+    if not plan.recording["linear_regime"]:
         # too short for this scene's model (the accelerated pivot covers 0.4 precession periods
         # in 1.5 s, and its noisy records need a term the plan left out): the plan must say so and
         # name a length that is long enough; the check runs there
-        assert not all(q["reliable"] for q in plan["quantities"].values())
-        duration = plan["recording"]["length_for_linear_regime_s"]
+        assert not all(q.reliable for q in plan.quantities.values())
+        assert plan.advice_of(AdviceKind.RECORD_TOO_SHORT)
+        duration = plan.recording["length_for_linear_regime_s"]
         assert duration is not None and duration <= p.scene.duration_s
     table = monte_carlo_check(p, 12, duration_s=duration)
     print(f"{name}, {duration:g} s:\n{table.to_string()}")  # shown with -s
@@ -204,12 +208,12 @@ def test_plan_says_when_the_fit_model_does_not_describe_a_long_damped_record():
     freedom); the plan must say so, mark its errors not reliable and name a shorter record."""
     p = load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml")
     plan = plan_experiment(p, duration_s=20.0)
-    mf = plan["recording"]["model_misfit"]
+    mf = plan.recording["model_misfit"]
     assert mf["chi2_per_dof"] > 1.0
     assert 0 < mf["adequate_length_s"] < 20.0
-    assert all(not q["reliable"] for q in plan["quantities"].values())
-    assert "noisy_draws" not in plan["recording"]
-    assert any("misses part of the simulated motion" in r for r in plan["recommendations"])
+    assert all(not q.reliable for q in plan.quantities.values())
+    assert "noisy_draws" not in plan.recording
+    assert [a.problem for a in plan.advice_of(AdviceKind.MODEL_MISFIT)] == [True]
 
 
 def test_plan_respects_the_field_of_view(tmp_path):
@@ -224,7 +228,8 @@ def test_plan_respects_the_field_of_view(tmp_path):
     blind = copy.deepcopy(base)
     blind["camera"]["focal_length_mm"] = 300.0
     plan = plan_experiment(parse_protocol(blind), draws=0)
-    assert plan["camera"]["marker_in_view_fraction"] == 0.0 and plan["quantities"] == {}
+    assert plan.camera["marker_in_view_fraction"] == 0.0 and not plan.quantities
+    assert plan.measures_nothing and plan.advice_of(AdviceKind.FIELD_OF_VIEW)[0].problem
     path = tmp_path / "long-lens.toml"
     path.write_text(text.replace(f"focal_length_mm = {base['camera']['focal_length_mm']}", "focal_length_mm = 300.0"))
     assert main(["plan", str(path), "--draws", "0"]) == 3

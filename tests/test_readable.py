@@ -72,5 +72,6 @@ def test_theory_prints_predictions_to_the_digits_their_sd_resolves(tmp_path, cap
     path.write_text(text.replace("mass_kg = 0.5292", "mass_kg = { value = 0.5292, sd = 0.002 }"))
     assert main(["theory", str(path), "--no-simulate"]) == 0
     out = capsys.readouterr().out
-    entry = predict_with_uncertainty(load_protocol(path), simulate_damping=False)["nutation_amplitude_rad"]
-    assert with_error(entry["exact"], entry["exact_sd"]) in out
+    entry = predict_with_uncertainty(load_protocol(path), simulate_damping=False)
+    entry = entry.quantities["nutation_amplitude_rad"]
+    assert with_error(entry.exact, entry.exact_sd) in out

@@ -118,26 +118,28 @@ def test_phasor_integrator_is_exact_away_from_the_poles_and_refuses_them():
 
 def test_predict_reports_only_what_the_scene_has():
     preds = {p.stem: th.predict(load_protocol(p), simulate_damping=False) for p in sorted(PROTOCOL_DIR.glob("*.toml"))}
-    assert set(preds["free-top"]) == {"protocol", "flags", "precession_rate_rad_s"}
+    assert set(preds["free-top"].quantities) == {"precession_rate_rad_s"}
+    assert preds["free-top"].flags.fast_top_ratio is None and preds["free-top"].equilibrium_tip is None
     air = preds["air-cushion-heavy-top"]
-    assert "tilt_growth_rate_per_s" not in air and "equilibrium_tip" not in air
-    assert {"precession_rate_slow_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"} <= set(air)
-    assert "tilt_growth_rate_per_s" in preds["eddy-damped-top-b2"]
-    assert "equilibrium_tip" in preds["accelerated-pivot"]
+    assert "tilt_growth_rate_per_s" not in air.quantities and air.equilibrium_tip is None
+    assert {"precession_rate_slow_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"} <= set(air.quantities)
+    assert "tilt_growth_rate_per_s" in preds["eddy-damped-top-b2"].quantities
+    assert preds["accelerated-pivot"].equilibrium_tip is not None
     # the rig is at fast-top ratio ~9 and 45 deg: the flags say the approximations are stretched
-    assert air["flags"]["fast_top_ratio"] == pytest.approx(9.17, abs=0.01)
-    assert air["flags"]["fast_top"] is False and air["flags"]["small_tilt"] is False
-    assert air["precession_rate_slow_rad_s"]["sign_agrees"] is False
+    assert air.flags.fast_top_ratio == pytest.approx(9.17, abs=0.01)
+    assert air.flags.fast_top is False and air.flags.small_tilt is False
+    assert air.quantities["precession_rate_slow_rad_s"].sign_agrees is False
 
 
 def test_predict_damped_rig_simulates_the_growth():
     pred = th.predict(load_protocol(PROTOCOL_DIR / "eddy-damped-top-b2.toml"))
-    g = pred["tilt_growth_rate_per_s"]
-    assert g["paper"] < 0 < g["exact"]
-    assert g["exact"] == pytest.approx(g["corrected"], rel=0.15)  # small-tilt formula at 45 deg
-    assert pred["tilt_time_constant_s"]["direction"] == {"paper": "decay", "exact": "growth"}
+    g = pred.quantities["tilt_growth_rate_per_s"]
+    assert g.paper < 0 < g.exact
+    assert g.exact == pytest.approx(g.corrected, rel=0.15)  # small-tilt formula at 45 deg
+    tau = pred.quantities["tilt_time_constant_s"]
+    assert (tau.direction_paper, tau.direction_exact) == ("decay", "growth")
     lab_field = th.predict(load_protocol(PROTOCOL_DIR / "eddy-damped-top.toml"))
-    assert abs(lab_field["tilt_growth_rate_per_s"]["exact"]) < 1e-9  # damps theta-dot only
+    assert abs(lab_field.quantities["tilt_growth_rate_per_s"].exact) < 1e-9  # damps theta-dot only
 
 
 def test_theory_cli_json_and_validate(tmp_path, capsys):

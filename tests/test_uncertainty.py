@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gyrorig.plan_record import AdviceKind
 from gyrorig.propagate import perturbed, predict_with_uncertainty
 from gyrorig.protocols import ProtocolError, load_protocol, parse_protocol
 from gyrorig.theory import predict
@@ -52,14 +53,14 @@ def test_fast_top_precession_error_bar_matches_its_closed_form(tmp_path):
     for rho in (0.0, -0.5):
         p = load_protocol(_with_uncertainty(tmp_path, correlation=rho))
         pred = predict_with_uncertainty(p)
-        q = pred["mean_precession_rate_rad_s"]
+        q = pred.quantities["mean_precession_rate_rad_s"]
         # paper: Mgh / (Io Omega); Io and Omega correlated by rho
         rel = (0.0005 / 0.07715) ** 2 + (0.05e-4 / 4.725e-4) ** 2 + (3.0 / 502.65) ** 2 \
             + 2 * rho * (0.05e-4 / 4.725e-4) * (3.0 / 502.65)
         # central differences over +-1 sd of a product of powers: exact to second order, ~1e-4 here
-        assert q["paper_sd"] == pytest.approx(abs(q["paper"]) * math.sqrt(rel), rel=2e-3)
-        assert q["uncertainty"]["method"] == "linear"
-        assert sum(q["uncertainty"]["by_parameter"].values()) == pytest.approx(1.0)
+        assert q.paper_sd == pytest.approx(abs(q.paper) * math.sqrt(rel), rel=2e-3)
+        assert q.uncertainty.method == "linear"
+        assert sum(q.uncertainty.by_parameter.values()) == pytest.approx(1.0)
 
 
 def test_linearised_error_bars_agree_with_sampling(tmp_path):
@@ -74,11 +75,11 @@ def test_linearised_error_bars_agree_with_sampling(tmp_path):
     for x in draws:
         pr = predict(perturbed(p, dict(zip(u.names, x))), simulate_damping=False)
         for k in keys:
-            samples[k].append(pr[k]["exact"])
+            samples[k].append(pr.quantities[k].exact)
     for k in keys:
         sd = float(np.std(samples[k], ddof=1))
         # an SD from n draws is known to 1/sqrt(2n) = 3.5 %; 4 of those
-        assert pred[k]["exact_sd"] == pytest.approx(sd, rel=4 / math.sqrt(2 * n)), k
+        assert pred.quantities[k].exact_sd == pytest.approx(sd, rel=4 / math.sqrt(2 * n)), k
 
 
 def test_a_prediction_without_uncertainty_is_unchanged():
@@ -129,7 +130,7 @@ def test_fit_counts_the_prediction_error(tmp_path):
     pred = predict_with_uncertainty(p, simulate_damping=False)
     r = fit_angles(angles, p, prediction=pred)
     q = r.quantities["nutation_frequency_rad_s"]
-    assert q.exact_standard_error == pred["nutation_frequency_rad_s"]["exact_sd"]
+    assert q.exact_standard_error == pred.quantities["nutation_frequency_rad_s"].exact_sd
     diff = q.value - q.exact
     assert q.diff_exact_combined_se == pytest.approx(diff / math.hypot(q.standard_error, q.exact_standard_error))
     assert q.prediction_share > 0.99  # 0.6 rad/s from the rig against ~1e-3 from 2 s of record
@@ -145,11 +146,11 @@ def test_plan_says_which_parameter_limits_the_comparison_with_theory(tmp_path):
 
     p = load_protocol(_with_uncertainty(tmp_path))
     plan = plan_experiment(p, duration_s=4.0, draws=0)
-    limits = {item["quantity"]: item for item in plan["prediction_limits"]}
+    limits = {a.values["quantity"]: a.values for a in plan.advice_of(AdviceKind.PREDICTION_LIMIT)}
     assert {"precession_rate_rad_s", "nutation_frequency_rad_s"} <= set(limits)
     for name, item in limits.items():
-        q = plan["quantities"][name]
-        assert item["prediction_standard_error"] == q["prediction_standard_error"] > q["expected_standard_error"]
+        q = plan.quantities[name]
+        assert item["prediction_standard_error"] == q.prediction_standard_error > q.expected_standard_error
         assert item["parameter"] == "rig.inertia_axial_kg_m2"
         assert 0.5 < item["share"] <= 1.0
-    assert not plan_experiment(load_protocol(AIR), duration_s=4.0, draws=0)["prediction_limits"]
+    assert not plan_experiment(load_protocol(AIR), duration_s=4.0, draws=0).advice_of(AdviceKind.PREDICTION_LIMIT)

@@ -7,8 +7,9 @@ import math
 import os
 import platform
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
+from dataclasses import is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -178,8 +179,11 @@ def write_json(obj: Any, path: str | Path) -> Path:
 
 
 def json_safe(obj: Any) -> Any:
-    """Strict-JSON form: NaN and inf become null; numpy scalars and arrays become Python ones."""
-    if isinstance(obj, dict):
+    """Strict-JSON form: NaN and inf become null; numpy scalars and arrays become Python ones; records with a
+    ``to_dict()`` (:class:`gyrorig.prediction.Prediction`, ...) their dict."""
+    if is_dataclass(obj) and not isinstance(obj, type) and callable(getattr(obj, "to_dict", None)):
+        return json_safe(obj.to_dict())
+    if isinstance(obj, Mapping):
         return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
         return [json_safe(v) for v in obj]

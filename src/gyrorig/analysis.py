@@ -27,6 +27,7 @@ import pandas as pd
 from . import _io
 from .fit import QUANTITY_UNITS, Constraints, FitResult, FitTerms
 from .pipeline import Analysis, Fitted, analyze, smooth_and_fit
+from .prediction import Prediction
 from .protocols import Protocol, load_protocol, protocol_summary
 from .report import plot_fit, write_report
 from .smooth import SmoothResult, smooth_angles
@@ -72,12 +73,12 @@ def smooth_file(angles_csv: str | Path, out: str | Path) -> SmoothResult:
     return res
 
 
-def fit_document(fit: FitResult, protocol: Protocol, prediction: dict | None, smooth: SmoothResult | None = None,
-                 extra: dict | None = None) -> dict:
+def fit_document(fit: FitResult, protocol: Protocol, prediction: Prediction | None,
+                 smooth: SmoothResult | None = None, extra: dict | None = None) -> dict:
     """The content of ``fit.json``."""
     doc = {"protocol": protocol.name, "description": protocol.description, **fit.summary(),
            "protocol_summary": protocol_summary(protocol),
-           "theory_flags": (prediction or {}).get("flags", {}), "versions": _io.versions()}
+           "theory_flags": prediction.flags.to_dict() if prediction is not None else {}, "versions": _io.versions()}
     if smooth is not None:
         doc["smoother"] = smooth.summary()
     if extra:
@@ -96,7 +97,7 @@ def _write_fit(out: Path, angles: pd.DataFrame, fitted: Fitted, protocol: Protoc
 
 
 def fit_file(angles_csv: str | Path, protocol: Protocol, out: str | Path, *, truth_csv: str | Path | None = None,
-             smooth: SmoothResult | None = None, prediction: dict | None = None,
+             smooth: SmoothResult | None = None, prediction: Prediction | None = None,
              rng: np.random.Generator | None = None, terms: FitTerms | str = "data",
              constraints: Constraints | None = None) -> FitResult:
     """``gyrorig fit``: smooth (for the outlier marks) unless given, fit, write ``fit.json`` and plots."""
@@ -132,7 +133,8 @@ def write_analysis(out: str | Path, analysis: Analysis, protocol: Protocol, *, t
 def analyze_video(video, camera, protocol: Protocol, out: str | Path, *, truth_csv: str | Path | None = None,
                   progress: Progress | None = None, rng: np.random.Generator | None = None,
                   stage: Callable[[str], None] | None = None, terms: FitTerms | str = "data",
-                  constraints: Constraints | None = None, prediction: dict | None = None, title: str | None = None) -> dict:
+                  constraints: Constraints | None = None, prediction: Prediction | None = None,
+                  title: str | None = None) -> dict:
     """Track, smooth, fit and report one video (:func:`gyrorig.pipeline.analyze`); returns a summary dict
     (``video, out, report, fit, analysis, frames, tracked_fraction, time_s``).
 

@@ -66,10 +66,10 @@ def _theory_step(protocol: Protocol, out: Path, say: Say) -> None:
     _io.write_json(_io.json_safe(pred), out / "theory.json")
     for key in ("precession_rate_slow_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad",
                 "mean_precession_rate_rad_s"):
-        v = pred[key]
-        flag = "  ** WRONG SIGN **" if v.get("sign_agrees") is False else ""
-        say(f"      {key}: {v['paper']:.5g} / {v['exact']:.5g} ({v['relative_difference']:+.1%}){flag}")
-    say(f"      fast-top ratio {pred['flags']['fast_top_ratio']:.2f} (the formulas want >= 10)")
+        v = pred.quantities[key]
+        flag = "  ** WRONG SIGN **" if v.sign_agrees is False else ""
+        say(f"      {key}: {v.paper:.5g} / {v.exact:.5g} ({v.relative_difference:+.1%}){flag}")
+    say(f"      fast-top ratio {pred.flags.fast_top_ratio:.2f} (the formulas want >= 10)")
 
 
 def _tracking_check(protocol: Protocol, res, out: Path, say: Say) -> None:

@@ -24,6 +24,7 @@ from .fit import FitTerms, fit_data_from_angles, model_for_scene, plan_terms
 from .geometry import tip_from_angles
 from .markers import Marker
 from .physics import simulate
+from .prediction import Prediction
 from .protocols import Protocol, ProtocolError
 from .theory import predict
 from .tracking.spot import spot_crb_px
@@ -115,7 +116,7 @@ def expected_record(protocol: Protocol, duration_s: float) -> ExpectedRecord:
     return ExpectedRecord(theta, phi, pos, depth, spot, cov, angles)
 
 
-def plan_fit_terms(protocol: Protocol, duration_s: float, *, prediction: dict | None = None) -> FitTerms:
+def plan_fit_terms(protocol: Protocol, duration_s: float, *, prediction: Prediction | None = None) -> FitTerms:
     """The fit model's optional terms for records of ``duration_s`` through the protocol's camera.
 
     Chosen once, before any data, on the simulated motion with the per-frame errors the camera

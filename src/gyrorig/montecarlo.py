@@ -27,6 +27,7 @@ from .camera import with_image_size
 from .expectation import plan_fit_terms
 from .pipeline import analyze
 from .plan import plan_experiment
+from .prediction import Prediction
 from .protocols import BUNDLED_PROTOCOL_DIR, Protocol, load_protocol
 from .render import render_video
 from .render.phone import PhoneStyle, render_phone_video
@@ -92,7 +93,7 @@ def scene_protocol(scene: str | Protocol) -> Protocol:
 
 
 def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
-                        camera_size: tuple[int, int] | None = (640, 480), prediction: dict | None = None,
+                        camera_size: tuple[int, int] | None = (640, 480), prediction: Prediction | None = None,
                         terms="planned", phone: PhoneStyle | None = None,
                         datasheet: DataSheet | None = None) -> list[dict]:
     """One run of the full chain (render -> track -> smooth -> fit) with the truth unseen.
@@ -276,7 +277,7 @@ def monte_carlo_check(protocol: Protocol, n: int, *, duration_s: float = 2.0, sc
     rows = []
     ok = runs[runs["error"].fillna("") == ""] if "error" in runs else runs
     for name, g in ok[ok.status == "determined"].groupby("quantity", sort=False):
-        planned = plan["quantities"].get(name, {}).get("expected_standard_error")
+        planned = plan.quantities[name].expected_standard_error if name in plan.quantities else None
         err = g.value.astype(float) - g.truth.astype(float)
         sd = float(np.std(err, ddof=1)) if len(g) > 1 else math.nan
         rows.append({"quantity": name, "runs": len(g), "planned_se": planned, "monte_carlo_sd": sd,
@@ -287,5 +288,5 @@ def monte_carlo_check(protocol: Protocol, n: int, *, duration_s: float = 2.0, sc
                      "sd_pull": float(g.pull.std(ddof=1)) if len(g) > 1 else math.nan})
     table = pd.DataFrame(rows)
     table.attrs["failed_runs"] = int((runs["error"].fillna("") != "").sum()) if "error" in runs else 0
-    table.attrs["linear_regime"] = bool(plan["recording"].get("linear_regime", True))
+    table.attrs["linear_regime"] = bool((plan.recording or {}).get("linear_regime", True))
     return table

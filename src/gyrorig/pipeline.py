@@ -21,6 +21,7 @@ import pandas as pd
 
 from .fit import STATE_NAMES, Constraints, FitResult, FitTerms, fit_angles, record_state, state_values
 from .fit.quantities import at_record_state
+from .prediction import Prediction
 from .protocols import Protocol
 from .smooth import SmoothResult, smooth_angles
 from .propagate import predict_with_uncertainty
@@ -42,7 +43,7 @@ class Fitted:
     #: the smoother's result (``smooth.table``: :data:`gyrorig.smooth.SMOOTH_COLUMNS`)
     smooth: SmoothResult
     #: :func:`gyrorig.theory.predict` for the protocol
-    prediction: dict
+    prediction: Prediction
     fit: FitResult
     #: wall time of each step [s]: ``smooth``, ``fit``
     time_s: dict
@@ -55,7 +56,7 @@ class Analysis:
     #: the tracker's tables and summary (``tracking.angles``: :data:`gyrorig.tables.ANGLE_COLUMNS` ...)
     tracking: TrackResult
     smooth: SmoothResult
-    prediction: dict
+    prediction: Prediction
     fit: FitResult
     #: wall time of each step [s]: ``track``, ``smooth``, ``fit``, ``total``
     time_s: dict
@@ -65,7 +66,7 @@ class Analysis:
         return self.tracking.angles
 
 
-def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
+def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: Prediction | None = None,
                    truth: pd.DataFrame | None = None, rng: np.random.Generator | None = None,
                    terms: FitTerms | str = "data", smooth: SmoothResult | None = None,
                    stage: Stage | None = None, constraints: Constraints | None = None) -> Fitted:
@@ -96,7 +97,7 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict
 
 
 def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, exclude: np.ndarray,
-                     prediction: dict) -> FitResult:
+                     prediction: Prediction) -> FitResult:
     """A damped record compared with theory at its own state: the simulator launched from the fitted motion at the
     record's first frame (tilt, azimuth and their rates; the protocol's spin), over the record's frames, fitted with
     the same model (:func:`gyrorig.fit.quantities.at_record_state`); the state's uncertainty (from the fit) carried
@@ -134,7 +135,7 @@ def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, e
 
 
 def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,
-            prediction: dict | None = None, terms: FitTerms | str = "data", constraints: Constraints | None = None,
+            prediction: Prediction | None = None, terms: FitTerms | str = "data", constraints: Constraints | None = None,
             rng: np.random.Generator | None = None,
             progress: Progress | None = None, stage: Stage | None = None, frame_dots: bool = True,
             on_tracked: Callable[[TrackResult], None] | None = None) -> Analysis:

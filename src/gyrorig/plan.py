@@ -41,6 +41,8 @@ import pandas as pd
 from .expectation import ExpectedRecord, expected_record, plan_fit_terms, project, tip_setup
 from .fit import FitError, FitResult, fit_angles, linear_response
 from .geometry import wrap_angle
+from .plan_record import Advice, AdviceKind, DampingAssessment, ExpectedQuantity, Plan
+from .prediction import Prediction
 from .protocols import Protocol, parse_protocol
 from .propagate import predict_with_uncertainty
 from .theory import predict
@@ -86,7 +88,7 @@ def _draw_rng(seed: int, duration_s: float) -> np.random.Generator:
     return np.random.default_rng([seed, int(round(duration_s * 1e6))])
 
 
-def noisy_draws(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, pred: dict, draws: int,
+def noisy_draws(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, pred: Prediction, draws: int,
                 rng: np.random.Generator, progress=None) -> dict:
     """Fit ``draws`` noisy versions of the expected record with the planned model.
 
@@ -143,15 +145,16 @@ def noisy_draws(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, pred: di
     return out
 
 
-def _camera_checks(protocol: Protocol, ex: ExpectedRecord, inside: np.ndarray, pred: dict, rec: list[str]) -> dict:
+def _camera_checks(protocol: Protocol, ex: ExpectedRecord, inside: np.ndarray, pred: Prediction,
+                   rec: list[Advice]) -> dict:
     """The camera against the motion: spot, per-frame errors, nutation, blur, skew, field of view (``inside``:
     :func:`_spot_in_view`); advice to ``rec``."""
     setup, marker = tip_setup(protocol)
     cam = setup.camera
     lever = float(np.linalg.norm(marker.position_m))
     if marker.body == "frame" and np.hypot(*marker.position_m[:2]) > 1e-9:
-        rec.append(f"marker {marker.name} is off the symmetry axis: its spin smears it during the exposure; put the "
-                   "tip marker on the axis")
+        rec.append(Advice(AdviceKind.MARKER_OFF_AXIS, f"marker {marker.name} is off the symmetry axis: its spin "
+                          "smears it during the exposure; put the tip marker on the axis", problem=True))
     spot, cov = ex.spot, ex.cov
     px = project(setup, ex.pos)
     speed_px_s = np.linalg.norm(np.gradient(px, 1 / cam.fps, axis=0), axis=1)
@@ -162,8 +165,8 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, inside: np.ndarray, p
               "phi_sigma_rad_median": float(np.median(np.sqrt(cov[:, 1, 1]))),
               "max_marker_speed_px_s": float(np.max(speed_px_s)), "motion_blur_px": blur_px,
               "rolling_shutter_skew_px": skew_px, "marker_in_view_fraction": float(inside.mean())}
-    nut = pred.get("nutation_frequency_rad_s", {}).get("exact")
-    amp = pred.get("nutation_amplitude_rad", {}).get("exact")
+    nut = pred.exact("nutation_frequency_rad_s")
+    amp = pred.exact("nutation_amplitude_rad")
     if nut is not None:
         nyq = math.pi * cam.fps
         camera["nutation_hz"] = nut / (2 * math.pi)
@@ -173,30 +176,39 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, inside: np.ndarray, p
         if amp is not None:
             camera["nutation_amplitude_px"] = amp * lever * spot["px_per_m"]
             camera["nutation_amplitude_over_sigma_px"] = camera["nutation_amplitude_px"] / spot["sigma_px"]
+        fps = {"minimum_fps": camera["minimum_fps"], "fps": cam.fps}
         if not camera["resolves_nutation"]:
-            rec.append(f"frame rate {cam.fps:g} fps cannot resolve the nutation at {nut / (2 * math.pi):.3g} Hz: use at "
-                       f"least {4 * nut / (2 * math.pi):.0f} fps (4 frames per period)")
+            rec.append(Advice(AdviceKind.FRAME_RATE, f"frame rate {cam.fps:g} fps cannot resolve the nutation at "
+                              f"{nut / (2 * math.pi):.3g} Hz: use at least {4 * nut / (2 * math.pi):.0f} fps (4 frames "
+                              "per period)", problem=True, values=fps))
         else:
-            rec.append(f"minimum frame rate: {4 * nut / (2 * math.pi):.0f} fps (4 frames per nutation period; this "
-                       f"camera has {camera['frames_per_nutation_period']:.1f})")
+            rec.append(Advice(AdviceKind.FRAME_RATE, f"minimum frame rate: {4 * nut / (2 * math.pi):.0f} fps (4 frames "
+                              f"per nutation period; this camera has {camera['frames_per_nutation_period']:.1f})",
+                              values=fps))
     if not inside.all():
-        rec.append(f"the tip marker's spot is not wholly in the image in {1 - inside.mean():.0%} of the frames (gaps "
-                   "in the expected record): widen the view (a shorter camera.focal_length_mm, or the camera further "
-                   "away)")
+        rec.append(Advice(AdviceKind.FIELD_OF_VIEW, f"the tip marker's spot is not wholly in the image in "
+                          f"{1 - inside.mean():.0%} of the frames (gaps in the expected record): widen the view (a "
+                          "shorter camera.focal_length_mm, or the camera further away)", problem=True,
+                          values={"marker_in_view_fraction": float(inside.mean())}))
     if spot["saturates"]:
-        rec.append("the marker saturates the sensor: shorten the exposure or dim the marker (saturated pixels carry "
-                   "no position information)")
+        rec.append(Advice(AdviceKind.SATURATION, "the marker saturates the sensor: shorten the exposure or dim the "
+                          "marker (saturated pixels carry no position information)", problem=True))
     max_exposure = 0.5 / max(float(np.max(speed_px_s)), 1e-9)
-    rec.append(f"maximum exposure for under 0.5 px of motion blur: {max_exposure * 1e6:.0f} us (now "
-               f"{cam.exposure_s * 1e6:.0f} us, {blur_px:.2f} px)")
+    rec.append(Advice(AdviceKind.EXPOSURE, f"maximum exposure for under 0.5 px of motion blur: "
+                      f"{max_exposure * 1e6:.0f} us (now {cam.exposure_s * 1e6:.0f} us, {blur_px:.2f} px)",
+                      values={"maximum_exposure_s": max_exposure, "exposure_s": cam.exposure_s,
+                              "motion_blur_px": blur_px}))
     if skew_px > 0.5:
-        rec.append(f"rolling shutter moves the marker {skew_px:.2f} px during readout: per-row timing is applied by "
-                   "the tracker, but a global shutter is simpler")
+        rec.append(Advice(AdviceKind.ROLLING_SHUTTER, f"rolling shutter moves the marker {skew_px:.2f} px during "
+                          "readout: per-row timing is applied by the tracker, but a global shutter is simpler",
+                          values={"rolling_shutter_skew_px": skew_px}))
     if spot["radius_px"] < 2:
-        rec.append(f"the marker is only {spot['radius_px']:.1f} px in radius: make it larger "
-                   f"(>= {2 / spot['px_per_m'] * 1e3:.1f} mm radius) for a robust centroid")
-    rec.append(f"marker placement: on the symmetry axis, as far from the pivot as the rig allows (the angle error "
-               f"scales as 1/lever arm, now {lever * 1e3:.0f} mm); lab fiducials around the pivot fix the camera pose")
+        rec.append(Advice(AdviceKind.MARKER_SIZE, f"the marker is only {spot['radius_px']:.1f} px in radius: make it "
+                          f"larger (>= {2 / spot['px_per_m'] * 1e3:.1f} mm radius) for a robust centroid", problem=True,
+                          values={"radius_px": spot["radius_px"], "minimum_radius_m": 2 / spot["px_per_m"]}))
+    rec.append(Advice(AdviceKind.MARKER_PLACEMENT, f"marker placement: on the symmetry axis, as far from the pivot as "
+                      f"the rig allows (the angle error scales as 1/lever arm, now {lever * 1e3:.0f} mm); lab "
+                      "fiducials around the pivot fix the camera pose", values={"lever_arm_m": lever}))
     return camera
 
 
@@ -235,24 +247,26 @@ def _expected_errors(fit: FitResult, T: float, nut: float | None) -> tuple[dict,
     return quantities, recording
 
 
-def _misfit_advice(protocol: Protocol, fit: FitResult, T: float, pred: dict, misfit: dict) -> str | None:
+def _misfit_advice(protocol: Protocol, fit: FitResult, T: float, pred: Prediction, misfit: dict) -> Advice | None:
     """Advice when the fit model misses part of the simulated motion (None when it describes it)."""
     if misfit["chi2_per_dof"] <= MISFIT_NOTE:
         return None
     shorter = _adequate_length(protocol, T, pred) if misfit["chi2_per_dof"] > MISFIT_LIMIT else None
     misfit["adequate_length_s"] = shorter
-    return (f"over {T:g} s the fit model misses part of the simulated motion: noiseless chi-square "
+    return Advice(AdviceKind.MODEL_MISFIT, problem=True, values={"chi2_per_dof": misfit["chi2_per_dof"],
+                                                                  "adequate_length_s": shorter}, text=(
+            f"over {T:g} s the fit model misses part of the simulated motion: noiseless chi-square "
             f"{fit.chi2:.3g} for {fit.dof} degrees of freedom, so real records show a reduced chi-square of "
             f"about {1 + misfit['chi2_per_dof']:.3g}, residuals that are not white (errors from the bootstrap) "
             f"and quantities off by up to {math.sqrt(fit.chi2):.3g} standard errors"
             + ("" if misfit["chi2_per_dof"] <= MISFIT_LIMIT else
                "; the expected errors above are not reliable; "
                + (f"a {shorter:.3g} s record is described by the model" if shorter else
-                  "no shorter record tried is described by it")))
+                  "no shorter record tried is described by it"))))
 
 
-def _reliability(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, T: float, pred: dict, draws: int,
-                 draw_seed: int, out: dict, rec: list[str], progress) -> None:
+def _reliability(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, T: float, pred: Prediction, draws: int,
+                 draw_seed: int, out: dict, rec: list[Advice], progress) -> None:
     """Whether the expected errors hold for a record of ``T``: the phase check and the noisy draws; marks
     unreliable quantities in ``out`` and names a long-enough record."""
     quantities = out["quantities"]
@@ -261,8 +275,9 @@ def _reliability(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, T: floa
     if checks is not None:
         out["recording"]["noisy_draws"] = checks
         if checks["model_changed"]:
-            rec.append(f"{checks['model_changed']} of {draws} noisy records of {T:g} s needed a term the plan left out "
-                       "(the fit adds it and says so; those records' error bars are wider than planned)")
+            rec.append(Advice(AdviceKind.MODEL_CHANGED, f"{checks['model_changed']} of {draws} noisy records of "
+                              f"{T:g} s needed a term the plan left out (the fit adds it and says so; those records' "
+                              "error bars are wider than planned)", values={"records": checks["model_changed"]}))
     if fit.linear_regime and checks["ok"]:
         out["recording"]["linear_regime"] = True
         return
@@ -286,16 +301,18 @@ def _reliability(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, T: floa
     for name in unreliable:
         if name in quantities:
             quantities[name]["reliable"] = False
-    rec.append(f"a {T:g} s record is too short for the scene's fit model: {why}; the expected errors of "
-               + ("every quantity" if len(unreliable) == len(quantities) else ", ".join(unreliable))
-               + " above are not reliable (runs will scatter beyond them); "
-               + (f"a {longer:.3g} s record is long enough" if longer else
-                  f"no record up to the scene's {protocol.scene.duration_s:g} s is long enough"))
+    rec.append(Advice(AdviceKind.RECORD_TOO_SHORT, problem=True, values={"length_s": longer,
+                                                                           "unreliable": tuple(unreliable)}, text=(
+        f"a {T:g} s record is too short for the scene's fit model: {why}; the expected errors of "
+        + ("every quantity" if len(unreliable) == len(quantities) else ", ".join(unreliable))
+        + " above are not reliable (runs will scatter beyond them); "
+        + (f"a {longer:.3g} s record is long enough" if longer else
+           f"no record up to the scene's {protocol.scene.duration_s:g} s is long enough"))))
 
 
-def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, prediction: dict | None = None,
+def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, prediction: Prediction | None = None,
                     simulate_damping: bool = True, draws: int = DEFAULT_PLAN_DRAWS,
-                    rng: np.random.Generator | None = None, progress=None) -> dict:
+                    rng: np.random.Generator | None = None, progress=None) -> Plan:
     """What the rig and camera of ``protocol`` will measure (see the module docstring).
 
     Parameters
@@ -309,10 +326,11 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     progress : callable, optional
         ``progress(done, total)`` after each draw.
 
-    Returns a JSON-ready dict: ``prediction``, ``camera`` (resolution checks),
-    ``quantities`` (predicted value, expected standard error, resolvable, reliable, reason),
-    ``recording`` (length needed per quantity; ``model_misfit``, ``linear_regime``,
-    ``noisy_draws``), ``fit_model``, ``fit_terms`` and ``recommendations`` (list of strings).
+    Returns a :class:`~gyrorig.plan_record.Plan`: ``prediction``, ``camera`` (resolution checks),
+    ``quantities`` (:class:`~gyrorig.plan_record.ExpectedQuantity`: predicted value, expected standard error,
+    resolvable, reliable, reason), ``recording`` (length needed per quantity; ``model_misfit``,
+    ``linear_regime``, ``noisy_draws``), ``fit_model``, ``fit_terms``, ``damping`` and ``advice``
+    (:class:`~gyrorig.plan_record.Advice`, each with its kind).
     """
     if draws < 0:
         raise ValueError(f"--draws {draws}: the number of noisy records must be >= 0")
@@ -320,13 +338,12 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     start = time.perf_counter()
     pred = prediction if prediction is not None else predict_with_uncertainty(protocol,
                                                                               simulate_damping=simulate_damping)
-    out: dict = {"protocol": protocol.name, "prediction": pred, "recommendations": []}
-    rec = out["recommendations"]
+    out: dict = {}
+    rec: list[Advice] = []
     if "camera" not in protocol.extra:
-        out["camera"] = None
-        rec.append("no [camera] in the protocol: resolution and precision not assessed; add a camera section")
-        out["wall_time_s"] = time.perf_counter() - start
-        return out
+        rec.append(Advice(AdviceKind.NO_CAMERA, "no [camera] in the protocol: resolution and precision not assessed; "
+                          "add a camera section"))
+        return Plan(protocol.name, pred, rec, wall_time_s=time.perf_counter() - start)
     T = float(duration_s if duration_s is not None else min(protocol.scene.duration_s, DEFAULT_PLAN_LENGTH_S))
     ex = expected_record(protocol, T)
     # frames where the tip's spot is not wholly in the image are gaps of the record, as the tracker will have them
@@ -337,16 +354,15 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         angles.loc[~inside, ["theta_rad", "phi_rad"]] = np.nan
         ex = replace(ex, angles=angles)
     if inside.sum() < MIN_FRAMES_IN_VIEW:
-        out["quantities"] = {}
-        rec.append(f"the tip marker's spot is wholly in the image in {int(inside.sum())} of {len(inside)} frames: "
-                   "nothing can be measured; widen the view (a shorter camera.focal_length_mm, the camera further "
-                   "away, or camera.look_at_m on the pivot)")
-        out["wall_time_s"] = time.perf_counter() - start
-        return out
+        rec.append(Advice(AdviceKind.FIELD_OF_VIEW, f"the tip marker's spot is wholly in the image in "
+                          f"{int(inside.sum())} of {len(inside)} frames: nothing can be measured; widen the view (a "
+                          "shorter camera.focal_length_mm, the camera further away, or camera.look_at_m on the pivot)",
+                          problem=True, values={"marker_in_view_fraction": float(inside.mean())}))
+        return Plan(protocol.name, pred, rec, camera=out["camera"], wall_time_s=time.perf_counter() - start)
     # the expected errors: Cramér-Rao bound of the fit model for this motion and camera
     fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
     misfit = {"noiseless_chi2": float(fit.chi2), "dof": int(fit.dof), "chi2_per_dof": float(fit.chi2 / max(fit.dof, 1))}
-    nut = pred.get("nutation_frequency_rad_s", {}).get("exact")
+    nut = pred.exact("nutation_frequency_rad_s")
     quantities, recording = _expected_errors(fit, T, nut)
     out["quantities"] = quantities
     out["note"] = ("expected errors are statistical (Cramér-Rao) bounds for the camera's per-frame localisation "
@@ -358,9 +374,10 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
     out["fit_terms"] = {**fit.terms.as_dict(), "source": f"gyrorig plan of {protocol.name} for {T:g} s records"}
     if recording:
         longest = max((v["length_needed_s"], k) for k, v in recording.items() if isinstance(v, dict))
-        rec.append(f"recording length: {longest[0]:.3g} s for every quantity to reach its target precision "
-                   f"(set by {longest[1]}); precession periods in {T:g} s: "
-                   f"{recording.get('precession_periods_in_record', float('nan')):.2g}")
+        rec.append(Advice(AdviceKind.RECORDING_LENGTH, f"recording length: {longest[0]:.3g} s for every quantity to "
+                          f"reach its target precision (set by {longest[1]}); precession periods in {T:g} s: "
+                          f"{recording.get('precession_periods_in_record', float('nan')):.2g}",
+                          values={"length_s": longest[0], "quantity": longest[1]}))
     advice = _misfit_advice(protocol, fit, T, pred, misfit)
     if advice:
         rec.append(advice)
@@ -370,12 +387,12 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         out["recording"]["linear_regime"] = None  # not assessed: the model does not describe the record
     else:
         _reliability(protocol, ex, fit, T, pred, draws, draw_seed, out, rec, progress)
-    out["prediction_limits"] = _parameter_advice(quantities, pred)
-    rec.extend(item["text"] for item in out["prediction_limits"])
-    out["damping"] = _damping_assessment(protocol, pred)
+    rec.extend(_parameter_advice(quantities, pred))
     rec.extend(_damping_advice(protocol, pred))
-    out["wall_time_s"] = time.perf_counter() - start
-    return out
+    return Plan(protocol.name, pred, rec, camera=out["camera"],
+                quantities={k: ExpectedQuantity(name=k, **v) for k, v in quantities.items()},
+                recording=out["recording"], fit_model=out["fit_model"], fit_terms=out["fit_terms"],
+                damping=_damping_assessment(protocol, pred), note=out["note"], wall_time_s=time.perf_counter() - start)
 
 
 #: the measurement that pins each rig parameter down best (for the advice)
@@ -389,23 +406,25 @@ PARAMETER_MEASUREMENTS = {
 }
 
 
-def _parameter_advice(quantities: dict, pred: dict) -> list[dict]:
+def _parameter_advice(quantities: dict, pred: Prediction) -> list[Advice]:
     """Where a prediction's own error exceeds the expected measurement error: which parameter limits it,
     and the measurement that would shrink it most (the largest share of its variance)."""
     out = []
     for name, q in quantities.items():
         psd, se = q.get("prediction_standard_error"), q.get("expected_standard_error")
         key = "mean_precession_rate_rad_s" if name == "precession_rate_rad_s" else name
-        unc = (pred.get(key) or {}).get("uncertainty") if isinstance(pred.get(key), dict) else None
-        if not psd or not se or not unc or psd <= se:
+        entry = pred.get(key)
+        unc = entry.uncertainty if entry is not None else None
+        if not psd or not se or unc is None or unc.largest_share is None or psd <= se:
             continue
-        param, share = max(unc["by_parameter"].items(), key=lambda kv: kv[1])
+        param, share = unc.largest_share
         how = PARAMETER_MEASUREMENTS.get(param, "a direct measurement of it")
-        out.append({"quantity": name, "prediction_standard_error": psd, "expected_standard_error": se,
-                    "parameter": param, "share": share, "measurement": how,
-                    "text": f"{name}: theory's prediction is uncertain by {psd:.2g} ({psd / se:.3g} x the expected "
-                            f"measurement error), {share:.0%} of it from {param}: the comparison with theory is "
-                            f"limited by the rig, not the camera; measure {param} better: {how} (gyrorig identify)"})
+        out.append(Advice(AdviceKind.PREDICTION_LIMIT, values={
+            "quantity": name, "prediction_standard_error": psd, "expected_standard_error": se, "parameter": param,
+            "share": share, "measurement": how}, text=(
+            f"{name}: theory's prediction is uncertain by {psd:.2g} ({psd / se:.3g} x the expected measurement "
+            f"error), {share:.0%} of it from {param}: the comparison with theory is limited by the rig, not the "
+            f"camera; measure {param} better: {how} (gyrorig identify)")))
     return out
 
 
@@ -423,16 +442,16 @@ def _spot_in_view(protocol: Protocol, ex: ExpectedRecord) -> np.ndarray:
             & (px[:, 1] >= margin) & (px[:, 1] <= cam.height_px - 1 - margin))
 
 
-def _damping_assessment(protocol: Protocol, pred: dict) -> dict:
+def _damping_assessment(protocol: Protocol, pred: Prediction) -> DampingAssessment:
     """The damping models, and whether the scene shows the tilt drift eqs. 25a/26 are about (a simulated
     drift of at least a tenth of the paper's)."""
-    growth = pred.get("tilt_growth_rate_per_s", {})
-    exact, paper = growth.get("exact"), growth.get("paper")
+    growth = pred.get("tilt_growth_rate_per_s")
+    exact, paper = (growth.exact, growth.paper) if growth is not None else (None, None)
     shows = bool(exact is not None and math.isfinite(exact) and abs(exact) >= 0.1 * abs(paper or 1.0))
-    return {"models": [d.model for d in protocol.pivot.damping], "tests_tilt_drift": shows}
+    return DampingAssessment(tuple(d.model for d in protocol.pivot.damping), shows)
 
 
-def _linear_length(protocol: Protocol, duration_s: float, pred: dict, draws: int, draw_seed: int) -> float | None:
+def _linear_length(protocol: Protocol, duration_s: float, pred: Prediction, draws: int, draw_seed: int) -> float | None:
     """The shortest of a few longer records (x1.5 .. x4, up to the scene's length) over which the
     fit model is in its linear regime (and its noisy draws converge where the linearised fit puts
     them); None if none is."""
@@ -454,7 +473,7 @@ def _linear_length(protocol: Protocol, duration_s: float, pred: dict, draws: int
     return None
 
 
-def _adequate_length(protocol: Protocol, duration_s: float, pred: dict) -> float | None:
+def _adequate_length(protocol: Protocol, duration_s: float, pred: Prediction) -> float | None:
     """The longest of ``duration_s`` / 2, / 4, / 8 whose simulated record the fit model describes
     (noiseless chi-square per degree of freedom at most :data:`MISFIT_LIMIT`), or None."""
     for k in (2, 4, 8):
@@ -469,21 +488,24 @@ def _adequate_length(protocol: Protocol, duration_s: float, pred: dict) -> float
     return None
 
 
-def _damping_advice(protocol: Protocol, pred: dict) -> list[str]:
+def _damping_advice(protocol: Protocol, pred: Prediction) -> list[Advice]:
     assessment = _damping_assessment(protocol, pred)
-    models, growth = assessment["models"], pred.get("tilt_growth_rate_per_s", {})
+    models, growth = assessment.models, pred.get("tilt_growth_rate_per_s")
+    values = {"models": models, "tests_tilt_drift": assessment.tests_tilt_drift}
     if not models:
-        return ["no damping: this scene tests eqs. 12/20 (precession, nutation); eqs. 25a/26 need a damped pivot "
-                "(magnet in the ball, realisation B2)"]
-    if growth.get("exact") is None:
+        return [Advice(AdviceKind.DAMPING, "no damping: this scene tests eqs. 12/20 (precession, nutation); eqs. "
+                       "25a/26 need a damped pivot (magnet in the ball, realisation B2)", values=values)]
+    if growth is None:
         return []
-    if not assessment["tests_tilt_drift"]:
-        return [f"damping ({', '.join(models)}) shows no tilt drift: the simulated drift is {growth['exact']:+.2g} "
-                f"1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s, so this rig cannot test "
-                "eqs. 25a/26" + ("; the lab field damps only theta': use the magnet-in-ball realisation (B2)"
-                                 if "eddy-field" in models else "")]
-    return [f"damping realisation {', '.join(models)} tests eqs. 25a/26: simulated tilt growth "
-            f"{growth['exact']:+.3g} 1/s against the paper's {growth.get('paper', float('nan')):+.3g} 1/s"]
+    paper = growth.paper if growth.paper is not None else float("nan")
+    if not assessment.tests_tilt_drift:
+        return [Advice(AdviceKind.DAMPING, values=values, text=(
+            f"damping ({', '.join(models)}) shows no tilt drift: the simulated drift is {growth.exact:+.2g} 1/s "
+            f"against the paper's {paper:+.3g} 1/s, so this rig cannot test eqs. 25a/26"
+            + ("; the lab field damps only theta': use the magnet-in-ball realisation (B2)"
+               if "eddy-field" in models else "")))]
+    return [Advice(AdviceKind.DAMPING, values=values, text=f"damping realisation {', '.join(models)} tests eqs. "
+                   f"25a/26: simulated tilt growth {growth.exact:+.3g} 1/s against the paper's {paper:+.3g} 1/s")]
 
 
 # ------------------------------------------------------------------------------------------- sweeps
@@ -537,9 +559,10 @@ def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s
         p = parse_protocol(data, source=str(protocol_path))
         plan = plan_experiment(p, duration_s=duration_s, simulate_damping=False, draws=0)
         row = {key: float(v)}
-        for name, q in plan.get("quantities", {}).items():
-            row[f"{name}_relative_error"] = q.get("expected_relative_error", math.nan) if q["resolvable"] else math.nan
-        cam = plan.get("camera") or {}
+        for name, q in plan.quantities.items():
+            rel = q.expected_relative_error
+            row[f"{name}_relative_error"] = rel if q.resolvable and rel is not None else math.nan
+        cam = plan.camera or {}
         row["motion_blur_px"] = cam.get("motion_blur_px", math.nan)
         row["sigma_px"] = cam.get("sigma_px", math.nan)
         row["marker_in_view_fraction"] = cam.get("marker_in_view_fraction", math.nan)

@@ -16,13 +16,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from .prediction import PREDICTED_KINDS, Prediction, PredictionUncertainty
 from .protocols import Protocol, ProtocolError, checked_rig
 from .theory import predict
 
-__all__ = ["perturbed", "predict_with_uncertainty", "prediction_scalars", "NONLINEAR_RATIO", "PREDICTED_KINDS"]
-
-#: the predicted values carried with error bars
-PREDICTED_KINDS = ("paper", "corrected", "exact")
+__all__ = ["perturbed", "predict_with_uncertainty", "prediction_scalars", "NONLINEAR_RATIO"]
 #: |f(+sd) + f(-sd) - 2 f(0)| / |f(+sd) - f(-sd)| above this: the prediction is sampled, not linearised
 NONLINEAR_RATIO = 0.1
 _DAMPING = re.compile(r"pivot\.damping(?:\[(\d+)\])?\.(\w+)")
@@ -46,20 +44,19 @@ def perturbed(protocol: Protocol, changes: dict[str, float]) -> Protocol:
     return replace(protocol, rig=checked_rig(rig), launch=launch, pivot=replace(protocol.pivot, damping=tuple(damping)))
 
 
-def prediction_scalars(prediction: dict) -> dict[tuple[str, str], float]:
-    """The finite numbers of a prediction: ``(quantity, kind) -> value`` for kind in :data:`PREDICTED_KINDS`."""
+def prediction_scalars(prediction: Prediction) -> dict[tuple[str, str], float]:
+    """The finite numbers of a prediction: ``(quantity, kind) -> value`` for kind in
+    :data:`~gyrorig.prediction.PREDICTED_KINDS`."""
     out = {}
-    for q, entry in prediction.items():
-        if not isinstance(entry, dict) or q == "flags":
-            continue
+    for name, q in prediction.quantities.items():
         for kind in PREDICTED_KINDS:
-            v = entry.get(kind)
-            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
-                out[(q, kind)] = float(v)
+            v = q.value(kind)
+            if v is not None and math.isfinite(v):
+                out[(name, kind)] = float(v)
     return out
 
 
-def _vector(pred: dict, keys: list) -> np.ndarray:
+def _vector(pred: Prediction, keys: list) -> np.ndarray:
     s = prediction_scalars(pred)
     return np.array([s.get(k, np.nan) for k in keys])
 
@@ -91,21 +88,22 @@ def _sampled_sd(protocol: Protocol, names: list, x0: np.ndarray, cov: np.ndarray
     return np.nanstd(np.array(rows), axis=0, ddof=1), len(rows)
 
 
-def predict_with_uncertainty(protocol: Protocol, *, prediction: dict | None = None, simulate_damping: bool = True,
-                             draws: int = 100, rng: np.random.Generator | None = None) -> dict:
+def predict_with_uncertainty(protocol: Protocol, *, prediction: Prediction | None = None,
+                             simulate_damping: bool = True, draws: int = 100,
+                             rng: np.random.Generator | None = None) -> Prediction:
     """:func:`gyrorig.theory.predict`, with each predicted number's standard deviation from the protocol's
     parameter uncertainties.
 
-    Every quantity entry gains ``<kind>_sd`` for ``paper``, ``corrected`` and ``exact`` (where it has
-    them) and ``uncertainty``: ``method`` (``linear`` or ``sampled``), ``by_parameter`` (each
-    parameter's share of the exact value's variance, correlations left out), ``nonlinearity`` (the
-    largest curvature ratio).  Without uncertain parameters the prediction is returned as is.
+    Every quantity gains ``<kind>_sd`` for ``paper``, ``corrected`` and ``exact`` (where it has
+    them) and an ``uncertainty`` (:class:`~gyrorig.prediction.PredictionUncertainty`: ``method``,
+    ``linear`` or ``sampled``; ``by_parameter``, each parameter's share of the exact value's variance,
+    correlations left out; ``nonlinearity``, the largest curvature ratio).  Without uncertain parameters
+    the prediction is returned as is.
     """
     pred = prediction if prediction is not None else predict(protocol, simulate_damping=simulate_damping)
     unc = protocol.uncertainty
     if not unc:
         return pred
-    pred = {k: (dict(v) if isinstance(v, dict) else v) for k, v in pred.items()}
     idx = [i for i, s in enumerate(unc.sd) if s > 0]
     names = [unc.names[i] for i in idx]
     x0 = np.array([unc.values[i] for i in idx])
@@ -129,16 +127,16 @@ def predict_with_uncertainty(protocol: Protocol, *, prediction: dict | None = No
         sampled, used = _sampled_sd(protocol, names, x0, cov, keys, draws, simulate_damping,
                                     rng if rng is not None else np.random.default_rng(0))
         sd = np.where(nonlinear & np.isfinite(sampled), sampled, sd)
+    changes: dict[str, dict] = {name: {} for name in pred.quantities}
     for i, (q, kind) in enumerate(keys):
-        pred[q][f"{kind}_sd"] = float(sd[i])
+        changes[q][f"{kind}_sd"] = float(sd[i])
         if kind == "exact":
             share = G[i] ** 2 * np.diag(cov)
             total = float(share.sum())
-            pred[q]["uncertainty"] = {
-                "method": "sampled" if nonlinear[i] and used > 1 else "linear",
-                "draws": used if nonlinear[i] else 0,
-                "nonlinearity": float(np.max(curvature[i])),
-                "by_parameter": {n: (float(s / total) if total > 0 else 0.0) for n, s in zip(names, share)},
-            }
-    pred["parameter_uncertainty"] = unc.as_dict()
-    return pred
+            changes[q]["uncertainty"] = PredictionUncertainty(
+                method="sampled" if nonlinear[i] and used > 1 else "linear",
+                draws=used if nonlinear[i] else 0,
+                nonlinearity=float(np.max(curvature[i])),
+                by_parameter={n: (float(s / total) if total > 0 else 0.0) for n, s in zip(names, share)})
+    return pred.with_quantities({name: replace(q, **changes[name]) for name, q in pred.quantities.items()},
+                                parameter_uncertainty=unc.as_dict())

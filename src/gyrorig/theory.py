@@ -26,6 +26,7 @@ import pandas as pd
 from scipy.optimize import brentq
 
 from .physics import exact_solution, simulate
+from .prediction import EquilibriumTip, PredictedQuantity, Prediction, PredictionFlags
 from .protocols import Pivot, Protocol, ProtocolError
 
 __all__ = [
@@ -337,21 +338,12 @@ def steady_launch(protocol: Protocol, *, mode: str = "slow") -> Protocol:
 # predictions for one protocol (``gyrorig theory PROTOCOL``)
 
 
-def _entry(paper: float | list[float] | None, exact: float | list[float], *, source: str,
-           corrected: float | list[float] | None = None, note: str = "") -> dict:
-    """One quantity: paper value, corrected value, exact/simulated value, relative difference."""
-    out: dict = {"paper": paper, "exact": exact, "exact_source": source}
-    if corrected is not None:
-        out["corrected"] = corrected
-    if isinstance(paper, (int, float)) and isinstance(exact, (int, float)) and math.isfinite(exact):
-        # no relative difference against a reference that is zero at the paper's scale
-        if abs(exact) > 1e-6 * abs(paper):
-            out["relative_difference"] = (paper - exact) / abs(exact)
-            # a sign is compared only where the exact value has one (a sleeping top's exact nutation is 0)
-            out["sign_agrees"] = bool(np.sign(paper) == np.sign(exact))
-    if note:
-        out["note"] = note
-    return out
+def _entry(name: str, paper: float | None, exact: float, *, source: str, corrected: float | None = None,
+           note: str = "") -> PredictedQuantity:
+    """One quantity: paper value, corrected value, exact/simulated value."""
+    return PredictedQuantity(name=name, paper=None if paper is None else float(paper), exact=float(exact),
+                             exact_source=source, corrected=None if corrected is None else float(corrected),
+                             note=note)
 
 
 def _direction(rate_per_s: float, tiny: float = 1e-9) -> str:
@@ -371,7 +363,7 @@ def _damping_gamma(protocol: Protocol) -> tuple[float, str]:
     return gamma, "+".join(laws)
 
 
-def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dict, simulate_damping: bool) -> dict:
+def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dict, simulate_damping: bool) -> list[PredictedQuantity]:
     """The damped tilt's growth rate and time constant: the paper's, corrected, and simulated."""
     spin, acc = protocol.launch.spin_rate_rad_s, protocol.pivot.acceleration
     gamma, law = _damping_gamma(protocol)
@@ -391,19 +383,15 @@ def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dic
     note = f"damping law {law}; paper eq. 25a with gamma = {gamma:.4g} 1/s (slow mode)"
     if law != "paper" and law != "magnet-in-ball":
         note += "; the paper's law differs from this scene's, compare with the simulated value"
-    out = {}
-    out["tilt_growth_rate_per_s"] = _entry(paper_rate, sim_rate, source=source, corrected=corr_rate, note=note)
     tau = paper_damped_time_constant(spin, gamma, **kw)
-    out["tilt_time_constant_s"] = {
-        "paper": tau, "exact": 1.0 / abs(sim_rate) if sim_rate else math.inf,
-        "exact_source": "1 / |simulated growth rate|",
-        "direction": {"paper": "decay", "exact": _direction(sim_rate)},
-        "note": "eq. 26; with the corrected sign it is the e-folding time of the tilt's growth",
-    }
-    return out
+    return [_entry("tilt_growth_rate_per_s", paper_rate, sim_rate, source=source, corrected=corr_rate, note=note),
+            PredictedQuantity("tilt_time_constant_s", paper=tau, exact=1.0 / abs(sim_rate) if sim_rate else math.inf,
+                              exact_source="1 / |simulated growth rate|", direction_paper="decay",
+                              direction_exact=_direction(sim_rate),
+                              note="eq. 26; with the corrected sign it is the e-folding time of the tilt's growth")]
 
 
-def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
+def predict(protocol: Protocol, *, simulate_damping: bool = True) -> Prediction:
     """What theory predicts for the scene: only the quantities the scene has.
 
     Parameters
@@ -414,16 +402,14 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
 
     Returns
     -------
-    dict
-        ``flags`` (``fast_top_ratio``, ``small_tilt``, ...) and, per quantity, a dict with
-        ``paper`` (as printed), ``corrected`` (where the printed form is wrong), ``exact``
-        (no approximation; from the elliptic solution, an exact condition or the
-        simulator, named in ``exact_source``), ``relative_difference`` (paper vs exact)
-        and ``sign_agrees``.  Keys carry units: ``precession_rate_slow_rad_s``,
-        ``precession_rate_fast_rad_s``, ``nutation_frequency_rad_s``,
-        ``nutation_amplitude_rad``, ``mean_precession_rate_rad_s``,
-        ``tilt_growth_rate_per_s``, ``tilt_time_constant_s``, ``equilibrium_tip``,
-        ``precession_rate_rad_s`` (free top).
+    Prediction
+        ``flags`` (:class:`~gyrorig.prediction.PredictionFlags`) and, per quantity, a
+        :class:`~gyrorig.prediction.PredictedQuantity` with ``paper`` (as printed), ``corrected`` (where the
+        printed form is wrong) and ``exact`` (no approximation; from the elliptic solution, an exact condition
+        or the simulator, named in ``exact_source``): ``precession_rate_slow_rad_s``,
+        ``precession_rate_fast_rad_s``, ``nutation_frequency_rad_s``, ``nutation_amplitude_rad``,
+        ``mean_precession_rate_rad_s``, ``tilt_growth_rate_per_s``, ``tilt_time_constant_s``,
+        ``precession_rate_rad_s`` (free top); ``equilibrium_tip`` with the pivot accelerating.
     """
     rig, lau = protocol.rig, protocol.launch
     i_t, i_o = rig.inertia_transverse_kg_m2, rig.inertia_axial_kg_m2
@@ -435,7 +421,6 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
     a_vec = np.zeros(3) if acc is None else np.asarray(acc.acceleration_m_s2[0], dtype=float)
     g = rig.gravity_m_s2 or 0.0
     mgh_eff = rig.mass_kg * rig.com_distance_m * float(np.linalg.norm(np.array([0, 0, -g]) - a_vec))
-    out: dict = {"protocol": protocol.name, "flags": {}}
     kw = dict(inertia=i_t, inertia_axial=i_o, mgh=mgh_eff)
     undamped = replace(protocol, pivot=Pivot((), acc if acc is not None and acc.is_constant else None))
     if mgh_eff == 0.0:
@@ -445,21 +430,20 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
         cos_alpha = float(ell @ np.array([math.sin(tilt) * math.sin(lau.azimuth_rad),
                                           -math.sin(tilt) * math.cos(lau.azimuth_rad), math.cos(tilt)])) / l_norm
         spin_l = sol.omega_rotor_rad_s - (l_norm / i_t) * cos_alpha  # psi' in the frame with z along L
-        out["precession_rate_rad_s"] = _entry(
-            paper_free_precession_rate(spin_l, inertia=i_t, inertia_axial=i_o),
-            exact_free_precession_rate(l_norm, inertia=i_t), source="exact: |L|/I",
-            note="eq. 12 with Omega = psi' in the frame whose z is along L")
-        out["flags"]["cone_angle_rad"] = math.acos(max(-1.0, min(1.0, cos_alpha)))
-        return out
+        free = _entry("precession_rate_rad_s", paper_free_precession_rate(spin_l, inertia=i_t, inertia_axial=i_o),
+                      exact_free_precession_rate(l_norm, inertia=i_t), source="exact: |L|/I",
+                      note="eq. 12 with Omega = psi' in the frame whose z is along L")
+        return Prediction(protocol.name, PredictionFlags(cone_angle_rad=math.acos(max(-1.0, min(1.0, cos_alpha)))),
+                          {free.name: free})
     ratio = fast_top_ratio(spin, **kw)
-    out["flags"] = {"fast_top_ratio": ratio, "fast_top": ratio >= 10.0, "small_tilt": tilt <= 0.3,
-                    "launch_tilt_rad": tilt}
+    flags = PredictionFlags(fast_top_ratio=ratio, fast_top=ratio >= 10.0, small_tilt=tilt <= 0.3,
+                            launch_tilt_rad=tilt)
     slow_p, fast_p = paper_heavy_precession_rates(spin, **kw)
     slow_c, fast_c = corrected_heavy_precession_rates(spin, **kw)
     slow_x, fast_x = exact_steady_precession_rates(spin, tilt, **kw)
     src = "exact steady-precession condition at the launch tilt"
-    out["precession_rate_slow_rad_s"] = _entry(slow_p, slow_x, source=src, corrected=slow_c)
-    out["precession_rate_fast_rad_s"] = _entry(fast_p, fast_x, source=src, corrected=fast_c)
+    qs = [_entry("precession_rate_slow_rad_s", slow_p, slow_x, source=src, corrected=slow_c),
+          _entry("precession_rate_fast_rad_s", fast_p, fast_x, source=src, corrected=fast_c)]
     if acc is None or acc.is_constant:
         sol = exact_solution(undamped)
         ft = fast_top_release(spin, tilt, **kw)
@@ -468,14 +452,15 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
         amp = homog * i_t / abs(l3)
         th_lo, th_hi = sol.tilt_range_rad
         src = "exact elliptic solution (undamped)"
-        out["nutation_frequency_rad_s"] = _entry(ft["nutation_frequency_rad_s"], sol.nutation_frequency_rad_s,
-                                                 source=src, note="paper: Omega - nu = Io Omega / I")
-        out["nutation_amplitude_rad"] = _entry(amp, 0.5 * (th_hi - th_lo), source=src,
-                                               note="fast-top: I |omega_perp(0) - slow steady| / L3 (half range)")
-        out["mean_precession_rate_rad_s"] = _entry(ft["mean_precession_rate_rad_s"], sol.mean_precession_rate_rad_s,
-                                                   source=src, note="fast-top: Mgh / (Io Omega)")
+        qs += [_entry("nutation_frequency_rad_s", ft["nutation_frequency_rad_s"], sol.nutation_frequency_rad_s,
+                      source=src, note="paper: Omega - nu = Io Omega / I"),
+               _entry("nutation_amplitude_rad", amp, 0.5 * (th_hi - th_lo), source=src,
+                      note="fast-top: I |omega_perp(0) - slow steady| / L3 (half range)"),
+               _entry("mean_precession_rate_rad_s", ft["mean_precession_rate_rad_s"], sol.mean_precession_rate_rad_s,
+                      source=src, note="fast-top: Mgh / (Io Omega)")]
     if protocol.is_damped:
-        out.update(_damped_predictions(protocol, a_vec, g, kw, simulate_damping))
+        qs += _damped_predictions(protocol, a_vec, g, kw, simulate_damping)
+    tip = None
     if acc is not None and acc.is_constant and np.linalg.norm(a_vec[:2]) > 0:
         a_h = float(np.linalg.norm(a_vec[:2]))
         paper_tip = paper_accelerated_equilibrium_tip(a_h, g)
@@ -484,11 +469,11 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> dict:
         rot = np.array([[math.cos(ang), -math.sin(ang), 0], [math.sin(ang), math.cos(ang), 0], [0, 0, 1]])
         exact_tip = exact_accelerated_equilibrium_tip(a_vec, g)
         p_tip = rot @ paper_tip
-        out["equilibrium_tip"] = {
-            "paper": p_tip.tolist(), "exact": exact_tip.tolist(), "exact_source": "effective vertical",
-            "angle_between_rad": float(math.acos(min(1.0, float(p_tip @ exact_tip)))),
-            "leans_towards_acceleration": {"paper": bool(p_tip[:2] @ a_vec[:2] > 0),
-                                           "exact": bool(exact_tip[:2] @ a_vec[:2] > 0)},
-            "note": "eq. 31: phi = pi/2, theta = a/g for a along -x",
-        }
-    return out
+        tip = EquilibriumTip(
+            paper=tuple(float(v) for v in p_tip), exact=tuple(float(v) for v in exact_tip),
+            exact_source="effective vertical",
+            angle_between_rad=float(math.acos(min(1.0, float(p_tip @ exact_tip)))),
+            paper_leans_towards_acceleration=bool(p_tip[:2] @ a_vec[:2] > 0),
+            exact_leans_towards_acceleration=bool(exact_tip[:2] @ a_vec[:2] > 0),
+            note="eq. 31: phi = pi/2, theta = a/g for a along -x")
+    return Prediction(protocol.name, flags, {q.name: q for q in qs}, equilibrium_tip=tip)

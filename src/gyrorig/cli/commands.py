@@ -382,15 +382,15 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if args.monte_carlo:
         table = monte_carlo_check(protocol, args.monte_carlo, duration_s=args.mc_duration, scheduler=args.scheduler,
                                   progress=progress_printer("monte carlo"))
-        plan["monte_carlo"] = {"duration_s": args.mc_duration, "runs": args.monte_carlo,
-                               "failed_runs": table.attrs.get("failed_runs", 0),
-                               "table": table.to_dict(orient="records")}
+        plan = replace(plan, monte_carlo={"duration_s": args.mc_duration, "runs": args.monte_carlo,
+                                          "failed_runs": table.attrs.get("failed_runs", 0),
+                                          "table": table.to_dict(orient="records")})
     doc = _io.json_safe(plan)
     if out:
         _io.write_json(doc, out / "plan.json")
     # a camera that never sees the tip measures nothing: the plan says so, and the exit code too (and stderr: with -q
     # it is all the user sees)
-    blind = plan.get("camera") is not None and not plan.get("quantities")
+    blind = plan.measures_nothing
     if blind:
         print("gyrorig: failed: the camera never sees the tip marker: the plan measures nothing (check the camera's "
               "placement and field of view against the tip's path)", file=sys.stderr)
@@ -523,7 +523,7 @@ def _cmd_theory(args: argparse.Namespace) -> int:
     pred = predict_with_uncertainty(protocol, simulate_damping=not args.no_simulate)
     if args.json:
         doubts = [d.as_dict() for d in protocol_doubts(protocol)]
-        print_data(json.dumps(_io.json_safe({**pred, "doubts": doubts}), indent=2))
+        print_data(json.dumps(_io.json_safe({**pred.to_dict(), "doubts": doubts}), indent=2))
     else:
         print_prediction(pred)
     return EXIT_OK

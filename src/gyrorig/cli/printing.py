@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from .._format import with_error
+from ..plan_record import Plan
+from ..prediction import PredictedQuantity, Prediction
 
 __all__ = ["progress_printer", "print_plan", "print_fit", "print_prediction", "print_data", "set_quiet"]
 
@@ -57,11 +59,11 @@ def progress_printer(label: str):
     return show
 
 
-def print_plan(plan: dict) -> None:
+def print_plan(plan: Plan) -> None:
     from ..plan import MISFIT_NOTE
 
-    print(f"plan for {plan['protocol']}")
-    cam = plan.get("camera")
+    print(f"plan for {plan.protocol}")
+    cam = plan.camera
     if cam:
         print(f"  camera: {cam['fps']:g} fps, {cam['exposure_s'] * 1e6:.0f} us; tip marker {cam['radius_px']:.1f} px "
               f"radius, {cam['signal_adu']:.0f} ADU on {cam['background_adu']:.0f}; localisation bound "
@@ -73,21 +75,21 @@ def print_plan(plan: dict) -> None:
                   f"({cam.get('nutation_amplitude_over_sigma_px', float('nan')):.3g} x the bound)")
         print(f"  motion blur {cam['motion_blur_px']:.2f} px; rolling-shutter skew {cam['rolling_shutter_skew_px']:.2f} px"
               f"; saturates: {cam['saturates']}")
-        rec = plan.get("recording") or {}
+        rec = plan.recording or {}
         if not rec:
             print("  expected errors: none (the camera does not see the tip: see the advice)")
         else:
             print(f"  expected errors for a {rec['length_s']:g} s record (Cramer-Rao bound of the fit):")
-        for name, q in plan["quantities"].items():
-            if not q["resolvable"]:
-                print(f"    {name}: not resolvable: {q['reason']}")
+        for name, q in plan.quantities.items():
+            if not q.resolvable:
+                print(f"    {name}: not resolvable: {q.reason}")
                 continue
-            pe = q.get("paper_vs_exact_in_se")
-            print(f"    {name}: {q['simulated']:.6g} +- {q['expected_standard_error']:.2g} {q['units']}"
-                  + (f" (paper {q['predicted_paper']:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else "")
-                  + (f"; theory itself +- {q['prediction_standard_error']:.2g} from the rig's parameters"
-                     if q.get("prediction_standard_error") else "")
-                  + ("" if q.get("reliable", True) else "  [not reliable at this length]"))
+            pe = q.paper_vs_exact_in_se
+            print(f"    {name}: {q.simulated:.6g} +- {q.expected_standard_error:.2g} {q.units}"
+                  + (f" (paper {q.predicted_paper:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else "")
+                  + (f"; theory itself +- {q.prediction_standard_error:.2g} from the rig's parameters"
+                     if q.prediction_standard_error else "")
+                  + ("" if q.reliable else "  [not reliable at this length]"))
         mf = rec.get("model_misfit")
         if mf:
             print(f"  fit model on the simulated record: chi-square {mf['noiseless_chi2']:.3g} for {mf['dof']} degrees "
@@ -102,11 +104,11 @@ def print_plan(plan: dict) -> None:
                   + (f" ({max(rms, key=rms.get)})" if rms else "")
                   + (": linear over the noise" if draws["ok"] else
                      f": NOT linear over the noise ({', '.join(draws['nonlinear']) or 'failed draws'})"))
-        if "note" in plan:
-            print(f"  note: {plan['note']}")
-    for r in plan["recommendations"]:
-        print(f"  - {r}")
-    mc = plan.get("monte_carlo")
+        if plan.note:
+            print(f"  note: {plan.note}")
+    for a in plan.advice:
+        print(f"  {'!' if a.problem else '-'} {a.text}")
+    mc = plan.monte_carlo
     if mc:
         import pandas as pd
 
@@ -120,36 +122,33 @@ def print_fit(fit, out: Path) -> None:
     print(f"-> {out / 'fit.json'}, {out / 'fit.png'}, {out / 'fit_residuals.csv'}")
 
 
-def print_prediction(pred: dict) -> None:
-    print(f"{pred['protocol']}: theory for this scene (paper as printed / corrected / exact or simulated)")
-    for k, v in pred["flags"].items():
+def print_prediction(pred: Prediction) -> None:
+    print(f"{pred.protocol}: theory for this scene (paper as printed / corrected / exact or simulated)")
+    for k, v in pred.flags.to_dict().items():
         print(f"  flag {k} = {v:.4g}" if isinstance(v, float) else f"  flag {k} = {v}")
     fmt = lambda x: "-" if x is None else (f"{x:.6g}" if isinstance(x, float) else str(x))  # noqa: E731
-    def pm(v: dict, kind: str) -> str:  # to the digits the prediction's own sd resolves, where it has one
-        sd, x = v.get(f"{kind}_sd"), v.get(kind)
+    def pm(v: PredictedQuantity, kind: str) -> str:  # to the digits the prediction's own sd resolves, if it has one
+        sd, x = v.sd(kind), v.value(kind)
         return with_error(x, sd) if sd and isinstance(x, float) else fmt(x)
 
-    for key, v in pred.items():
-        if key in ("protocol", "flags", "parameter_uncertainty"):
-            continue
-        if key == "equilibrium_tip":
-            print(f"  {key}: paper {np.round(v['paper'], 5).tolist()}, exact {np.round(v['exact'], 5).tolist()}, "
-                  f"{v['angle_between_rad']:.4g} rad apart; leans towards the acceleration: "
-                  f"paper {v['leans_towards_acceleration']['paper']}, exact {v['leans_towards_acceleration']['exact']}")
-            continue
+    for key, v in pred.quantities.items():
         line = f"  {key}: paper {pm(v, 'paper')}"
-        if "corrected" in v:
+        if v.corrected is not None:
             line += f", corrected {pm(v, 'corrected')}"
-        line += f", exact {pm(v, 'exact')} ({v['exact_source']})"
-        unc = v.get("uncertainty")
-        if unc:
-            top = max(unc["by_parameter"].items(), key=lambda kv: kv[1])
-            line += (f" [+- from the rig's parameters, {unc['method']}; largest share {top[0]} "
+        line += f", exact {pm(v, 'exact')} ({v.exact_source})"
+        if v.uncertainty is not None and v.uncertainty.largest_share is not None:
+            top = v.uncertainty.largest_share
+            line += (f" [+- from the rig's parameters, {v.uncertainty.method}; largest share {top[0]} "
                      f"{top[1]:.0%}]")
-        if "relative_difference" in v:
-            line += f"; paper off by {v['relative_difference']:+.2%}"
-        if v.get("sign_agrees") is False:
+        if v.relative_difference is not None:
+            line += f"; paper off by {v.relative_difference:+.2%}"
+        if v.sign_agrees is False:
             line += "  ** WRONG SIGN **"
-        if "direction" in v:
-            line += f"; direction: paper {v['direction']['paper']}, simulated {v['direction']['exact']}"
+        if v.direction_paper is not None:
+            line += f"; direction: paper {v.direction_paper}, simulated {v.direction_exact}"
         print(line)
+    e = pred.equilibrium_tip
+    if e is not None:
+        print(f"  equilibrium_tip: paper {np.round(e.paper, 5).tolist()}, exact {np.round(e.exact, 5).tolist()}, "
+              f"{e.angle_between_rad:.4g} rad apart; leans towards the acceleration: "
+              f"paper {e.paper_leans_towards_acceleration}, exact {e.exact_leans_towards_acceleration}")

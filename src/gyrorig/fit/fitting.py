@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from .._format import with_error
+from ..prediction import Prediction
 from ..protocols import Protocol
 from .checks import check_notes
 from .constraints import Constraints
@@ -121,7 +122,7 @@ def _residual_tables(sol: Solution, data: FitData) -> tuple[pd.DataFrame, pd.Dat
     return residuals, pd.DataFrame({"t_s": tt, "theta_rad": th_c, "phi_rad": ph_c})
 
 
-def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | None = None,
+def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Prediction | None = None,
                exclude: np.ndarray | None = None, truth: pd.DataFrame | None = None,
                rng: np.random.Generator | None = None, bootstrap_replicates: int = 50,
                check_residuals: bool = True, terms: FitTerms | str = "data",
@@ -135,7 +136,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: dict | N
         theta_cam_k_rad, phi_cam_k_rad]`` (:mod:`gyrorig.tables`).
     protocol : Protocol
         The scene (decides the model).
-    prediction : dict, optional
+    prediction : Prediction, optional
         :func:`gyrorig.theory.predict` output, for the comparison columns and for hints
         (predicted nutation frequency: resolvable by the camera or not).
     exclude : bool array, optional
@@ -256,7 +257,8 @@ def _azimuth_undefined(data: FitData, spec) -> Reason | None:
     return None
 
 
-def linear_response(angles: pd.DataFrame, fit: FitResult, protocol: Protocol, *, prediction: dict | None = None):
+def linear_response(angles: pd.DataFrame, fit: FitResult, protocol: Protocol, *,
+                    prediction: Prediction | None = None):
     """The linearised estimator about a fit of noiseless ``angles``.
 
     Returns a function that takes other angles at the same frames (the same motion plus noise)
@@ -310,7 +312,7 @@ def record_state(fit: FitResult) -> tuple[float, dict[str, float], np.ndarray]:
 
 
 def state_values(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, motion: pd.DataFrame, *,
-                 exclude: np.ndarray | None = None, prediction: dict | None = None) -> dict[str, float]:
+                 exclude: np.ndarray | None = None, prediction: Prediction | None = None) -> dict[str, float]:
     """The quantities of ``fit``'s model fitted to a noiseless ``motion`` (``t_s, theta_rad, phi_rad``) at the
     record's frames with its weights (:func:`gyrorig.fit.quantities.truth_values`): what this estimator gives for
     that motion."""

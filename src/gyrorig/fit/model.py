@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import angles_from_tip, axis_rotation, tip_from_angles, wrap_angle
+from ..prediction import Prediction
 from ..protocols import Protocol
 from .data import FitData, FitError
 from .spec import ModelSpec
@@ -283,7 +284,7 @@ class SceneModel:
     reasons: tuple[str, ...] = ()
 
 
-def model_for_scene(protocol: Protocol, prediction: dict | None = None) -> SceneModel:
+def model_for_scene(protocol: Protocol, prediction: Prediction | None = None) -> SceneModel:
     """The fit model the scene calls for, with hints from theory (never used as fitted values).
 
     A fitted axis when the pivot accelerates (the effective vertical) or without gravity (the
@@ -295,15 +296,14 @@ def model_for_scene(protocol: Protocol, prediction: dict | None = None) -> Scene
     acc = protocol.pivot.acceleration
     accelerating = acc is not None and any(any(v != 0 for v in a) for a in acc.acceleration_m_s2)
     damped = bool(protocol.pivot.damping)
-    pred = prediction or {}
     reasons = []
     if accelerating and not acc.is_constant:
         reasons.append("the pivot acceleration varies in time: no fixed equilibrium direction to fit; the "
                        "cone axis is fitted as if constant")
     fit_axis = accelerating or not gravity
-    nut = pred.get("nutation_frequency_rad_s", {}).get("exact") if gravity else None
     prec_key = "mean_precession_rate_rad_s" if gravity else "precession_rate_rad_s"
-    prec = pred.get(prec_key, {}).get("exact")
+    nut = prediction.exact("nutation_frequency_rad_s") if gravity and prediction is not None else None
+    prec = prediction.exact(prec_key) if prediction is not None else None
     spec = ModelSpec(fit_axis=fit_axis, damped=damped)
     return SceneModel(spec=spec, nutation_expected=gravity, nutation_frequency_hint_rad_s=nut,
                       precession_hint_rad_s=prec, reasons=tuple(reasons))

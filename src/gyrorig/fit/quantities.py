@@ -16,6 +16,7 @@ import pandas as pd
 from scipy.interpolate import CubicSpline
 
 from ..geometry import angles_from_tip, wrap_angle
+from ..prediction import PredictedQuantity, Prediction
 from ..protocols import Protocol
 from .constraints import Constraints
 from .data import FitData, FitError
@@ -66,29 +67,26 @@ def quantity_functions(spec: ModelSpec) -> dict:
     return fns
 
 
-def theory_values(prediction: dict | None) -> dict:
-    """Theory predictions (:func:`gyrorig.theory.predict`) keyed by fit quantity (angles for the
-    equilibrium direction)."""
-    if not prediction:
+def theory_values(prediction: Prediction | None) -> dict[str, PredictedQuantity]:
+    """Theory's predictions (:func:`gyrorig.theory.predict`) keyed by fit quantity (the equilibrium direction as
+    its tilt and azimuth)."""
+    if prediction is None:
         return {}
     out = {}
     for key in ("nutation_frequency_rad_s", "nutation_amplitude_rad", "tilt_growth_rate_per_s",
                 "tilt_time_constant_s"):
-        if key in prediction:
-            out[key] = prediction[key]
-    if "mean_precession_rate_rad_s" in prediction:
-        out["precession_rate_rad_s"] = prediction["mean_precession_rate_rad_s"]
-    elif "precession_rate_rad_s" in prediction:
-        out["precession_rate_rad_s"] = prediction["precession_rate_rad_s"]
-    if "equilibrium_tip" in prediction:
-        e = prediction["equilibrium_tip"]
-        tilts, azis = {}, {}
-        for k in ("paper", "exact"):
-            v = np.asarray(e[k], float)
-            th, ph = angles_from_tip(v / np.linalg.norm(v))
-            tilts[k], azis[k] = float(th), float(ph)
-        out["equilibrium_tilt_rad"] = {**tilts, "exact_source": e.get("exact_source", "")}
-        out["equilibrium_azimuth_rad"] = {**azis, "exact_source": e.get("exact_source", "")}
+        if key in prediction.quantities:
+            out[key] = prediction.quantities[key]
+    precession = prediction.get("mean_precession_rate_rad_s") or prediction.get("precession_rate_rad_s")
+    if precession is not None:
+        out["precession_rate_rad_s"] = precession
+    e = prediction.equilibrium_tip
+    if e is not None:
+        paper = angles_from_tip(np.asarray(e.paper) / np.linalg.norm(e.paper))
+        exact = angles_from_tip(np.asarray(e.exact) / np.linalg.norm(e.exact))
+        for i, name in enumerate(("equilibrium_tilt_rad", "equilibrium_azimuth_rad")):
+            out[name] = PredictedQuantity(name, paper=float(paper[i]), exact=float(exact[i]),
+                                          exact_source=e.exact_source)
     return out
 
 
@@ -97,15 +95,15 @@ def _difference(name: str, a: float, b: float) -> float:
     return wrap_angle(a - b) if name.endswith("azimuth_rad") else a - b
 
 
-def _compare(q: Quantity, theory: dict, comparable: bool, note: str = "") -> Quantity:
+def _compare(q: Quantity, theory: dict[str, PredictedQuantity], comparable: bool, note: str = "") -> Quantity:
     """``q`` with the theory's values beside it and, where comparable, the differences in standard errors."""
     if q.name not in theory:
         return q
     p = theory[q.name]
-    paper, corr, exact = p.get("paper"), p.get("corrected"), p.get("exact")
-    upd = dict(paper=paper, corrected=corr, exact=exact, exact_source=p.get("exact_source", ""),
+    paper, exact = p.paper, p.exact
+    upd = dict(paper=paper, corrected=p.corrected, exact=exact, exact_source=p.exact_source,
                note="; ".join(n for n in (q.note, note) if n), theory_note=note,
-               paper_standard_error=p.get("paper_sd"), exact_standard_error=p.get("exact_sd"))
+               paper_standard_error=p.paper_sd, exact_standard_error=p.exact_sd)
     if comparable and q.value is not None and q.standard_error:
         se = q.standard_error
         for kind, value in (("paper", paper), ("exact", exact)):
@@ -113,7 +111,7 @@ def _compare(q: Quantity, theory: dict, comparable: bool, note: str = "") -> Qua
                 continue
             diff = _difference(q.name, q.value, value)
             upd[f"diff_{kind}_se"] = diff / se
-            psd = p.get(f"{kind}_sd")
+            psd = p.sd(kind)
             if psd is not None and np.isfinite(psd):
                 upd[f"diff_{kind}_combined_se"] = diff / math.hypot(se, psd)
                 if kind == "exact":
@@ -157,7 +155,7 @@ def _time_constant(values: dict, formal: dict) -> Quantity:
 
 
 def build_quantities(spec: ModelSpec, values: dict, formal: dict, camera_se: dict, undetermined: dict[str, Reason],
-                     protocol: Protocol, prediction: dict | None, truth: dict[str, float]) -> dict[str, Quantity]:
+                     protocol: Protocol, prediction: Prediction | None, truth: dict[str, float]) -> dict[str, Quantity]:
     """The quantities of the scene, with theory and truth beside them.
 
     ``values``: quantity -> (value, standard error); ``formal``: quantity -> formal standard error;

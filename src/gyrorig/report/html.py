@@ -15,6 +15,7 @@ import pandas as pd
 from .. import _io
 from .._format import with_error
 from ..fit import FitResult, FitTerms
+from ..prediction import Prediction
 from ..protocols import Protocol
 from ..smooth import SmoothResult
 from .plots import plot_fit
@@ -76,10 +77,10 @@ def _diff_cell(d, q=None, kind: str = "") -> str:
 
 
 def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles: pd.DataFrame,
-                 smooth: SmoothResult | None, prediction: dict | None, tracking: dict | None = None,
+                 smooth: SmoothResult | None, prediction: Prediction | None, tracking: dict | None = None,
                  title: str | None = None) -> Path:
     """A self-contained HTML report (plots embedded as PNG data URIs)."""
-    pred = prediction or {}
+    pred = prediction if prediction is not None else Prediction(protocol.name)
     rows = []
     has_truth = any(q.truth is not None for q in fit.quantities.values())
     for name, q in fit.quantities.items():
@@ -98,22 +99,21 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
             "fit−exact: % and s.e."] + (["truth (simulator)", "pull"] if has_truth else []) + ["note"]
     table = ("<table><thead><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr></thead><tbody>"
              + "".join(rows) + "</tbody></table>")
-    flags = pred.get("flags", {})
     validity = []
-    ratio = flags.get("fast_top_ratio")
+    ratio = pred.flags.fast_top_ratio
     if ratio is not None:
         validity.append(f"fast-top ratio {ratio:.3g}: the paper's closed forms assume a fast top (ratio ≥ 10)"
                         + (" — <b>not satisfied</b>, expect percent-level differences" if ratio < 10 else ""))
-    if flags.get("small_tilt") is False:
+    if pred.flags.small_tilt is False:
         validity.append("launch tilt is not small: small-tilt formulas are approximate here")
-    if pred.get("parameter_uncertainty"):
+    if pred.parameter_uncertainty:
         validity.append("the rig's parameters carry standard deviations (protocol): each prediction has its own "
                         "± and the differences count both errors, s.e. = sqrt(s.e.<sub>fit</sub>² + "
                         "s.e.<sub>prediction</sub>²)")
-    for key, v in pred.items():
-        if isinstance(v, dict) and v.get("sign_agrees") is False:
+    for key, v in pred.quantities.items():
+        if v.sign_agrees is False:
             validity.append(f"<code>{key}</code>: the paper's formula has the <b>wrong sign</b> "
-                            f"(paper {_fmt(v.get('paper'))}, exact {_fmt(v.get('exact'))}); see docs/theory.md")
+                            f"(paper {_fmt(v.paper)}, exact {_fmt(v.exact)}); see docs/theory.md")
     notes = "".join(f"<li>{html.escape(n.text)}</li>" for n in fit.notes)
     fig = plot_fit(angles, smooth.table if smooth else None, fit)
     img = _fig_data_uri(fig)
