@@ -16,13 +16,13 @@ import pandas as pd
 
 from _stats import chi2_red_band, sd_band
 from conftest import PROTOCOL_DIR
-from gyrorig.camera import camera_setup
+from gyrorig.camera import Camera, Sensor, camera_setup
 from gyrorig.geometry import angles_from_tip
 from gyrorig.fit import ErrorKind, NoteKind, fit_angles
 from gyrorig.physics.simulate import simulate
 from gyrorig.protocols import load_protocol
 from gyrorig.tables import camera_mode_prior_column
-from gyrorig.tracking import TrackingCamera, camera_modes, tips_from_pixels
+from gyrorig.tracking import camera_modes, tips_from_pixels
 from gyrorig.tracking.motion_pose import fit_pose_to_track
 from gyrorig.tracking.scatter import neighbour_positions
 
@@ -43,14 +43,15 @@ def _tracked(seed: int):
     truth = simulate(p, duration_s=2.0, rate_hz=100.0)
     tips = length * np.column_stack([np.sin(truth.theta_rad) * np.sin(truth.phi_rad),
                                      -np.sin(truth.theta_rad) * np.cos(truth.phi_rad), np.cos(truth.theta_rad)])
-    px = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.distortion)[0].reshape(-1, 2)
+    px = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
     rng = np.random.default_rng(seed)
     px = px + PIXEL_SIGMA * rng.normal(size=px.shape)
     cov = np.diag(CAL_STD**2)
     dist = np.zeros(5)
-    dist[:4] = cam.distortion[:4]
-    true_cam = TrackingCamera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps,
-                              cam.exposure_s, "global", 0.0, 1.0, 1.0, 0.0, 255, cov, tuple("fx fy cx cy k1 k2 p1 p2".split()))
+    dist[:4] = cam.dist_coeffs[:4]
+    true_cam = Camera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps,
+                              cam.exposure_s, "global", 0.0, 1.0, Sensor(gain_e_per_adu=1.0), intrinsics_covariance=cov,
+                      intrinsics_parameters=tuple("fx fy cx cy k1 k2 p1 p2".split()))
     # the calibration's error: one draw from its covariance
     delta = rng.multivariate_normal(np.zeros(8), cov)
     K = cam.camera_matrix.copy()
@@ -93,9 +94,9 @@ def test_camera_modes_are_the_angle_shifts_of_a_one_sigma_camera_move():
     cam = camera_setup(p).camera
     length = float(p.extra["markers"]["tip"]["position_m"][2])
     dist = np.zeros(5)
-    dist[:4] = cam.distortion[:4]
-    base = TrackingCamera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps, 0.0,
-                          "global", 0.0, 1.0, 1.0, 0.0, 255)
+    dist[:4] = cam.dist_coeffs[:4]
+    base = Camera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps, 0.0,
+                          "global", 0.0, 1.0, Sensor(gain_e_per_adu=1.0))
     px = np.array([[700.0, 400.0]])
     rng = np.random.default_rng(1)
     th0 = _angles(tips_from_pixels(px, base, length))[0]
@@ -149,11 +150,11 @@ def test_a_pose_found_from_the_same_frames_gives_error_bars_that_cover_its_error
     truth = simulate(p, duration_s=2.0, rate_hz=cam.fps)
     tips = length * np.column_stack([np.sin(truth.theta_rad) * np.sin(truth.phi_rad),
                                      -np.sin(truth.theta_rad) * np.cos(truth.phi_rad), np.cos(truth.theta_rad)])
-    px0 = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.distortion)[0].reshape(-1, 2)
+    px0 = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
     dist = np.zeros(5)
-    dist[:4] = cam.distortion[:4]
-    base = TrackingCamera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps, 0.0,
-                          "global", 0.0, 1.0, 1.0, 0.0, 255)
+    dist[:4] = cam.dist_coeffs[:4]
+    base = Camera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps, 0.0,
+                          "global", 0.0, 1.0, Sensor(gain_e_per_adu=1.0))
     sigma_px = 0.2
     names = ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad")
     pulls = []

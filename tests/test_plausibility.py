@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 import tomllib
 
 import cv2
@@ -19,14 +18,13 @@ import pytest
 
 from conftest import PROTOCOL_DIR
 from gyrorig import parse_protocol
-from gyrorig.camera import camera_setup
+from gyrorig.camera import Camera, Sensor, camera_setup
 from gyrorig.cli import main
 from gyrorig.fit import FitError, NoteKind, fit_angles
 from gyrorig.physics.simulate import simulate
 from gyrorig.plausibility import protocol_doubts
 from gyrorig.protocols import load_protocol
 from gyrorig.theory import predict
-from gyrorig.tracking import TrackingCamera
 from gyrorig.tracking.rays import angle_covariances
 
 HEAVY = PROTOCOL_DIR / "air-cushion-heavy-top.toml"
@@ -78,12 +76,12 @@ def test_theory_warns_of_inertias_in_g_cm2_and_lists_the_doubts(tmp_path, capsys
                                                                       "rig.inertia_transverse_kg_m2"]
 
 
-def _camera(protocol) -> TrackingCamera:
+def _camera(protocol) -> Camera:
     cam = camera_setup(protocol).camera
     dist = np.zeros(5)
-    dist[:4] = cam.distortion[:4]
-    return TrackingCamera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps,
-                          cam.exposure_s, "global", 0.0, 1.0, 1.0, 0.0, 255)
+    dist[:4] = cam.dist_coeffs[:4]
+    return Camera(cam.camera_matrix, dist, cam.rvec, cam.tvec, cam.width_px, cam.height_px, cam.fps,
+                          cam.exposure_s, "global", 0.0, 1.0, Sensor(gain_e_per_adu=1.0))
 
 
 def _tracked(protocol, stated_length_m: float, seed: int = 0, duration_s: float = 2.0) -> pd.DataFrame:

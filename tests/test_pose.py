@@ -60,7 +60,7 @@ def test_the_board_gives_the_pose_and_its_origin_corner_whatever_its_yaw(tmp_pat
     yaw = math.radians(yaw_deg)
     origin = -board_lab_rotation(yaw) @ np.array([0.08, 0.05, 0.0]) + np.array([0.01, -0.02, -0.05])
     render_pose_board(cam, tmp_path, origin_m=origin, yaw_rad=yaw, seed=3)
-    pose = pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=9, rows=6,
+    pose = pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.dist_coeffs, cols=9, rows=6,
                            square_m=0.02, placement=BoardPlacement(tuple(origin), yaw))
     sd = np.sqrt(np.diag(pose.covariance))
     # the corners' localisation is the only error: within 4 sd (the pose's error is one draw per component)
@@ -68,7 +68,7 @@ def test_the_board_gives_the_pose_and_its_origin_corner_whatever_its_yaw(tmp_pat
     assert np.all(np.abs(pose.tvec - cam.tvec) < 4 * sd[3:])
     assert pose.rms_px < 0.3
     # a placement known to 1 mm and 0.5 deg: that dominates the pose's variance
-    loose = pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=9, rows=6, square_m=0.02,
+    loose = pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.dist_coeffs, cols=9, rows=6, square_m=0.02,
                             placement=BoardPlacement(tuple(origin), yaw, 1e-3, math.radians(0.5), math.radians(0.5)))
     assert np.trace(loose.placement_covariance) > 0.9 * np.trace(loose.covariance)
     assert np.trace(loose.covariance) > 10 * np.trace(pose.covariance)
@@ -79,10 +79,10 @@ def test_a_point_symmetric_board_or_a_wrong_one_is_refused(tmp_path):
     origin = (-0.08, 0.05, -0.05)
     render_pose_board(cam, tmp_path, origin_m=origin, seed=1)
     with pytest.raises(CalibrationInputError):  # 9 x 7 squares: the same turned half round
-        pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=8, rows=6, square_m=0.02,
+        pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.dist_coeffs, cols=8, rows=6, square_m=0.02,
                         placement=BoardPlacement(origin))
     with pytest.raises(CalibrationInputError):  # not the board in the image
-        pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.distortion, cols=7, rows=4, square_m=0.02,
+        pose_from_board(tmp_path / "board.png", cam.camera_matrix, cam.dist_coeffs, cols=7, rows=4, square_m=0.02,
                         placement=BoardPlacement(origin))
     intrinsics = {k: v for k, v in cam.to_json().items() if k not in ("rvec", "tvec")}
     (tmp_path / "cam.json").write_text(json.dumps(intrinsics))

@@ -24,7 +24,8 @@ from gyrorig.cli import main
 from gyrorig.markers import parse_markers
 from gyrorig.protocols import BUNDLED_PROTOCOL_DIR, ProtocolError, parse_protocol
 from gyrorig.render.phone import PhoneStyle, render_phone_video
-from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, TrackingCamera, VideoFile, load_camera, track
+from gyrorig.camera import Camera
+from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, VideoFile, load_camera, track
 from gyrorig.tracking.detect import detection_threshold, find_blobs, opening_size_px
 from gyrorig.tracking.scene_spot import fit_scene_spot, sandwich_covariance
 
@@ -52,10 +53,9 @@ def _disc(background: np.ndarray, x: float, y: float, r: float, level: float, ps
     return out
 
 
-def _camera(psf: float = 1.0, size=(512, 512)) -> TrackingCamera:
-    return TrackingCamera(np.array([[1000.0, 0, size[0] / 2], [0, 1000.0, size[1] / 2], [0, 0, 1]]), np.zeros(5),
-                          np.zeros(3), np.array([0, 0, 1.0]), size[0], size[1], 100.0, 0.0, "global", 0.0, psf,
-                          math.nan, 0.0, 255)
+def _camera(psf: float = 1.0, size=(512, 512)) -> Camera:
+    return Camera(np.array([[1000.0, 0, size[0] / 2], [0, 1000.0, size[1] / 2], [0, 0, 1]]), np.zeros(5),
+                          np.zeros(3), np.array([0, 0, 1.0]), size[0], size[1], 100.0, 0.0, "global", 0.0, psf)
 
 
 @pytest.mark.parametrize("name", PHOTOS)

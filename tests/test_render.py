@@ -41,7 +41,7 @@ def test_truth_matches_independent_projection_of_the_simulated_markers():
         sel = truth[truth.marker == m.name]
         pos = np.broadcast_to(m.position_m, (len(df), 3)) if m.body == "lab" else rot @ np.asarray(m.position_m)
         px = cv2.projectPoints(np.ascontiguousarray(pos), cam.rvec, cam.tvec, cam.camera_matrix,
-                               cam.distortion)[0].reshape(-1, 2)
+                               cam.dist_coeffs)[0].reshape(-1, 2)
         assert np.abs(px - sel[["x_px", "y_px"]].to_numpy()).max() < 1e-6, m.name
     # theta, phi at mid-exposure agree with the simulator
     mid = truth.drop_duplicates("frame")
@@ -211,7 +211,7 @@ def test_calibration_images_show_the_board_where_the_camera_says(tmp_path):
         corners = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1),
                                    (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)).reshape(-1, 2)
         proj = cv2.projectPoints(obj, np.array(view["rvec"]), np.array(view["tvec"]), cam.camera_matrix,
-                                 cam.distortion)[0].reshape(-1, 2)
+                                 cam.dist_coeffs)[0].reshape(-1, 2)
         # OpenCV may order the corners from either end of the board
         err = min(np.abs(corners - proj).max(), np.abs(corners[::-1] - proj).max())
         assert err < 0.5
@@ -241,7 +241,7 @@ def test_disc_marker_spot_has_the_projected_ellipse_flux_and_centre():
         # the tip's axis and the direction to the camera give the viewing angle of the disc
         axis = df[["tip_x", "tip_y", "tip_z"]].to_numpy()[0]
         centre = 0.14 * axis
-        view = cam.position_m - centre
+        view = cam.centre_m - centre
         depth = float((cam.rotation @ centre + cam.tvec)[2])
         a_px = cam.camera_matrix[0, 0] * tip.radius_m / depth
         cos_view = abs(axis @ view) / np.linalg.norm(view)
@@ -270,7 +270,7 @@ def test_rotor_markers_whirl_with_the_spin_and_frame_markers_do_not():
         rot = euler_to_matrix(df.phi_rad.to_numpy(), df.theta_rad.to_numpy(), psi.to_numpy())
         pos = rot @ (np.array([0.03, 0.0, 0.1]) if name == "rotor_dot" else np.array([0.03, 0.0, 0.11]))
         px = cv2.projectPoints(np.ascontiguousarray(pos), cam.rvec, cam.tvec, cam.camera_matrix,
-                               cam.distortion)[0].reshape(-1, 2)
+                               cam.dist_coeffs)[0].reshape(-1, 2)
         sel = truth[truth.marker == name]
         # the renderer's spline paths: 64 samples per turn for markers that whirl (interpolation error
         # ~(2 pi / 64)^4 / 384 of the radius, 1e-5 px here), far denser for the others

@@ -174,7 +174,7 @@ def test_calibration_recovers_the_rendered_camera(tmp_path, capsys):
                                          flags=cv2.CALIB_FIX_K3)[5].ravel()[:8]
     std = np.sqrt(np.diag(res.intrinsics_covariance))
     np.testing.assert_allclose(std, std_cv, rtol=0.05)
-    true = np.r_[cam.camera_matrix[0, 0], cam.camera_matrix[1, 1], cam.camera_matrix[:2, 2], cam.distortion[:4]]
+    true = np.r_[cam.camera_matrix[0, 0], cam.camera_matrix[1, 1], cam.camera_matrix[:2, 2], cam.dist_coeffs[:4]]
     est = np.r_[res.camera_matrix[0, 0], res.camera_matrix[1, 1], res.camera_matrix[:2, 2], res.dist_coeffs[:4]]
     assert np.all(np.abs(est - true) < 4 * std)
     assert json.loads(json.dumps(res.to_json()))["intrinsics_parameters"] == list(INTRINSIC_PARAMETERS)
@@ -286,10 +286,10 @@ def test_compiled_spot_kernel_matches_the_numpy_model():
 
 
 def _bare_camera():
-    from gyrorig.tracking import TrackingCamera
+    from gyrorig.camera import Camera, Sensor
 
-    return TrackingCamera(np.eye(3), np.zeros(5), np.zeros(3), np.zeros(3), 64, 48, 100.0, 1e-3, "global", 0.0, 1.1,
-                          2.0, 5.0, 255)
+    return Camera(np.eye(3), np.zeros(5), np.zeros(3), np.zeros(3), 64, 48, 100.0, 1e-3, "global", 0.0, 1.1,
+                  Sensor(gain_e_per_adu=2.0, read_noise_e=5.0))
 
 
 def test_crossbar_dots_give_the_frame_angle(tmp_path):

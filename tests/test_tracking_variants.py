@@ -21,7 +21,8 @@ from test_tracking import gray_frames
 from gyrorig.bench.variants import track_variant, variant_protocols
 from gyrorig.protocols import parse_protocol
 from gyrorig.render import render_video
-from gyrorig.tracking import FrameArrays, TrackingCamera, load_camera, track
+from gyrorig.camera import Camera, Sensor
+from gyrorig.tracking import FrameArrays, load_camera, track
 from gyrorig.tracking.ellipse import DiscGeometry, disc_image, fit_ellipse_spot
 from gyrorig.tracking.scatter import check_sigmas
 
@@ -100,8 +101,8 @@ def _camera():
     k = np.array([[1000.0, 0, 640], [0, 1000, 360], [0, 0, 1]])
     rot = cv2.Rodrigues(np.array([math.pi - math.radians(10.0), 0.0, 0.0]))[0]
     centre = np.array([0.0, -0.7 * math.sin(math.radians(10.0)), 0.7 * math.cos(math.radians(10.0))])
-    return TrackingCamera(k, np.array([-0.1, 0.05, 0.0, 0.0, -0.01]), cv2.Rodrigues(rot)[0].ravel(),
-                          -rot @ centre, 1280, 720, 240.0, 5e-4, "global", 0.0, 0.8, math.nan, 0.0, 65535)
+    return Camera(k, np.array([-0.1, 0.05, 0.0, 0.0, -0.01]), cv2.Rodrigues(rot)[0].ravel(),
+                          -rot @ centre, 1280, 720, 240.0, 5e-4, "global", 0.0, 0.8, Sensor(bit_depth=16))
 
 
 def _ray_cast_disc(cam, centre, normal, radius, s=8):

@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -40,18 +41,27 @@ from .markers import Marker, Occluder, parse_markers
 from ._validate import ProtocolError, check_keys, number, vector3
 from .protocols import Protocol
 
-__all__ = ["placement_pose", "Sensor", "Camera", "Marker", "Occluder", "CameraSetup", "camera_setup", "look_at_pose", "with_image_size"]
+__all__ = ["placement_pose", "Sensor", "Camera", "INTRINSIC_PARAMETERS", "Marker", "Occluder", "CameraSetup",
+           "camera_setup", "look_at_pose", "with_image_size"]
+
+
+#: intrinsics an ``intrinsics_covariance`` may refer to (``gyrorig calibrate`` writes the first eight); a pose
+#: covariance is over ``(rvec, tvec)``
+INTRINSIC_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
 @dataclass(frozen=True)
 class Sensor:
-    """Photon-to-ADU model: electrons = Poisson(signal) + Normal(0, read noise); ADU = electrons / gain."""
+    """Photon-to-ADU model: electrons = Poisson(signal) + Normal(0, read noise); ADU = electrons / gain.
 
-    bit_depth: int
-    full_well_e: float
-    read_noise_e: float
-    gain_e_per_adu: float
-    background_e_per_s: float
+    A number not known (a recording's gain, full well, lighting) is NaN: rendering needs them all, tracking uses
+    the gain and read noise where known (:attr:`Camera.sensor_known`)."""
+
+    bit_depth: int = 8
+    full_well_e: float = math.nan
+    read_noise_e: float = 0.0
+    gain_e_per_adu: float = math.nan
+    background_e_per_s: float = math.nan
     #: response exponent: recorded = max (linear / max)^(1 / gamma); 1 is linear
     gamma: float = 1.0
 
@@ -63,51 +73,117 @@ class Sensor:
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole camera with distortion, pose and exposure (OpenCV conventions)."""
+    """A pinhole camera with distortion, pose, timing and sensor (OpenCV conventions): the one camera model of
+    rendering (from a protocol's ``[camera]``, :func:`camera_setup`) and of tracking (from ``camera.json``,
+    :func:`gyrorig.tracking.load_camera`).  What an analysis does not know is NaN (the pose before it is found,
+    a recording's sensor numbers) or None (covariances: exact)."""
 
+    camera_matrix: np.ndarray
+    dist_coeffs: np.ndarray
+    rvec: np.ndarray
+    tvec: np.ndarray
     width_px: int
     height_px: int
     fps: float
     exposure_s: float
-    camera_matrix: np.ndarray
-    distortion: np.ndarray
-    rvec: np.ndarray
-    tvec: np.ndarray
-    shutter: str
-    readout_time_s: float
-    psf_sigma_px: float
-    motion_blur_samples: int
-    sensor: Sensor
-    #: lighting varies as 1 + fraction sin(2 pi t / period)
+    shutter: str = "global"
+    readout_time_s: float = 0.0
+    psf_sigma_px: float = 1.0
+    sensor: Sensor = Sensor()
+    #: sub-exposure samples the renderer draws motion blur with (1: none)
+    motion_blur_samples: int = 8
+    #: lighting varies as 1 + fraction sin(2 pi t / period) (rendering)
     illumination_drift_fraction: float = 0.0
     illumination_drift_period_s: float = 1.0
+    #: covariance of the intrinsics named in ``intrinsics_parameters`` (None: exact)
+    intrinsics_covariance: np.ndarray | None = None
+    intrinsics_parameters: tuple[str, ...] = ()
+    #: covariance of ``(rvec, tvec)`` (None: exact, or found from the fiducials)
+    pose_covariance: np.ndarray | None = None
+    #: the points the pose was solved from (``object_points_m`` in the lab, ``image_points_px``): moving the
+    #: intrinsics then re-solves the pose from them (None: the pose is held)
+    pose_points: dict | None = None
+    #: the fingerprint (:func:`gyrorig.tracking.sources.fingerprint`) of the recording whose tip motion gave the
+    #: pose (``pose_source.video_fingerprint``): tracking that recording marks the pose's modes as found from
+    #: its own frames (None: the pose is outside knowledge)
+    pose_recording: str | None = None
+    #: the rate the frames were captured at when the file stores them at another (slow motion: captured at 240,
+    #: stored at 30); NaN: the file's own times are real times [frames/s]
+    capture_fps: float = math.nan
+
+    @property
+    def gain_e_per_adu(self) -> float:
+        return self.sensor.gain_e_per_adu
+
+    @property
+    def read_noise_e(self) -> float:
+        return self.sensor.read_noise_e
+
+    @property
+    def max_adu(self) -> int:
+        return self.sensor.max_adu
+
+    @property
+    def gamma(self) -> float:
+        return self.sensor.gamma
+
+    @property
+    def has_pose(self) -> bool:
+        """True when the pose relative to the pivot is known."""
+        return bool(np.all(np.isfinite(self.rvec)) and np.all(np.isfinite(self.tvec)))
+
+    @property
+    def sensor_known(self) -> bool:
+        """True when pixel variances follow from the sensor model: a known gain and a linear response."""
+        return math.isfinite(self.sensor.gain_e_per_adu) and self.sensor.gamma == 1.0
+
+    def with_sensor(self, **changes) -> "Camera":
+        """The camera with the sensor's numbers changed (``bit_depth``, ``gain_e_per_adu``, ...)."""
+        return replace(self, sensor=replace(self.sensor, **changes))
 
     def illumination(self, t_s: np.ndarray | float) -> np.ndarray | float:
         """The lighting's factor at times ``t_s`` (1 without drift)."""
         return 1.0 + self.illumination_drift_fraction * np.sin(2 * np.pi * np.asarray(t_s) /
                                                               self.illumination_drift_period_s)
 
-    @property
+    @cached_property
     def rotation(self) -> np.ndarray:
-        """World-to-camera rotation matrix ``R(rvec)``."""
+        """World-to-camera rotation matrix ``R(rvec)`` (computed once per camera)."""
         import cv2
 
-        return cv2.Rodrigues(self.rvec)[0]
+        return cv2.Rodrigues(np.asarray(self.rvec, dtype=float))[0]
 
-    @property
-    def position_m(self) -> np.ndarray:
-        """Camera centre in the lab. [m]"""
-        return -self.rotation.T @ self.tvec
+    @cached_property
+    def centre_m(self) -> np.ndarray:
+        """Camera centre in the lab (pivot frame). [m]"""
+        return -self.rotation.T @ np.ravel(self.tvec)
+
+    def row_delay_s(self, y_px: float) -> float:
+        """Start of row ``y_px``'s exposure after the frame's start (rolling shutter; 0 for a global one). [s]"""
+        return (y_px / self.height_px) * self.readout_time_s if self.shutter == "rolling" else 0.0
+
+    def with_intrinsics(self, names: tuple[str, ...], delta: np.ndarray) -> "Camera":
+        """The camera with the named intrinsics (:data:`INTRINSIC_PARAMETERS`) moved by ``delta``."""
+        K = self.camera_matrix.copy()
+        dist = np.zeros(max(5, self.dist_coeffs.size))
+        dist[:self.dist_coeffs.size] = self.dist_coeffs
+        where = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+        for name, d in zip(names, delta):
+            if name in where:
+                K[where[name]] += d
+            else:
+                dist[("k1", "k2", "p1", "p2", "k3").index(name)] += d
+        return replace(self, camera_matrix=K, dist_coeffs=dist)
 
     def to_json(self) -> dict[str, Any]:
-        """The camera in OpenCV's terms, for ``camera.json``."""
+        """The camera in OpenCV's terms, for ``camera.json`` (as rendering writes it)."""
         s = self.sensor
         return {
             "image_size": [self.width_px, self.height_px],
             "camera_matrix": self.camera_matrix.tolist(),
-            "dist_coeffs": self.distortion.tolist(),
-            "rvec": self.rvec.ravel().tolist(),
-            "tvec": self.tvec.ravel().tolist(),
+            "dist_coeffs": self.dist_coeffs.tolist(),
+            "rvec": np.ravel(self.rvec).tolist(),
+            "tvec": np.ravel(self.tvec).tolist(),
             "fps": self.fps,
             "exposure_s": self.exposure_s,
             "shutter": self.shutter,
@@ -158,7 +234,7 @@ def placement_pose(t: Mapping[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     position = np.array(vector3(s, "position_m", t["position_m"]))
     target = np.array(vector3(s, "look_at_m", t.get("look_at_m", [0.0, 0.0, 0.0])))
     if np.linalg.norm(target - position) == 0:
-        raise ProtocolError("camera.position_m equals camera.look_at_m")
+        raise ProtocolError("camera.centre_m equals camera.look_at_m")
     up = np.array(vector3(s, "up_hint", t.get("up_hint", [0.0, 1.0, 0.0])))
     return look_at_pose(position, target, up)
 
@@ -210,7 +286,7 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
         cy = number(s, "principal_point_px[1]", pp[1], lo=0.0, hi=h - 1)
     dist = t.get("distortion", [0.0] * 5)
     if not isinstance(dist, list) or len(dist) != 5:
-        raise ProtocolError(f"camera.distortion = {dist!r}: expected [k1, k2, p1, p2, k3]")
+        raise ProtocolError(f"camera.dist_coeffs = {dist!r}: expected [k1, k2, p1, p2, k3]")
     dist = np.array([number(s, f"distortion[{i}]", v, lo=-10, hi=10) for i, v in enumerate(dist)])
     shutter = t.get("shutter", "global")
     if shutter not in ("global", "rolling"):
@@ -228,8 +304,9 @@ def _parse_camera(t: Mapping[str, Any]) -> Camera:
     nsub = int(number(s, "motion_blur_samples", t.get("motion_blur_samples", 8), lo=1, hi=256))
     drift = number(s, "illumination_drift_fraction", t.get("illumination_drift_fraction", 0.0), lo=0.0, hi=0.5)
     period = number(s, "illumination_drift_period_s", t.get("illumination_drift_period_s", 1.0), lo=0.0, lo_open=True)
-    return Camera(w, h, fps, exposure, k, dist, rvec, tvec, shutter, readout, sigma, nsub, _parse_sensor(t["sensor"]),
-                  drift, period)
+    return Camera(k, dist, rvec, tvec, w, h, fps, exposure, shutter=shutter, readout_time_s=readout,
+                  psf_sigma_px=sigma, sensor=_parse_sensor(t["sensor"]), motion_blur_samples=nsub,
+                  illumination_drift_fraction=drift, illumination_drift_period_s=period)
 
 
 def with_image_size(protocol: Protocol, width_px: int, height_px: int) -> Protocol:
@@ -266,8 +343,8 @@ def camera_setup(protocol: Protocol) -> CameraSetup:
     import cv2
 
     pc = cam.rotation @ np.zeros(3) + cam.tvec
-    px = cv2.projectPoints(np.zeros((1, 3)), cam.rvec, cam.tvec, cam.camera_matrix, cam.distortion)[0].reshape(2)
+    px = cv2.projectPoints(np.zeros((1, 3)), cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(2)
     if pc[2] <= 0 or not (0 <= px[0] <= cam.width_px - 1 and 0 <= px[1] <= cam.height_px - 1):
-        raise ProtocolError(f"camera.position_m / look_at_m: the pivot projects to pixel ({px[0]:.1f}, {px[1]:.1f}), "
+        raise ProtocolError(f"camera.centre_m / look_at_m: the pivot projects to pixel ({px[0]:.1f}, {px[1]:.1f}), "
                             f"outside the {cam.width_px} x {cam.height_px} image")
     return CameraSetup(cam, marker_set.dots, marker_set.occluders)

@@ -65,7 +65,7 @@ def project(setup: CameraSetup, pts: np.ndarray) -> np.ndarray:
     """Pixel positions (n, 2) of lab points (n, 3) through the protocol's camera."""
     cam = setup.camera
     return cv2.projectPoints(pts.reshape(-1, 1, 3), cam.rvec, cam.tvec, cam.camera_matrix,
-                             cam.distortion)[0].reshape(-1, 2)
+                             cam.dist_coeffs)[0].reshape(-1, 2)
 
 
 def _angle_covariance(setup: CameraSetup, lever_m: float, theta: np.ndarray, phi: np.ndarray,
@@ -107,7 +107,7 @@ def expected_record(protocol: Protocol, duration_s: float) -> ExpectedRecord:
     sim = simulate(protocol, t_eval_s=np.arange(n) / cam.fps)
     theta, phi = sim.theta_rad.to_numpy(), sim.phi_rad.to_numpy()
     pos = lever * tip_from_angles(theta, phi)
-    depth = float(np.median(np.linalg.norm(pos - cam.position_m, axis=1)))
+    depth = float(np.median(np.linalg.norm(pos - cam.centre_m, axis=1)))
     spot = pixel_bound(setup, marker, depth)
     cov = _angle_covariance(setup, lever, theta, phi, spot["sigma_px"])
     angles = pd.DataFrame({"frame": np.arange(len(sim)), "t_s": sim.t_s, "theta_rad": theta, "phi_rad": phi,

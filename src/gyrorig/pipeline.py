@@ -26,7 +26,8 @@ from .protocols import Protocol
 from .smooth import SmoothResult, smooth_angles
 from .propagate import predict_with_uncertainty
 from .physics.simulate import simulate
-from .tracking import TrackingCamera, TrackResult, load_camera, track
+from .camera import Camera
+from .tracking import TrackResult, load_camera, track
 
 logger = logging.getLogger(__name__)
 
@@ -134,7 +135,7 @@ def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, e
     return at_record_state(fit, {k: (v0[k], float(s)) for k, s in zip(keys, sd)}, source)
 
 
-def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,
+def analyze(video, camera: Camera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,
             prediction: Prediction | None = None, terms: FitTerms | str = "data", constraints: Constraints | None = None,
             rng: np.random.Generator | None = None,
             progress: Progress | None = None, stage: Stage | None = None, frame_dots: bool = True,
@@ -145,7 +146,7 @@ def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, t
     ----------
     video : path or frame source
         A container OpenCV decodes, or frames in memory (:class:`gyrorig.tracking.FrameArrays`).
-    camera : TrackingCamera or path of ``camera.json``
+    camera : Camera or path of ``camera.json``
         Without a pose, the tracker finds it from the protocol's lab fiducials.
     protocol : Protocol
         The scene: its markers, and the model the fit uses.
@@ -161,7 +162,7 @@ def analyze(video, camera: TrackingCamera | str | Path, protocol: Protocol, *, t
         Given the tracking result as soon as it exists (a file wrapper saves it there, so that a
         fit that fails loses nothing).
     """
-    cam = camera if isinstance(camera, TrackingCamera) else load_camera(camera, require_pose=False)
+    cam = camera if isinstance(camera, Camera) else load_camera(camera, require_pose=False)
     t0 = time.perf_counter()
     tracked = track(video, cam, protocol, progress=progress, frame_dots=frame_dots)
     t1 = time.perf_counter()

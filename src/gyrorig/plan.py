@@ -45,7 +45,6 @@ from .plan_record import Advice, AdviceKind, DampingAssessment, ExpectedQuantity
 from .prediction import Prediction
 from .protocols import Protocol, parse_protocol
 from .propagate import predict_with_uncertainty
-from .theory import predict
 
 logger = logging.getLogger(__name__)
 

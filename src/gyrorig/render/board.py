@@ -25,7 +25,7 @@ class _BoardView:
         self.cam = cam
         h, w = cam.height_px, cam.width_px
         grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), axis=-1)
-        self.norm = cv2.undistortPoints(grid.reshape(-1, 1, 2), cam.camera_matrix, cam.distortion).reshape(-1, 2)
+        self.norm = cv2.undistortPoints(grid.reshape(-1, 1, 2), cam.camera_matrix, cam.dist_coeffs).reshape(-1, 2)
         self.rays = np.column_stack([self.norm, np.ones(len(self.norm))])
         # local Jacobian of the normalised coordinates with respect to the pixel position
         grid_n = self.norm.reshape(h, w, 2)
@@ -83,7 +83,7 @@ def render_pose_board(cam: Camera, out_dir: str | Path, *, origin_m, yaw_rad: fl
     origin = cam.rotation @ origin_lab + cam.tvec
     corners = np.array([[(i + 1) * square_m, (j + 1) * square_m, 0.0] for j in range(rows) for i in range(cols)])
     px = cv2.projectPoints(corners @ rmat.T + origin, np.zeros(3), np.zeros(3), cam.camera_matrix,
-                           cam.distortion)[0].reshape(-1, 2)
+                           cam.dist_coeffs)[0].reshape(-1, 2)
     if not ((px > 10).all() and (px[:, 0] < cam.width_px - 10).all() and (px[:, 1] < cam.height_px - 10).all()):
         raise ValueError(f"the pose board at {list(origin_m)} m is not wholly in the camera's view")
     adu = _BoardView(cam).image(rmat, origin, cols, rows, square_m, np.random.default_rng([seed, 104729]))
@@ -136,7 +136,7 @@ def render_calibration_images(cam: Camera, out_dir: str | Path, *, seed: int = 0
         origin = centre - rmat @ np.array([size[0] / 2, size[1] / 2, 0.0])
         corners = np.array([[(i + 1) * square_m, (j + 1) * square_m, 0.0] for j in range(rows) for i in range(cols)])
         pts = (rmat @ corners.T).T + origin
-        px = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.camera_matrix, cam.distortion)[0].reshape(-1, 2)
+        px = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
         margin = 20
         if not ((px[:, 0] > margin).all() and (px[:, 0] < w - margin).all() and (px[:, 1] > margin).all()
                 and (px[:, 1] < h - margin).all()):

@@ -61,7 +61,7 @@ def draw_disc(acc: np.ndarray, cam: Camera, centres: np.ndarray, normals: np.nda
     u, v = _disc_basis(n)
     a = np.linspace(0, 2 * np.pi, 33)[:-1]
     rim = c[:, None, :] + radius_m * (np.cos(a)[None, :, None] * u[:, None, :] + np.sin(a)[None, :, None] * v[:, None, :])
-    rim_px = cv2.projectPoints(rim.reshape(-1, 3), cam.rvec, cam.tvec, cam.camera_matrix, cam.distortion)[0].reshape(-1, 2)
+    rim_px = cv2.projectPoints(rim.reshape(-1, 3), cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
     reach = 4.0 * cam.psf_sigma_px + 2.0
     h, w = acc.shape
     x0, y0 = max(int(math.floor(rim_px[:, 0].min() - reach)), 0), max(int(math.floor(rim_px[:, 1].min() - reach)), 0)
@@ -74,10 +74,10 @@ def draw_disc(acc: np.ndarray, cam: Camera, centres: np.ndarray, normals: np.nda
     xs = (np.arange(x0, x1)[:, None] + sub[None, :]).ravel()
     ys = (np.arange(y0, y1)[:, None] + sub[None, :]).ravel()
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 1, 2)
-    norm = cv2.undistortPoints(grid, cam.camera_matrix, cam.distortion).reshape(-1, 2)
+    norm = cv2.undistortPoints(grid, cam.camera_matrix, cam.dist_coeffs).reshape(-1, 2)
     rays = np.column_stack([norm, np.ones(len(norm))]) @ cam.rotation
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    origin = cam.position_m
+    origin = cam.centre_m
     cover = np.zeros(len(rays))
     for cj, nj in zip(c, n):
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -119,7 +119,7 @@ def _sample_times(cam: Camera, frames: np.ndarray) -> np.ndarray:
 def project(cam: Camera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixel coordinates and camera depth of lab points; shapes (..., 2) and (...)."""
     flat = pts.reshape(-1, 3).astype(np.float64)
-    px = cv2.projectPoints(flat, cam.rvec, cam.tvec, cam.camera_matrix, cam.distortion)[0].reshape(-1, 2)
+    px = cv2.projectPoints(flat, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
     depth = flat @ cam.rotation[2] + cam.tvec[2]
     return px.reshape(pts.shape[:-1] + (2,)), depth.reshape(pts.shape[:-1])
 
@@ -162,11 +162,11 @@ def marker_samples(cam: Camera, setup: CameraSetup, paths: MarkerPaths, m: Marke
         (px[..., 1] > -radius) & (px[..., 1] < cam.height_px - 1 + radius)
     visible = in_view.copy()
     if setup.occluders:
-        visible &= ~_occluded(cam.position_m, pts, paths.tip(times), setup.occluders)
+        visible &= ~_occluded(cam.centre_m, pts, paths.tip(times), setup.occluders)
     normals = None
     if m.shape == "disc":
         normals = paths.normal(m.name, times)
-        visible &= np.einsum("...j,...j->...", normals, cam.position_m - pts) > 0
+        visible &= np.einsum("...j,...j->...", normals, cam.centre_m - pts) > 0
     t_mid = frames / cam.fps + shift + cam.exposure_s / 2
     truth_px, _ = project(cam, paths.position(m.name, t_mid))
     return Samples(pts, px, radius, normals, visible, truth_px, t_mid, in_view.mean(axis=1) >= 0.5)

@@ -163,7 +163,7 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
         never = [m.name for m in setup.markers if not truth[truth.marker == m.name].in_view.any()]
         if never:
             raise ProtocolError(f"markers.{never[0]}: never in the camera's field of view in the {n_frames} "
-                                "frames (check camera.position_m, look_at_m and the marker position)")
+                                "frames (check camera.centre_m, look_at_m and the marker position)")
         os.chmod(tmp, 0o644)
         os.replace(tmp, out / name)
     finally:

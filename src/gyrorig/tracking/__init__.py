@@ -4,7 +4,7 @@ Works on any video OpenCV decodes, or on frames held in memory; it reads only th
 ``camera.json`` and the protocol's marker geometry, never the simulator or a renderer's
 ``truth.csv`` (this package imports neither).
 
-* :mod:`~gyrorig.tracking.camera_file`: ``camera.json`` (:class:`TrackingCamera`, :func:`load_camera`);
+* :mod:`~gyrorig.tracking.camera_file`: ``camera.json`` (:class:`gyrorig.camera.Camera`, :func:`load_camera`);
 * :mod:`~gyrorig.tracking.sources`: video files, image folders (with a timestamps file) and in-memory frames;
 * :mod:`~gyrorig.tracking.detect`: blobs above a threshold (start points);
 * :mod:`~gyrorig.tracking.follow`: which spot is the tip (shape, appearance, motion, acquisition gates);
@@ -19,7 +19,8 @@ Works on any video OpenCV decodes, or on frames held in memory; it reads only th
 """
 
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS
-from .camera_file import INTRINSIC_PARAMETERS, TrackingCamera, load_camera
+from ..camera import INTRINSIC_PARAMETERS, Camera
+from .camera_file import load_camera
 from .errors import BadInputError, CameraFileError, TrackingError
 from .pose import camera_modes, estimate_pose
 from .rays import tip_from_pixel, tips_from_pixels
@@ -29,6 +30,6 @@ from .scene_spot import warm_up
 from .spot import SpotFit, fit_spot, spot_crb_px
 from .tracker import TrackResult, track, track_video
 
-__all__ = ["TrackingCamera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
+__all__ = ["Camera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
            "tip_from_pixel", "tips_from_pixels", "camera_modes", "track", "track_video", "TrackResult",
            "TrackingError", "BadInputError", "CameraFileError", "VideoFile", "ImageFolder", "FrameArrays", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]

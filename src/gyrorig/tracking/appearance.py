@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from ..markers import Marker
-from .camera_file import TrackingCamera
+from ..camera import Camera
 
 __all__ = ["MarkerImage"]
 
@@ -30,7 +30,7 @@ class MarkerImage:
     """Turns decoded frames (RGB for a coloured marker) into the tracker's image (module docstring); calling it
     maps one decoded frame; ``keeps_sensor_model`` whether the sensor's noise model still describes the result."""
 
-    def __init__(self, marker: Marker, camera: TrackingCamera):
+    def __init__(self, marker: Marker, camera: Camera):
         self.colour = marker.colour != "any"
         self.dark = marker.polarity == "dark"
         self.keeps_sensor_model = not (self.colour or self.dark)
@@ -55,7 +55,7 @@ class MarkerImage:
         return image
 
 
-def _linearizer(camera: TrackingCamera) -> Callable[[np.ndarray], np.ndarray] | None:
+def _linearizer(camera: Camera) -> Callable[[np.ndarray], np.ndarray] | None:
     """For a sensor with gamma: a function that maps recorded values back to linear ones (same full scale,
     float32); None for a linear sensor."""
     if camera.gamma == 1.0:

@@ -10,96 +10,15 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass, replace
-from functools import cached_property
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from .. import _io
+from ..camera import INTRINSIC_PARAMETERS, Camera, Sensor
 from .errors import CameraFileError
 
-__all__ = ["TrackingCamera", "load_camera", "INTRINSIC_PARAMETERS"]
-
-#: intrinsics an ``intrinsics_covariance`` in ``camera.json`` may refer to (``gyrorig calibrate`` writes the
-#: first eight); a pose covariance is over ``(rvec, tvec)``
-INTRINSIC_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
-
-
-@dataclass(frozen=True)
-class TrackingCamera:
-    """What the tracker needs from ``camera.json`` (OpenCV conventions)."""
-
-    camera_matrix: np.ndarray
-    dist_coeffs: np.ndarray
-    rvec: np.ndarray
-    tvec: np.ndarray
-    width_px: int
-    height_px: int
-    fps: float
-    exposure_s: float
-    shutter: str
-    readout_time_s: float
-    psf_sigma_px: float
-    gain_e_per_adu: float
-    read_noise_e: float
-    max_adu: int
-    #: covariance of the intrinsics named in ``intrinsics_parameters`` (None: exact)
-    intrinsics_covariance: np.ndarray | None = None
-    intrinsics_parameters: tuple[str, ...] = ()
-    #: covariance of ``(rvec, tvec)`` (None: exact, or found from the fiducials)
-    pose_covariance: np.ndarray | None = None
-    #: the sensor's response exponent (recorded = max (linear / max)^(1 / gamma)); 1: linear
-    gamma: float = 1.0
-    #: the points the pose was solved from (``object_points_m`` in the lab, ``image_points_px``): moving the
-    #: intrinsics then re-solves the pose from them (None: the pose is held)
-    pose_points: dict | None = None
-    #: the fingerprint (:func:`gyrorig.tracking.sources.fingerprint`) of the recording whose tip motion gave the
-    #: pose (``pose_source.video_fingerprint``): tracking that recording marks the pose's modes as found from
-    #: its own frames (None: the pose is outside knowledge)
-    pose_recording: str | None = None
-    #: the rate the frames were captured at when the file stores them at another (slow motion: captured at 240,
-    #: stored at 30); NaN: the file's own times are real times [frames/s]
-    capture_fps: float = math.nan
-
-    @property
-    def has_pose(self) -> bool:
-        """True when the pose relative to the pivot is known."""
-        return bool(np.all(np.isfinite(self.rvec)) and np.all(np.isfinite(self.tvec)))
-
-    @property
-    def sensor_known(self) -> bool:
-        """True when pixel variances follow from the sensor model: a known gain and a linear response."""
-        return math.isfinite(self.gain_e_per_adu) and self.gamma == 1.0
-
-    @cached_property
-    def rotation(self) -> np.ndarray:
-        """World-to-camera rotation matrix ``R(rvec)`` (computed once per camera)."""
-        return cv2.Rodrigues(self.rvec)[0]
-
-    @cached_property
-    def centre_m(self) -> np.ndarray:
-        """Camera centre in the lab (pivot frame). [m]"""
-        return -self.rotation.T @ self.tvec
-
-    def row_delay_s(self, y_px: float) -> float:
-        """Start of row ``y_px``'s exposure after the frame's start (rolling shutter; 0 for a global one). [s]"""
-        return (y_px / self.height_px) * self.readout_time_s if self.shutter == "rolling" else 0.0
-
-    def with_intrinsics(self, names: tuple[str, ...], delta: np.ndarray) -> "TrackingCamera":
-        """The camera with the named intrinsics (:data:`INTRINSIC_PARAMETERS`) moved by ``delta``."""
-        K = self.camera_matrix.copy()
-        dist = np.zeros(max(5, self.dist_coeffs.size))
-        dist[:self.dist_coeffs.size] = self.dist_coeffs
-        where = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
-        for name, d in zip(names, delta):
-            if name in where:
-                K[where[name]] += d
-            else:
-                dist[("k1", "k2", "p1", "p2", "k3").index(name)] += d
-        return replace(self, camera_matrix=K, dist_coeffs=dist)
-
+__all__ = ["load_camera"]
 
 #: lengths of ``dist_coeffs`` OpenCV accepts (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4 [tx ty]]]])
 DIST_COEFFS_LENGTHS = (4, 5, 8, 12, 14)
@@ -169,6 +88,9 @@ def _check_camera_values(path: Path, d: dict) -> None:
         _scalar(path, "sensor.gain_e_per_adu", sensor["gain_e_per_adu"], 0.0, lo_open=True, hi=1e6)
     if "read_noise_e" in sensor:
         _scalar(path, "sensor.read_noise_e", sensor["read_noise_e"], 0.0, hi=1e6)
+    for key in ("full_well_e", "background_e_per_s"):  # as rendering writes them; tracking does not use them
+        if sensor.get(key) is not None:
+            _scalar(path, f"sensor.{key}", sensor[key], 0.0, hi=1e12)
     bits = sensor.get("bit_depth", 8)
     if isinstance(bits, bool) or not isinstance(bits, int) or not 8 <= bits <= 16:
         raise CameraFileError(f"{path}: sensor.bit_depth = {bits!r}: allowed integers 8 to 16")
@@ -243,7 +165,7 @@ def datasheet_intrinsics(path: Path, d: dict) -> dict:
     return out
 
 
-def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamera:
+def load_camera(path: str | Path, *, require_pose: bool = True) -> Camera:
     """Read ``camera.json`` (as written by ``gyrorig render``, or by ``gyrorig calibrate``).
 
     Without a pose (``rvec``, ``tvec``) the camera is returned with NaN pose when
@@ -289,15 +211,19 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> TrackingCamer
         if c is not None and (not np.all(np.isfinite(c)) or np.linalg.eigvalsh(0.5 * (c + c.T)).min()
                               < -1e-9 * max(np.abs(c).max(), 1e-300)):
             raise CameraFileError(f"{path}: {key} must be finite, symmetric and positive semi-definite")
-    return TrackingCamera(
+    known = Sensor(bits, *(float(sensor[k]) if sensor.get(k) is not None else default for k, default in (
+        ("full_well_e", math.nan), ("read_noise_e", 0.0), ("gain_e_per_adu", math.nan),
+        ("background_e_per_s", math.nan), ("gamma", 1.0))))
+    return Camera(
         np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
         np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),
         np.asarray(d.get("tvec", [np.nan] * 3), dtype=float).ravel(),
         int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
-        d.get("shutter", "global"), float(d.get("readout_time_s", 0.0)), float(d.get("psf_sigma_px", 1.0)),
-        float(sensor.get("gain_e_per_adu", np.nan)), float(sensor.get("read_noise_e", 0.0)), (1 << bits) - 1,
-        cov_i, names or (), cov_p, float(sensor.get("gamma", 1.0)), points, _pose_recording(path, d),
-        float(d.get("capture_fps", np.nan)))
+        shutter=d.get("shutter", "global"), readout_time_s=float(d.get("readout_time_s", 0.0)),
+        psf_sigma_px=float(d.get("psf_sigma_px", 1.0)), sensor=known,
+        motion_blur_samples=int(d.get("motion_blur_samples", 1)), intrinsics_covariance=cov_i,
+        intrinsics_parameters=names or (), pose_covariance=cov_p, pose_points=points,
+        pose_recording=_pose_recording(path, d), capture_fps=float(d.get("capture_fps", np.nan)))
 
 
 def _pose_recording(path: Path, d: dict) -> str | None:

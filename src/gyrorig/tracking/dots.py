@@ -18,7 +18,7 @@ import numpy as np
 
 from ..geometry import ray_sphere_distances, wrap_angle
 from ..markers import Marker
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .detect import Detection, find_blobs, stands_out
 from .follow import CLEAR_RADII
 from .rays import pixel_rays
@@ -45,7 +45,7 @@ def _dot_position(dot: Marker, n: np.ndarray, psi: float) -> np.ndarray:
     return dot.off_axis_m * (math.cos(ang) * a + math.sin(ang) * b) + dot.position_m[2] * n
 
 
-def dot_angles(xy_px: np.ndarray, dot: Marker, n: np.ndarray, cam: TrackingCamera) -> np.ndarray:
+def dot_angles(xy_px: np.ndarray, dot: Marker, n: np.ndarray, cam: Camera) -> np.ndarray:
     """The frame angles psi (k,) implied by ``dot`` seen at pixels ``xy_px`` (k, 2), for the tip direction ``n``.
 
     Each ray meets the sphere ``|X| = |p|`` twice; the intersection whose height along the axis is nearer the
@@ -68,7 +68,7 @@ def dot_angles(xy_px: np.ndarray, dot: Marker, n: np.ndarray, cam: TrackingCamer
     return np.where(bad, np.nan, psi)
 
 
-def dot_angle(x_px: float, y_px: float, dot: Marker, n: np.ndarray, cam: TrackingCamera) -> float | None:
+def dot_angle(x_px: float, y_px: float, dot: Marker, n: np.ndarray, cam: Camera) -> float | None:
     """The frame angle psi implied by ``dot`` seen at a pixel (:func:`dot_angles`); None where it is rejected."""
     psi = float(dot_angles(np.array([[x_px, y_px]]), dot, n, cam)[0])
     return psi if math.isfinite(psi) else None
@@ -79,7 +79,7 @@ class DotTracker:
 
     LOST_AFTER = 5  # frames without any dot before a fresh acquisition
 
-    def __init__(self, dots: tuple[Marker, ...], cam: TrackingCamera):
+    def __init__(self, dots: tuple[Marker, ...], cam: Camera):
         self.dots = dots
         self.cam = cam
         depth = float(np.linalg.norm(cam.centre_m))

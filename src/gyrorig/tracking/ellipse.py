@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from scipy.special import erfc
 
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .rays import tip_from_pixel
 from .spot import SpotFit, pixel_variance, spot_window
 
@@ -95,7 +95,7 @@ def _solve(win, xx, yy, use, p, cam, bvar, iterations):
     return p, converged, fisher, chi2, mu  # not reached
 
 
-def fit_ellipse_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
+def fit_ellipse_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
                      shape: tuple[float, float, float] | None = None, iterations: int = 12) -> SpotFit | None:
     """Weighted least-squares fit of the elliptical spot model around ``(x0, y0)``.
 
@@ -178,7 +178,7 @@ class DiscImage:
     angle_rad: float
 
 
-def disc_image(centre_m: np.ndarray, normal: np.ndarray, radius_m: float, cam: TrackingCamera) -> DiscImage:
+def disc_image(centre_m: np.ndarray, normal: np.ndarray, radius_m: float, cam: Camera) -> DiscImage:
     """Project a disc (lab centre, unit normal, radius) through the camera, lens included: its rim as a
     polygon of :data:`RIM_POINTS` points, whose area centroid and second moments give the ellipse."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -209,7 +209,7 @@ class DiscGeometry:
     """The tip's disc marker on the stem axis, facing along it (or against it): where its centre's image is
     for a fitted ellipse centre, and the ellipse it must make there."""
 
-    def __init__(self, cam: TrackingCamera, length_m: float, radius_m: float):
+    def __init__(self, cam: Camera, length_m: float, radius_m: float):
         self.cam, self.length_m, self.radius_m = cam, length_m, radius_m
 
     def at(self, x_px: float, y_px: float) -> DiscImage | None:

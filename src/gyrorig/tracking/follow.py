@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 
 from ..markers import Marker
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .rays import tip_from_pixel
@@ -108,7 +108,7 @@ class Located:
     earlier: tuple[SpotFit, ...] = ()
 
 
-def _lab_images(camera: TrackingCamera, markers: tuple[Marker, ...]) -> list[tuple[float, float, float]]:
+def _lab_images(camera: Camera, markers: tuple[Marker, ...]) -> list[tuple[float, float, float]]:
     """Where the lab-fixed markers appear: ``(x, y, radius)`` [px] of each one in front of the camera."""
     out = []
     for m in markers:
@@ -201,7 +201,7 @@ def scene_shift(before: np.ndarray | None, after: np.ndarray) -> np.ndarray | No
 class TipFollower:
     """Finds the tip spot in each frame (see the module docstring)."""
 
-    def __init__(self, camera: TrackingCamera, tip: Marker, lab_markers: tuple[Marker, ...] = ()):
+    def __init__(self, camera: Camera, tip: Marker, lab_markers: tuple[Marker, ...] = ()):
         self.camera, self.tip = camera, tip
         #: images of the protocol's lab-fixed markers (x, y, radius) [px]: a spot there is never the tip
         self.lab_px = _lab_images(camera, lab_markers)

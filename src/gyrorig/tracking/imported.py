@@ -30,7 +30,7 @@ import pandas as pd
 
 from .. import _io
 from ..protocols import Protocol
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .errors import BadInputError
 from .rays import angle_covariances
 from .scatter import check_sigmas
@@ -175,7 +175,7 @@ def read_pixel_track(path: str | Path, *, track_name: str | None = None, fps: fl
     return table
 
 
-def angles_from_pixel_track(track: pd.DataFrame, camera: TrackingCamera, protocol: Protocol
+def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Protocol
                             ) -> tuple[pd.DataFrame, dict]:
     """The angle table (:mod:`gyrorig.tables`) of a pixel track (:func:`read_pixel_track`), and a summary: the
     error check (``sigma_check``), the errors used (``sigma_px``, ``sigma_source``), the camera's modes."""
@@ -243,7 +243,7 @@ def is_pixel_track(path: str | Path) -> bool:
     return {"x_px", "y_px"} <= columns
 
 
-def import_pixel_track(path: str | Path, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,
+def import_pixel_track(path: str | Path, camera: Camera, protocol: Protocol, out_dir: str | Path, *,
                        track_name: str | None = None) -> dict:
     """:func:`read_pixel_track` and :func:`angles_from_pixel_track`, writing ``angles.csv`` and ``track.json`` (the
     summary) into ``out_dir``; returns the summary with the paths written."""

@@ -44,7 +44,7 @@ from scipy.signal import lombscargle
 
 from ..geometry import angles_from_tip, same_rotation_near
 from ..protocols import Protocol
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .errors import TrackingError
 from .rays import pixel_rays, tips_from_pixels
 from .sources import as_source, fingerprint
@@ -122,7 +122,7 @@ class MotionPose:
 class _Model:
     """Pixels of the tip for the pose and motion parameters (see the module's notes)."""
 
-    def __init__(self, t_s: np.ndarray, camera: TrackingCamera, length_m: float, slow_terms: bool, harmonics: int,
+    def __init__(self, t_s: np.ndarray, camera: Camera, length_m: float, slow_terms: bool, harmonics: int,
                  focal: bool = False):
         self.t = t_s - t_s[0]
         self.cam = camera
@@ -199,7 +199,7 @@ def _start_motion(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w: float, s
     return np.concatenate([a_t[:n_slow], a_p[1:1 + n_slow], [w], a_t[n_slow:], a_p[1 + n_slow:]]), float(a_p[0])
 
 
-def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, start: TrackingCamera,
+def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, start: Camera,
                       length_m: float, *, slow_terms: bool = False, harmonics: int = HARMONICS,
                       focal_sd_rel: float = 0.0) -> MotionPose:
     """The pose fitted jointly with the motion model to the tip's pixels (see the module's notes).
@@ -277,7 +277,7 @@ def _rot_z(a: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progress=None) -> MotionPose:
+def pose_from_motion(video, start: Camera, protocol: Protocol, *, progress=None) -> MotionPose:
     """Track the tip with the starting pose, then fit the pose to its pixels (:func:`fit_pose_to_track`).
 
     ``start``: the camera's intrinsics with a rough pose (the protocol's nominal placement).  Refuses an
@@ -315,7 +315,7 @@ def pose_from_motion(video, start: TrackingCamera, protocol: Protocol, *, progre
     return replace(pose, video_fingerprint=fingerprint(video))
 
 
-def _focal_sd_rel(camera: TrackingCamera) -> float:
+def _focal_sd_rel(camera: Camera) -> float:
     """The focal length's relative sd from the camera's intrinsics covariance (0 when it states none)."""
     names = camera.intrinsics_parameters
     if camera.intrinsics_covariance is None or "fx" not in names:
@@ -324,7 +324,7 @@ def _focal_sd_rel(camera: TrackingCamera) -> float:
     return math.sqrt(max(float(camera.intrinsics_covariance[i, i]), 0.0)) / float(camera.camera_matrix[0, 0])
 
 
-def _with_fitted_intrinsics(pose: MotionPose, camera: TrackingCamera, start: TrackingCamera) -> MotionPose:
+def _with_fitted_intrinsics(pose: MotionPose, camera: Camera, start: Camera) -> MotionPose:
     """The pose with the camera matrix at the fitted focal length and the intrinsics' covariance with the focal
     length's posterior sd (fx and fy one focal length; the other intrinsics' rows as they were)."""
     names = start.intrinsics_parameters
@@ -353,7 +353,7 @@ class AzimuthMark:
     position_sd_m: float = 0.001
 
 
-def _mark_point(rvec, tvec, cam: TrackingCamera, mark_px, height_m: float) -> np.ndarray:
+def _mark_point(rvec, tvec, cam: Camera, mark_px, height_m: float) -> np.ndarray:
     """Where the ray through ``mark_px`` meets the horizontal plane ``z = height_m`` (lab, pivot at 0); NaN where
     it does not (a ray parallel to the plane, or the plane behind the camera)."""
     posed = replace(cam, rvec=np.asarray(rvec, float), tvec=np.asarray(tvec, float))
@@ -364,7 +364,7 @@ def _mark_point(rvec, tvec, cam: TrackingCamera, mark_px, height_m: float) -> np
     return c + (height_m - c[2]) / d[2] * d
 
 
-def _turned(p6: np.ndarray, m5: np.ndarray, cam: TrackingCamera) -> np.ndarray:
+def _turned(p6: np.ndarray, m5: np.ndarray, cam: Camera) -> np.ndarray:
     """The pose ``p6`` turned about the vertical so that the mark (pixel ``m5[:2]``, lab position ``m5[2:]``)
     lies at its stated azimuth; NaN when its ray does not reach the mark's height."""
     x = _mark_point(p6[:3], p6[3:], cam, m5[:2], m5[4])
@@ -373,7 +373,7 @@ def _turned(p6: np.ndarray, m5: np.ndarray, cam: TrackingCamera) -> np.ndarray:
     return np.concatenate([same_rotation_near(cv2.Rodrigues(rot)[0].ravel(), p6[:3]), p6[3:]])
 
 
-def fix_azimuth(pose: MotionPose, camera: TrackingCamera, mark: AzimuthMark) -> MotionPose:
+def fix_azimuth(pose: MotionPose, camera: Camera, mark: AzimuthMark) -> MotionPose:
     """The pose turned about the vertical so that a lab mark lies at its stated azimuth (the pivot stays).
 
     The mark's ray is met with the horizontal plane at the mark's stated height; the azimuth of that

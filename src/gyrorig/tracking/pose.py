@@ -25,7 +25,7 @@ from ..geometry import angles_from_tip, wrap_angle
 from ..markers import MarkerSet, parse_markers
 from ..protocols import Protocol
 from ..tables import camera_mode_columns, camera_mode_prior_column
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .detect import find_blobs
 from .errors import TrackingError
 from .rays import tips_from_pixels
@@ -52,7 +52,7 @@ def _median_image(source, fps: float, span_s: float, samples: int) -> np.ndarray
     return np.median(np.stack(stack), axis=0).astype(stack[0].dtype)
 
 
-def _static_spots(median: np.ndarray, camera: TrackingCamera) -> list[tuple[float, float, float, np.ndarray]]:
+def _static_spots(median: np.ndarray, camera: Camera) -> list[tuple[float, float, float, np.ndarray]]:
     """The brightest static spots (at most 8): ``(x, y, amplitude, covariance)``."""
     sample = median[::8, ::8]
     bg = float(np.median(sample))
@@ -65,7 +65,7 @@ def _static_spots(median: np.ndarray, camera: TrackingCamera) -> list[tuple[floa
     return sorted(spots, key=lambda s: -s[2])[:8]
 
 
-def _solve_assignment(obj: np.ndarray, img: np.ndarray, camera: TrackingCamera, top_z: float):
+def _solve_assignment(obj: np.ndarray, img: np.ndarray, camera: Camera, top_z: float):
     """Pose of one assignment of image points to fiducials, and its RMS reprojection error; None if impossible."""
     # SQPnP (globally optimal; IPPE picks the wrong one of its two planar solutions when the
     # fiducial plane faces the camera), then Levenberg-Marquardt refinement from it
@@ -87,7 +87,7 @@ def _solve_assignment(obj: np.ndarray, img: np.ndarray, camera: TrackingCamera, 
     return float(np.sqrt(np.mean(np.sum((proj - img) ** 2, axis=1)))), rvec.ravel(), tvec.ravel()
 
 
-def _best_assignment(spots, names: list[str], obj_all: np.ndarray, camera: TrackingCamera, max_rms_px: float):
+def _best_assignment(spots, names: list[str], obj_all: np.ndarray, camera: Camera, max_rms_px: float):
     """The assignment of spots to fiducials with the smallest reprojection error, using the largest set
     of spots that some assignment fits (a stray static spot or a hidden fiducial only removes one point)."""
     best = None
@@ -104,9 +104,9 @@ def _best_assignment(spots, names: list[str], obj_all: np.ndarray, camera: Track
     return best
 
 
-def estimate_pose(video, camera: TrackingCamera, protocol: Protocol, *, span_s: float = 2.0,
+def estimate_pose(video, camera: Camera, protocol: Protocol, *, span_s: float = 2.0,
                   samples: int = 15, max_rms_px: float = 1.0, markers: MarkerSet | None = None
-                  ) -> tuple[TrackingCamera, dict]:
+                  ) -> tuple[Camera, dict]:
     """Camera pose relative to the pivot from the protocol's lab-fixed fiducials.
 
     The per-pixel median of frames spread over the first ``span_s`` seconds keeps what
@@ -168,7 +168,7 @@ def _eigen_moves(cov: np.ndarray):
         yield math.sqrt(lam[k]) * vec[:, k]
 
 
-def camera_modes(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiducials: dict | None = None,
+def camera_modes(xy_px: np.ndarray, cam: Camera, radius_m: float, fiducials: dict | None = None,
                  min_effect_rad: float = 0.0) -> np.ndarray:
     """Angle shifts of each frame for independent one-sigma moves of the camera model.
 
@@ -176,7 +176,7 @@ def camera_modes(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiduci
     ----------
     xy_px : (n, 2) array
         The tip's pixel positions (the measurements, held fixed).
-    cam : TrackingCamera
+    cam : Camera
         With ``intrinsics_covariance`` and/or ``pose_covariance``.
     radius_m : float
         The tip's distance from the pivot. [m]
@@ -194,7 +194,7 @@ def camera_modes(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiduci
     return camera_modes_by_source(xy_px, cam, radius_m, fiducials, min_effect_rad)[0]
 
 
-def camera_modes_by_source(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float, fiducials: dict | None = None,
+def camera_modes_by_source(xy_px: np.ndarray, cam: Camera, radius_m: float, fiducials: dict | None = None,
                            min_effect_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """:func:`camera_modes`, and which of them are moves of the pose: ``(modes, is_pose)``, ``is_pose`` an
     (m,) bool array (the intrinsics' modes first, then the pose's)."""
@@ -230,7 +230,7 @@ def camera_modes_by_source(xy_px: np.ndarray, cam: TrackingCamera, radius_m: flo
     return np.array(out).reshape(len(out), len(xy), 2), np.array(is_pose, bool)
 
 
-def add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: TrackingCamera, length_m: float,
+def add_camera_modes(angles: pd.DataFrame, tip_px: dict, camera: Camera, length_m: float,
                       pose: dict | None, pose_from_these_frames: bool) -> list[float]:
     """Add the camera-model modes' columns (the pose's without a prior when ``pose_from_these_frames``);
     returns their RMS effect on (theta, phi) [rad] (NaN without)."""

@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 
 from ..geometry import angles_from_tip, ray_sphere_distances
-from .camera_file import TrackingCamera
+from ..camera import Camera
 
 __all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "angles_with_covariance", "angle_covariances"]
 
 
-def pixel_rays(xy_px: np.ndarray, cam: TrackingCamera) -> np.ndarray:
+def pixel_rays(xy_px: np.ndarray, cam: Camera) -> np.ndarray:
     """Unit directions in the lab (n, 3) of the rays through pixels (n, 2) (distortion removed)."""
     xy = np.asarray(xy_px, dtype=np.float64).reshape(-1, 1, 2)
     if len(xy) == 0:
@@ -21,7 +21,7 @@ def pixel_rays(xy_px: np.ndarray, cam: TrackingCamera) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def tips_from_pixels(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float) -> np.ndarray:
+def tips_from_pixels(xy_px: np.ndarray, cam: Camera, radius_m: float) -> np.ndarray:
     """Unit tip directions (n, 3) for pixel positions (n, 2): each ray meets the sphere ``|X| = radius_m``
     about the pivot (the nearer point); NaN where the ray misses the sphere."""
     d = pixel_rays(xy_px, cam)
@@ -30,13 +30,13 @@ def tips_from_pixels(xy_px: np.ndarray, cam: TrackingCamera, radius_m: float) ->
     return (c + s[:, None] * d) / radius_m
 
 
-def tip_from_pixel(x_px: float, y_px: float, cam: TrackingCamera, radius_m: float) -> np.ndarray | None:
+def tip_from_pixel(x_px: float, y_px: float, cam: Camera, radius_m: float) -> np.ndarray | None:
     """Unit tip direction of one pixel (see :func:`tips_from_pixels`); None where the ray misses the sphere."""
     tip = tips_from_pixels(np.array([[x_px, y_px]]), cam, radius_m)[0]
     return None if not np.all(np.isfinite(tip)) else tip
 
 
-def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: TrackingCamera, radius_m: float
+def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: Camera, radius_m: float
                            ) -> tuple[float, float, np.ndarray, np.ndarray] | None:
     """``theta, phi``, the unit tip and the 2x2 covariance of ``(theta, phi)`` of a spot at ``(x, y)``
     with pixel covariance ``cov_xy`` (:func:`angle_covariances` for one spot).  None when the ray (or a
@@ -47,7 +47,7 @@ def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: Tracking
     return float(th[0]), float(ph[0]), tip[0], cov[0]
 
 
-def angle_covariances(xy_px: np.ndarray, cov_xy: np.ndarray, cam: TrackingCamera, radius_m: float
+def angle_covariances(xy_px: np.ndarray, cov_xy: np.ndarray, cam: Camera, radius_m: float
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``theta, phi`` (n,), the unit tips (n, 3) and the covariances of ``(theta, phi)`` (n, 2, 2) of spots at
     ``xy_px`` (n, 2) with pixel covariances ``cov_xy`` (n, 2, 2).

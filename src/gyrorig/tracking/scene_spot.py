@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from . import spot
 from .spot import SpotFit, fit_spot, spot_window
 
@@ -473,7 +473,7 @@ def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, i
     return _Solution(p, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
 
 
-def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
+def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
                    iterations: int = 15) -> SpotFit | None:
     """Fit the opaque disc in front of the scene (module docstring) around ``(x0, y0)``, start radius ``r0``.
 
@@ -524,7 +524,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Trac
                    bool(saturated.any()), True, blended, chi2_own=chi2)
 
 
-def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
+def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
                    neighbour: str = "joint") -> SpotFit | None:
     """A round spot's fit as the footage asks: the sensor model's (:func:`gyrorig.tracking.spot.fit_spot`,
     flat background) for a camera whose pixels it describes, else the disc in front of the scene

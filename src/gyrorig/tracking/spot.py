@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 from scipy.special import erfc
 
-from .camera_file import TrackingCamera
+from ..camera import Camera
 
 __all__ = ["SpotFit", "fit_spot", "spot_model", "pixel_variance", "normal_equations", "spot_crb_px", "warm_up"]
 
@@ -70,7 +70,7 @@ def spot_model(params, xx, yy, sigma):
     return mu, jac
 
 
-def pixel_variance(mu, cam: TrackingCamera, background_var):
+def pixel_variance(mu, cam: Camera, background_var):
     """Pixel variance [ADU^2]: the sensor model, or the measured background variance if it is unknown."""
     if cam.sensor_known:
         return np.maximum(mu, 0.0) / cam.gain_e_per_adu + (cam.read_noise_e / cam.gain_e_per_adu) ** 2 + 1.0 / 12.0
@@ -145,7 +145,7 @@ def warm_up() -> None:
     _levels(np.zeros(4), np.zeros((3, 3)))
 
 
-def _sensor_terms(cam: TrackingCamera) -> tuple[float, float]:
+def _sensor_terms(cam: Camera) -> tuple[float, float]:
     if cam.sensor_known:
         return cam.gain_e_per_adu, (cam.read_noise_e / cam.gain_e_per_adu) ** 2
     return float("nan"), 0.0
@@ -199,7 +199,7 @@ def _neighbour_start(win, xx, yy, p, foreign) -> np.ndarray:
     return np.array([*p[:4], nx, ny, nr, max(namp, 1.0), p[4]])
 
 
-def spot_window(image: np.ndarray, x0: float, y0: float, half: int, cam: TrackingCamera):
+def spot_window(image: np.ndarray, x0: float, y0: float, half: int, cam: Camera):
     """The square window of half-width ``half`` around ``(x0, y0)`` as float64, its pixel coordinates, the
     saturated pixels, the border pixels, the background (their median) and the amplitude (99th percentile above
     it): ``(win, xx, yy, saturated, border, background, amplitude)``; None when the window leaves the image or
@@ -224,7 +224,7 @@ def _levels(border, win):
     return np.median(border), np.percentile(win, 99.0)
 
 
-def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: TrackingCamera, *,
+def fit_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
              iterations: int = 10, neighbour: str = "joint") -> SpotFit | None:
     """Weighted least-squares fit of the disc-spot model in a window around ``(x0, y0)``.
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .rays import angles_with_covariance
 from .scatter import path_residuals
 from .scene_spot import fit_round_spot
@@ -69,7 +69,7 @@ class CameraMotion:
 class CameraWatch:
     """Collects the fiducials' displacements while the record is tracked (module docstring)."""
 
-    def __init__(self, camera: TrackingCamera, fiducials_px: list[tuple[float, float, float]]):
+    def __init__(self, camera: Camera, fiducials_px: list[tuple[float, float, float]]):
         margin = 10.0
         self.camera = camera
         self.spots = [(x, y, r) for x, y, r in fiducials_px
@@ -126,7 +126,7 @@ class CameraWatch:
         return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(rms > max(MIN_MOTION_PX, 4.0 * sd)), speed)
 
 
-def steady_angle_rows(rows: list, tip_px: dict, tip_cov: dict, motion: CameraMotion, camera: TrackingCamera,
+def steady_angle_rows(rows: list, tip_px: dict, tip_cov: dict, motion: CameraMotion, camera: Camera,
                       length_m: float) -> None:
     """Each tracked row's direction found again from its tip pixel taken back by the camera's displacement in its
     frame (``rows[r] = (frame, t, theta, phi, sd theta, sd phi, corr, tip x, y, z, quality)``, replaced in place; the

@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .errors import BadInputError
 
 __all__ = ["FrameClock", "settle_timing", "check_frame_rate", "frame_interval_stats", "TIME_SNAP_FRAMES",
@@ -56,7 +56,7 @@ class FrameClock:
         return index, t
 
 
-def settle_timing(camera: TrackingCamera, frames, source) -> tuple[TrackingCamera, float]:
+def settle_timing(camera: Camera, frames, source) -> tuple[Camera, float]:
     """The camera with its frame rate settled, and the factor from the file's times to real times: a capture rate
     stated apart from the file's (slow motion) scales the file's times so that their interval (the slope of the
     times against their grid numbers) is one capture interval."""

@@ -38,7 +38,7 @@ from .. import _io
 from ..markers import Marker, MarkerSet, parse_markers
 from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_count, camera_mode_prior_column
-from .camera_file import TrackingCamera
+from ..camera import Camera
 from .detect import Detection, detection_threshold, opening_size_px
 from .appearance import MarkerImage
 from .follow import ANCHOR_FRAMES, SIZE_RANGE, TipFollower
@@ -90,7 +90,7 @@ class TrackResult:
     decode_s: float
     track_s: float
     #: the camera as used (with the pose found from the fiducials, if it was)
-    camera: TrackingCamera
+    camera: Camera
     #: the fiducial pose summary (None when camera.json had a pose)
     pose: dict | None = None
     camera_sigma_rad: list[float] = field(default_factory=lambda: [math.nan, math.nan])
@@ -177,7 +177,7 @@ class _Tables:
         #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
         self.others: tuple | None = ()
 
-    def frame(self, camera: TrackingCamera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
+    def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
         located = follower.locate(frame, threshold, self.others)
@@ -224,7 +224,7 @@ class _Tables:
                     self.markers.append(_marker_row(index, t_dot, name, dfit, "blended" if dfit.blended else "ok"))
         self.markers.append(_marker_row(index, t_mid, tip.name, fit, quality))
 
-    def tables(self, camera: TrackingCamera, with_dots: bool) -> tuple[pd.DataFrame, pd.DataFrame]:
+    def tables(self, camera: Camera, with_dots: bool) -> tuple[pd.DataFrame, pd.DataFrame]:
         angles = pd.DataFrame(self.angles, columns=list(ANGLE_COLUMNS))
         angles["phi_rad"] = _unwrap_nan(angles.phi_rad.to_numpy())
         if with_dots:
@@ -237,7 +237,7 @@ class _Tables:
         return angles, markers.sort_values("frame", kind="stable").reset_index(drop=True)
 
 
-def _sensor_doubts(camera: TrackingCamera, lossy: bool, follower: TipFollower) -> str:
+def _sensor_doubts(camera: Camera, lossy: bool, follower: TipFollower) -> str:
     """Why the per-frame errors cannot come from the sensor and spot models alone ('' when they can)."""
     doubts = []
     if not math.isfinite(camera.gain_e_per_adu):
@@ -254,7 +254,7 @@ def _sensor_doubts(camera: TrackingCamera, lossy: bool, follower: TipFollower) -
 
 
 def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, lossy: bool,
-                     tip_name: str, camera: TrackingCamera, length_m: float) -> SigmaCheck:
+                     tip_name: str, camera: Camera, length_m: float) -> SigmaCheck:
     """Check the tip's errors against its scatter about its path (:mod:`gyrorig.tracking.scatter`), for
     blended frames and the rest apart, and correct them where the check shows them wrong; turn the outliers into
     ``outlier`` rows without angles.
@@ -319,7 +319,7 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
 
 
-def _follower(camera: TrackingCamera, tip: Marker, markers: MarkerSet, source) -> TipFollower:
+def _follower(camera: Camera, tip: Marker, markers: MarkerSet, source) -> TipFollower:
     """The tip's follower, refusing a tip that would fill the image (:data:`MAX_TIP_IMAGE_FRACTION`)."""
     follower = TipFollower(camera, tip, markers.fiducials())
     if not follower.r_expected < MAX_TIP_IMAGE_FRACTION * min(camera.width_px, camera.height_px):
@@ -329,19 +329,19 @@ def _follower(camera: TrackingCamera, tip: Marker, markers: MarkerSet, source) -
     return follower
 
 
-def _matched(camera: TrackingCamera, frames, source) -> TrackingCamera:
+def _matched(camera: Camera, frames, source) -> Camera:
     """The camera at the video's bit depth; BadInputError when its picture size is not the video's."""
     if frames.bit_depth is not None and frames.bit_depth < 16 and (1 << frames.bit_depth) - 1 != camera.max_adu:
         logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
                     frames.bit_depth, camera.max_adu.bit_length())
-        camera = replace(camera, max_adu=(1 << frames.bit_depth) - 1)
+        camera = camera.with_sensor(bit_depth=frames.bit_depth)
     if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
         raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                             f"{frames.width_px} x {frames.height_px}")
     return camera
 
 
-def _steadied(rows: _Tables, watch: CameraWatch, camera: TrackingCamera, length_m: float,
+def _steadied(rows: _Tables, watch: CameraWatch, camera: Camera, length_m: float,
               source) -> CameraMotion | None:
     """The camera's motion seen on the fiducials; where it moved, the tip's rows steadied (and a warning)."""
     motion = watch.motion()
@@ -352,7 +352,7 @@ def _steadied(rows: _Tables, watch: CameraWatch, camera: TrackingCamera, length_
     return motion
 
 
-def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progress | None = None,
+def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | None = None,
           frame_dots: bool = True) -> TrackResult:
     """Track the tip marker through a video (a path, or a frame source of :mod:`gyrorig.tracking.sources`).
 
@@ -381,7 +381,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
         appearance = MarkerImage(tip, camera)
         if (lossy or not appearance.keeps_sensor_model) and camera.sensor_known:
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
-            camera = replace(camera, gain_e_per_adu=math.nan)
+            camera = camera.with_sensor(gain_e_per_adu=math.nan)
         follower = _follower(camera, tip, markers, source)
         watch = CameraWatch(camera, follower.lab_px)
         dot_markers = markers.frame_dots() if frame_dots else ()
@@ -452,7 +452,7 @@ def track(video, camera: TrackingCamera, protocol: Protocol, *, progress: Progre
                        pose_info, camera_sigma, check, times, motion)
 
 
-def _protocol_exposure(camera: TrackingCamera, protocol: Protocol) -> TrackingCamera:
+def _protocol_exposure(camera: Camera, protocol: Protocol) -> Camera:
     """The camera with the protocol's ``[camera] exposure_s`` when camera.json has none (a calibration's file
     records no exposure; 0 is no exposure at all, which no camera has): the frames' mid-exposure times and the
     fit's average over the exposure need it."""
@@ -466,7 +466,7 @@ def _protocol_exposure(camera: TrackingCamera, protocol: Protocol) -> TrackingCa
     return camera
 
 
-def track_video(video, camera: TrackingCamera, protocol: Protocol, out_dir: str | Path, *,
+def track_video(video, camera: Camera, protocol: Protocol, out_dir: str | Path, *,
                 progress: Progress | None = None, frame_dots: bool = True) -> dict:
     """:func:`track`, then write ``angles.csv``, ``markers.csv`` and ``track.json`` (the summary) into
     ``out_dir`` (nothing on failure).
