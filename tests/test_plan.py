@@ -238,3 +238,19 @@ def test_plan_respects_the_field_of_view(tmp_path):
     assert wide.marker_in_view_fraction == 1.0 and narrow.marker_in_view_fraction == 0.0
     assert np.isfinite(wide.precession_rate_rad_s_relative_error)
     assert np.isnan(narrow.precession_rate_rad_s_relative_error)
+
+
+def test_plan_and_prediction_records_are_frozen_and_cross_processes():
+    """The Monte Carlo hands the prediction to worker processes: the records pickle, and stay read-only."""
+    import pickle
+
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    plan = plan_experiment(p, duration_s=2.0, simulate_damping=False, draws=0)
+    again = pickle.loads(pickle.dumps(plan))
+    assert again.to_dict() == plan.to_dict()
+    assert again.prediction.quantities["nutation_frequency_rad_s"] == plan.prediction.quantities[
+        "nutation_frequency_rad_s"]
+    with pytest.raises(TypeError):
+        again.prediction.quantities["nutation_frequency_rad_s"] = None
+    with pytest.raises(TypeError):
+        again.advice[0].values["x"] = 1.0

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import StrEnum
-from types import MappingProxyType
 from typing import Any, Mapping
 
+from ._frozen import FrozenDict
 from .prediction import Prediction
 
 __all__ = ["Plan", "Advice", "AdviceKind", "ExpectedQuantity", "DampingAssessment"]
@@ -60,7 +60,7 @@ class Advice:
     values: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
-        object.__setattr__(self, "values", MappingProxyType(dict(self.values)))
+        object.__setattr__(self, "values", FrozenDict(dict(self.values)))
 
     def __str__(self) -> str:
         return self.text
@@ -115,7 +115,7 @@ class DampingAssessment:
 
 
 def _frozen(m: Mapping | None) -> Mapping | None:
-    return None if m is None else MappingProxyType(dict(m))
+    return None if m is None else FrozenDict(dict(m))
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,7 @@ class Plan:
 
     def __post_init__(self):
         object.__setattr__(self, "advice", tuple(self.advice))
-        object.__setattr__(self, "quantities", MappingProxyType(dict(self.quantities)))
+        object.__setattr__(self, "quantities", FrozenDict(dict(self.quantities)))
         for name in ("camera", "recording", "fit_model", "fit_terms", "monte_carlo"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
 

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from types import MappingProxyType
 from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
+
+from ._frozen import FrozenDict
 
 __all__ = ["Prediction", "PredictedQuantity", "PredictionFlags", "PredictionUncertainty", "EquilibriumTip",
            "PREDICTED_KINDS"]
@@ -43,7 +44,7 @@ class PredictionUncertainty:
     by_parameter: Mapping[str, float]
 
     def __post_init__(self):
-        object.__setattr__(self, "by_parameter", MappingProxyType(dict(self.by_parameter)))
+        object.__setattr__(self, "by_parameter", FrozenDict(dict(self.by_parameter)))
 
     @property
     def largest_share(self) -> tuple[str, float] | None:
@@ -180,7 +181,7 @@ class Prediction:
     parameter_uncertainty: Mapping[str, Any] | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "quantities", MappingProxyType(dict(self.quantities)))
+        object.__setattr__(self, "quantities", FrozenDict(dict(self.quantities)))
 
     def get(self, name: str) -> PredictedQuantity | None:
         """The named quantity, None where the scene has none."""
