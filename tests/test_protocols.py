@@ -147,3 +147,24 @@ def test_missing_and_malformed_files(tmp_path):
     bad.write_text("[rig\nmass_kg = 1")
     with pytest.raises(ProtocolError, match="not valid TOML"):
         load_protocol(bad)
+
+
+def test_files_saved_by_a_windows_editor_load_as_written(tmp_path):
+    """Notepad and Excel's JSON/TOML export write a UTF-8 byte-order mark and CRLF line ends; TOML and JSON
+    readers refuse the mark ('not valid TOML' at line 1, column 1)."""
+    import json
+    from dataclasses import replace
+
+    from gyrorig.camera import camera_setup
+    from gyrorig.tracking import load_camera
+
+    source = PROTOCOL_DIR / "air-cushion-heavy-top.toml"
+    path = tmp_path / "windows.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + source.read_text().replace("\n", "\r\n").encode("utf-8"))
+    assert replace(load_protocol(path), source="") == replace(load_protocol(source), source="")
+    cam = camera_setup(load_protocol(source)).camera
+    json_path = tmp_path / "camera.json"
+    json_path.write_bytes(b"\xef\xbb\xbf" + json.dumps(cam.to_json()).encode("utf-8"))
+    loaded = load_camera(json_path)
+    assert loaded.camera_matrix.tolist() == cam.camera_matrix.tolist()
+    assert loaded.centre_m == pytest.approx(cam.centre_m)

@@ -36,6 +36,13 @@ class InputTooLarge(ValueError):
     """A settings file far larger than any real one (bad input: its parser would take minutes or all memory)."""
 
 
+def read_settings_text(path: str | Path) -> str:
+    """A settings file's text (protocol TOML, camera.json, plan.json): UTF-8, a leading byte-order mark dropped
+    (Windows editors write one; TOML and JSON readers refuse it).  OSError and UnicodeDecodeError as reading
+    raises them."""
+    return Path(path).read_bytes().decode("utf-8-sig")
+
+
 def check_settings_size(path: str | Path, what: str) -> None:
     """Refuse a settings file above :data:`MAX_SETTINGS_BYTES` (:class:`InputTooLarge`, naming it)."""
     try:

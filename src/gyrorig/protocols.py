@@ -538,8 +538,7 @@ def load_protocol(path: str | Path) -> Protocol:
     except _io.InputTooLarge as exc:
         raise ProtocolError(str(exc)) from None
     try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
+        data = tomllib.loads(_io.read_settings_text(path))
     except FileNotFoundError as exc:
         raise ProtocolError(f"protocol file not found: {path}") from exc
     except IsADirectoryError as exc:

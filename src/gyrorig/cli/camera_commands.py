@@ -136,7 +136,7 @@ def _cmd_pose(args: argparse.Namespace) -> int:
         raise ValueError("give one of --board-image (a board lying at a known place) and --video (the rig's motion)")
     mark = _azimuth_mark(args)  # checked before any work
     cam = load_camera(args.camera, require_pose=False)
-    out = json.loads(Path(args.camera).read_text(encoding="utf-8"))
+    out = json.loads(_io.read_settings_text(args.camera))
     out = {k: v for k, v in out.items() if k not in ("pose_points", "pose_source", "pose_covariance")}
     if args.video is not None:
         out.update(_pose_from_motion(args, cam, mark))

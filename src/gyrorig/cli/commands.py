@@ -39,8 +39,8 @@ def terms_arg(value: str):
         raise ValueError(f"--terms: expected 'data' or a plan.json from 'gyrorig plan --out DIR'; {value} is not a file")
     _io.check_settings_size(path, "plan.json")
     try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+        doc = json.loads(_io.read_settings_text(path))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"--terms: {value} is not JSON ({exc})") from exc
     terms = doc.get("fit_terms", doc) if isinstance(doc, dict) else None
     if not isinstance(terms, dict):

@@ -34,7 +34,7 @@ def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observa
         if path.suffix.lower() == ".json":
             try:
                 _io.check_settings_size(path, "fit.json")
-                doc = json.loads(path.read_text())
+                doc = json.loads(_io.read_settings_text(path))
             except _io.InputTooLarge as exc:
                 raise IdentifyInputError(str(exc)) from None
             except FileNotFoundError:
@@ -161,7 +161,7 @@ def identify_files(inputs: list[str | Path], prior_path: str | Path, out: str | 
     if not all(math.isfinite(v) for v in ident.standard_errors):
         raise IdentifyInputError("the inputs do not determine every parameter (infinite standard error)")
     out = Path(out)
-    text = identified_toml(Path(prior_path).read_text(), ident, prior, [str(i) for i in inputs])
+    text = identified_toml(_io.read_settings_text(prior_path), ident, prior, [str(i) for i in inputs])
     with _io.atomic_path(out / "identified.toml") as tmp:
         Path(tmp).write_text(text)
     _io.write_json(identify_document(ident, prior, [str(i) for i in inputs]), out / "identify.json")

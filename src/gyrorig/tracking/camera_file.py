@@ -177,7 +177,7 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> Camera:
     except _io.InputTooLarge as exc:
         raise CameraFileError(str(exc)) from None
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
+        d = json.loads(_io.read_settings_text(path))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CameraFileError(f"cannot read camera file {path}: {exc}") from exc
     if not isinstance(d, dict):
