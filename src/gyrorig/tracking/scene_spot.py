@@ -268,6 +268,12 @@ class _Solution:
 
 
 @njit(cache=True)
+def _median(values):
+    """The median (compiled: numpy's, called from Python, costs more than the rest of a small fit's bookkeeping)."""
+    return np.median(values)
+
+
+@njit(cache=True)
 def _foreign_bins(bins: np.ndarray, marker_level: float) -> np.ndarray:
     """Ring bins holding another spot's light: above the ring's median by :data:`FOREIGN_Z` robust SDs of the
     bins and by :data:`FOREIGN_CONTRAST` of the marker's contrast."""
@@ -505,7 +511,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     p, n_used = sol.p, sol.pick.size
     if abs(p[0] - x0) > half or abs(p[1] - y0) > half or n_used <= 8:
         return None
-    background = float(np.median(sol.bins))
+    background = _median(sol.bins)
     contrast = p[3] - background
     if contrast <= 0:
         return None
@@ -544,6 +550,7 @@ def warm_up() -> None:
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
         win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15)
     _foreign_bins(bins, float(p[3]))
+    _median(bins)
     _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))
     _harmonic_power(_edge_radii(win, float(p[0]), float(p[1]), float(p[2]), float(p[4]), float(p[3]), bins))
     _projected_meat(pick, win.shape, jac, weight, resid, np.eye(5)[:2].copy())
