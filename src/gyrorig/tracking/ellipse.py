@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.special import erfc
+from numba import njit
 
 from ..camera import Camera
 from .rays import tip_from_pixel
@@ -32,32 +32,66 @@ __all__ = ["ellipse_model", "fit_ellipse_spot", "disc_image", "DiscImage", "Disc
 RIM_POINTS = 96
 
 
+@njit(cache=True)
+def _edge_distance(p0, p1, p2, p3, p4, x, y):
+    """The signed distance ``s`` of pixel ``(x, y)`` to the ellipse's boundary (first order, module docstring)."""
+    det = p2 * p4 - p3 * p3
+    q11, q12, q22 = p4 / det, -p3 / det, p2 / det  # M^-1
+    dx, dy = x - p0, y - p1
+    gx, gy = q11 * dx + q12 * dy, q12 * dx + q22 * dy
+    rho = math.sqrt(max(dx * gx + dy * gy, 0.0)) + 1e-12
+    grad = math.sqrt(gx * gx + gy * gy) / rho + 1e-12  # |grad rho|
+    return (rho - 1.0) / grad
+
+
+@njit(cache=True)
+def _model_jacobian(p, xx, yy, sigma, jacobian):
+    """The model over the window and, with ``jacobian``, its derivatives (h, w, 7): in the centre and the shape
+    through the edge distance (``d mu / d s`` exact, ``d s / d p`` by central differences, steps ``1e-3`` px and
+    ``1e-3`` of the shape's terms), exact ones in amplitude and background."""
+    h, w = xx.shape
+    k = 1.0 / (math.sqrt(2.0) * sigma)
+    mu = np.empty((h, w))
+    jac = np.empty((h, w, 7) if jacobian else (0, 0, 7))
+    steps = np.array([1e-3, 1e-3, 1e-3 * p[2], 1e-3 * math.sqrt(p[2] * p[4]), 1e-3 * p[4]])
+    up = p.copy()
+    dn = p.copy()
+    slope = -p[5] * k / math.sqrt(math.pi)
+    for iy in range(h):
+        for ix in range(w):
+            x, y = xx[iy, ix], yy[iy, ix]
+            ks = k * _edge_distance(p[0], p[1], p[2], p[3], p[4], x, y)
+            e = 0.5 * math.erfc(ks)
+            mu[iy, ix] = p[6] + p[5] * e
+            if jacobian:
+                dmu_ds = slope * math.exp(-ks * ks)
+                for i in range(5):
+                    up[i] = p[i] + steps[i]
+                    dn[i] = p[i] - steps[i]
+                    ds = (_edge_distance(up[0], up[1], up[2], up[3], up[4], x, y)
+                          - _edge_distance(dn[0], dn[1], dn[2], dn[3], dn[4], x, y))
+                    jac[iy, ix, i] = dmu_ds * ds / (2 * steps[i])
+                    up[i] = p[i]
+                    dn[i] = p[i]
+                jac[iy, ix, 5] = e
+                jac[iy, ix, 6] = 1.0
+    return mu, jac
+
+
 def ellipse_model(params: np.ndarray, xx: np.ndarray, yy: np.ndarray, sigma: float) -> np.ndarray:
     """The spot of a uniform ellipse: ``params = (x, y, m11, m12, m22, amplitude, background)``, ``M`` the
     shape matrix [px^2] (a circle of radius r: ``M = r^2 I``)."""
-    x0, y0, m11, m12, m22, amp, bg = params
-    det = m11 * m22 - m12 * m12
-    q11, q12, q22 = m22 / det, -m12 / det, m11 / det  # M^-1
-    dx, dy = xx - x0, yy - y0
-    gx, gy = q11 * dx + q12 * dy, q12 * dx + q22 * dy
-    rho = np.sqrt(np.maximum(dx * gx + dy * gy, 0.0)) + 1e-12
-    grad = np.sqrt(gx * gx + gy * gy) / rho + 1e-12  # |grad rho|
-    s = (rho - 1.0) / grad
-    return bg + amp * 0.5 * erfc(s / (math.sqrt(2.0) * sigma))
+    xx, yy = np.broadcast_arrays(np.asarray(xx, np.float64), np.asarray(yy, np.float64))
+    shape = xx.shape
+    mu, _ = _model_jacobian(np.asarray(params, np.float64), np.ascontiguousarray(xx.reshape(1, -1)),
+                            np.ascontiguousarray(yy.reshape(1, -1)), float(sigma), False)
+    return mu.reshape(shape)
 
 
-def _jacobian(p, xx, yy, sigma, mu):
-    """Numerical (central) derivatives in x, y and the shape; exact ones in amplitude and background."""
-    jac = np.empty(xx.shape + (7,))
-    steps = (1e-3, 1e-3, 1e-3 * p[2], 1e-3 * math.sqrt(p[2] * p[4]), 1e-3 * p[4])
-    for i, h in enumerate(steps):
-        up, dn = p.copy(), p.copy()
-        up[i] += h
-        dn[i] -= h
-        jac[..., i] = (ellipse_model(up, xx, yy, sigma) - ellipse_model(dn, xx, yy, sigma)) / (2 * h)
-    jac[..., 5] = (mu - p[6]) / p[5]
-    jac[..., 6] = 1.0
-    return jac
+def warm_up() -> None:
+    """Compile the ellipse model now (numba; cached on disk after the first run), not in the first frame."""
+    yy, xx = np.mgrid[0:5, 0:5].astype(np.float64)
+    _model_jacobian(np.array([2.0, 2.0, 4.0, 0.0, 4.0, 10.0, 1.0]), xx, yy, 1.0, True)
 
 
 def _valid(p) -> bool:
@@ -70,9 +104,9 @@ def _solve(win, xx, yy, use, p, cam, bvar, iterations):
     sigma = cam.psf_sigma_px
     converged = False
     for it in range(iterations + 1):
-        mu = ellipse_model(p, xx, yy, sigma)
+        mu, jac = _model_jacobian(p, xx, yy, sigma, True)
         var = pixel_variance(mu, cam, bvar)
-        jac = _jacobian(p, xx, yy, sigma, mu)[use]
+        jac = jac[use]
         wj = jac / var[use][:, None]
         fisher = wj.T @ jac
         r = (win - mu)[use]

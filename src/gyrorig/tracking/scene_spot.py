@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from ..camera import Camera
-from . import spot
+from . import ellipse, spot
 from .spot import SpotFit, fit_spot, spot_window
 
 __all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX"]
@@ -544,6 +544,7 @@ def warm_up() -> None:
     """Load every compiled spot-fit kernel now (numba; compiled once and cached on disk, then loaded in ~0.05 s
     each per process), not in the first frames: a disc of radius 5 px on a flat scene, fitted."""
     spot.warm_up()
+    ellipse.warm_up()
     yy, xx = np.mgrid[0:41, 0:41].astype(np.float64)
     win = 20.0 + 100.0 * (np.hypot(xx - 20.2, yy - 19.9) < 5.0)
     allowed = np.ones(win.shape, bool)
