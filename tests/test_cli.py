@@ -184,7 +184,8 @@ def test_sleeping_and_non_spinning_tops_in_theory(tmp_path, capsys):
     for key in ("nutation_frequency_rad_s", "mean_precession_rate_rad_s"):
         assert pred.quantities[key].exact == 0.0
         assert pred.quantities[key].sign_agrees is None
-    assert pred.quantities["precession_rate_slow_rad_s"].sign_agrees is False  # the paper's real sign error stays flagged
+    # the paper's real sign error stays flagged
+    assert pred.quantities["precession_rate_slow_rad_s"].sign_agrees is False
     spin0 = tmp_path / "spin0.toml"
     spin0.write_text(text.replace("spin_rate_rad_s = 502.65", "spin_rate_rad_s = 0.0"))
     capsys.readouterr()

@@ -1,4 +1,5 @@
-"""Camera, sensor and marker descriptions (protocol sections ``[camera]`` and ``[markers]``).
+"""The camera model (:class:`Camera`, :class:`Sensor`), shared by rendering and tracking, and the protocol
+sections that describe it (``[camera]``; ``[markers]`` through :mod:`gyrorig.markers`).
 
 Conventions are OpenCV's: a lab point ``X`` maps to camera coordinates
 ``R(rvec) X + tvec`` (x right, y down, z forward), then through the pinhole ``K`` and

@@ -136,8 +136,8 @@ def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, e
 
 
 def analyze(video, camera: Camera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,
-            prediction: Prediction | None = None, terms: FitTerms | str = "data", constraints: Constraints | None = None,
-            rng: np.random.Generator | None = None,
+            prediction: Prediction | None = None, terms: FitTerms | str = "data",
+            constraints: Constraints | None = None, rng: np.random.Generator | None = None,
             progress: Progress | None = None, stage: Stage | None = None, frame_dots: bool = True,
             on_tracked: Callable[[TrackResult], None] | None = None) -> Analysis:
     """Track, smooth and fit one video.

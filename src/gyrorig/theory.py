@@ -363,7 +363,8 @@ def _damping_gamma(protocol: Protocol) -> tuple[float, str]:
     return gamma, "+".join(laws)
 
 
-def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dict, simulate_damping: bool) -> list[PredictedQuantity]:
+def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dict,
+                        simulate_damping: bool) -> list[PredictedQuantity]:
     """The damped tilt's growth rate and time constant: the paper's, corrected, and simulated."""
     spin, acc = protocol.launch.spin_rate_rad_s, protocol.pivot.acceleration
     gamma, law = _damping_gamma(protocol)

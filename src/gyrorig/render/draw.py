@@ -61,7 +61,8 @@ def draw_disc(acc: np.ndarray, cam: Camera, centres: np.ndarray, normals: np.nda
     u, v = _disc_basis(n)
     a = np.linspace(0, 2 * np.pi, 33)[:-1]
     rim = c[:, None, :] + radius_m * (np.cos(a)[None, :, None] * u[:, None, :] + np.sin(a)[None, :, None] * v[:, None, :])
-    rim_px = cv2.projectPoints(rim.reshape(-1, 3), cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
+    rim_px = cv2.projectPoints(rim.reshape(-1, 3), cam.rvec, cam.tvec, cam.camera_matrix,
+                               cam.dist_coeffs)[0].reshape(-1, 2)
     reach = 4.0 * cam.psf_sigma_px + 2.0
     h, w = acc.shape
     x0, y0 = max(int(math.floor(rim_px[:, 0].min() - reach)), 0), max(int(math.floor(rim_px[:, 1].min() - reach)), 0)
