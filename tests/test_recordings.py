@@ -20,11 +20,12 @@ import skimage.data
 
 from _stats import sd_ratio_band
 from gyrorig.bench.variants import variant_protocols
+from gyrorig.camera import Camera
 from gyrorig.cli import main
 from gyrorig.markers import parse_markers
 from gyrorig.protocols import BUNDLED_PROTOCOL_DIR, ProtocolError, parse_protocol
 from gyrorig.render.phone import PhoneStyle, render_phone_video
-from gyrorig.camera import Camera
+from gyrorig.report.overlay import overlay_crops, overlay_frames
 from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, VideoFile, load_camera, track
 from gyrorig.tracking.detect import detection_threshold, find_blobs, opening_size_px
 from gyrorig.tracking.scene_spot import fit_scene_spot, sandwich_covariance
@@ -318,6 +319,15 @@ def test_slow_motion_is_refused_without_its_capture_rate_and_tracked_with_it(tmp
     res = track(rendered["video"], cam, parse_protocol(user), frame_dots=False)
     assert res.angles.frame.tolist() == rendered["kept"]
     assert abs(res.frame_times["time_scale"] - 25.0 / 200.0) < 1e-3
+    # the overlay reads the file again and numbers its frames as the tracker did: every chosen frame is found,
+    # and its crop holds the tip where the tracker put it (numbered on the file's own rate, it found none)
+    crops = overlay_crops(rendered["video"], res.angles, res.markers, fps=res.camera.fps,
+                          time_scale=res.frame_times["time_scale"])
+    assert set(crops) == set(overlay_frames(res.angles))
+    tip = res.markers[res.markers.marker == "tip"].set_index("frame")
+    for frame, (crop, x0, y0) in crops.items():
+        if frame in tip.index:
+            assert 0 <= tip.x_px[frame] - x0 < crop.shape[1] and 0 <= tip.y_px[frame] - y0 < crop.shape[0]
 
 
 def test_a_variable_frame_rate_is_tracked_with_a_warning(tmp_path):

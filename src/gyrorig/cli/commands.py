@@ -264,7 +264,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
         from ..report.overlay import write_overlay
 
         path = write_overlay(video, pd.read_csv(summary["angles"]), pd.read_csv(summary["markers"]),
-                             Path(args.out) / "overlay.png", fps=summary["fps"], title=str(video))
+                             Path(args.out) / "overlay.png", fps=summary["fps"],
+                             time_scale=(summary.get("frame_times") or {}).get("time_scale", 1.0), title=str(video))
         print(f"overlay: {path} (the tip as found in chosen frames, with its path and flags)")
     return EXIT_OK
 

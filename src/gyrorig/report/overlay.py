@@ -19,7 +19,7 @@ from matplotlib.patches import Ellipse
 
 from .. import _io
 
-__all__ = ["overlay_frames", "plot_overlay", "write_overlay", "write_first_look"]
+__all__ = ["overlay_frames", "overlay_crops", "plot_overlay", "write_overlay", "write_first_look"]
 
 #: half-width of a panel's crop [px]
 CROP_HALF_PX = 24
@@ -71,19 +71,23 @@ def plot_overlay(crops: dict, markers: pd.DataFrame, angles: pd.DataFrame, *, ti
     return fig
 
 
-def write_overlay(video, angles: pd.DataFrame, markers: pd.DataFrame, path: str | Path, *, fps: float,
-                  title: str = "") -> Path:
-    """Read the chosen frames of ``video`` again (a path or a frame source) and write the contact sheet
-    (PNG, written under a temporary name and renamed).  ``fps``: the rate the tracker numbered the
-    frames with (``TrackResult.camera.fps``)."""
+def overlay_crops(video, angles: pd.DataFrame, markers: pd.DataFrame, *, fps: float,
+                  time_scale: float = 1.0) -> dict[int, tuple[np.ndarray, int, int]]:
+    """The chosen frames (:func:`overlay_frames`) of ``video`` read again (a path or a frame source), each
+    cropped about the tip: ``{frame: (crop, x0, y0)}``.  The frames are numbered as the tracker numbered them
+    (:class:`gyrorig.tracking.timing.FrameClock`): ``fps`` the rate it numbered them on
+    (``TrackResult.camera.fps``), ``time_scale`` the factor from the file's times to real ones (slow motion:
+    ``TrackResult.frame_times["time_scale"]``)."""
     from ..tracking.sources import as_source
+    from ..tracking.timing import FrameClock
 
     wanted = overlay_frames(angles)
     tip = markers[markers.marker == "tip"].set_index("frame").sort_index()
     crops = {}
+    clock = FrameClock(fps, time_scale, video, check_rate=False)
     with as_source(video).open() as frames:
         for k, (image, t_s) in enumerate(frames):
-            index = int(round(t_s * fps)) if np.isfinite(t_s) else k
+            index, _ = clock.number(t_s, k)
             if index not in wanted:
                 continue
             if index in tip.index:
@@ -97,6 +101,14 @@ def write_overlay(video, angles: pd.DataFrame, markers: pd.DataFrame, path: str 
             x0 = int(np.clip(round(cx) - CROP_HALF_PX, 0, max(w - 2 * CROP_HALF_PX - 1, 0)))
             y0 = int(np.clip(round(cy) - CROP_HALF_PX, 0, max(h - 2 * CROP_HALF_PX - 1, 0)))
             crops[index] = (image[y0:y0 + 2 * CROP_HALF_PX + 1, x0:x0 + 2 * CROP_HALF_PX + 1], x0, y0)
+    return crops
+
+
+def write_overlay(video, angles: pd.DataFrame, markers: pd.DataFrame, path: str | Path, *, fps: float,
+                  time_scale: float = 1.0, title: str = "") -> Path:
+    """Read the chosen frames of ``video`` again (:func:`overlay_crops`) and write the contact sheet (PNG,
+    written under a temporary name and renamed)."""
+    crops = overlay_crops(video, angles, markers, fps=fps, time_scale=time_scale)
     fig = plot_overlay(crops, markers, angles, title=title)
     path = Path(path)
     with _io.atomic_path(path) as tmp:

@@ -32,10 +32,10 @@ class FrameClock:
     """Frame numbers and times from the source's times: scaled to real time (slow motion), numbered on the camera's
     rate (a frame that would repeat the last number, a variable rate's jitter, takes the next one and keeps its own
     time), snapped to its number's time when within :data:`TIME_SNAP_FRAMES` (a container's rounding), the rate
-    checked after :data:`RATE_CHECK_FRAMES` frames."""
+    checked after :data:`RATE_CHECK_FRAMES` frames (``check_rate``: not when the same file is read again)."""
 
-    def __init__(self, fps: float, time_scale: float, source):
-        self.fps, self.time_scale, self.source = fps, time_scale, source
+    def __init__(self, fps: float, time_scale: float, source, *, check_rate: bool = True):
+        self.fps, self.time_scale, self.source, self.check_rate = fps, time_scale, source, check_rate
         self.times: list[float] = []  # every frame's time as read (scaled) [s]
         self.last = -1
         self.renumbered = 0
@@ -49,7 +49,7 @@ class FrameClock:
             self.renumbered += 1
             index = self.last + 1
         self.last = index
-        if len(self.times) == RATE_CHECK_FRAMES:
+        if self.check_rate and len(self.times) == RATE_CHECK_FRAMES:
             check_frame_rate(np.asarray(self.times), self.fps, self.source)
         if abs(t - index / self.fps) <= TIME_SNAP_FRAMES / self.fps:
             t = index / self.fps
