@@ -267,3 +267,29 @@ def test_gyrorig_theory_predicts_a_gimbal_gyros_nutation_as_its_simulator_measur
     df = simulate_gimbal(replace(q, launch=replace(q.launch, precession_rate_rad_s=rate, tilt_rate_rad_s=0.0)),
                          duration_s=0.5, rate_hz=2000)
     assert np.ptp(df.theta_rad) < 1e-9 and abs(np.polyfit(df.t_s, df.phi_rad, 1)[0] / rate - 1) < 1e-9
+
+
+def test_a_gimbal_gyros_theory_carries_its_parameters_errors(tmp_path, capsys):
+    """``{ value, sd }`` on the outer ring's inertia ``J`` and on the rotor's ``Io``: the nutation frequency
+    ``Io Omega sin(theta) / sqrt(a I)``, ``a = J + I2 sin^2 theta``, moves by ``-omega / (2 a)`` per unit ``J`` and by
+    ``omega / Io`` per unit ``Io``: its sd is those in quadrature.  The propagation takes central differences over one
+    sd, which differ from the derivative by h^2/6 times the third derivative over the first: for ``a^(-1/2)``,
+    ``0.625 (sd_J / a)^2`` = 0.2 % here (``sd_J / a`` = 6 %), for ``Io`` 0 (linear); the fast-top formula
+    ``Io Omega / I`` does not see ``J``."""
+    from gyrorig.propagate import gimbal_prediction_with_uncertainty
+
+    text = AIR.read_text().replace("com_distance_m = 0.07715", "com_distance_m = 0.0")
+    text = text.replace("inertia_axial_kg_m2 = 4.725e-4", "inertia_axial_kg_m2 = { value = 4.725e-4, sd = 0.1e-4 }")
+    path = tmp_path / "gimbal.toml"
+    path.write_text(text + "\n[gimbal]\nouter_inertia_kg_m2 = { value = 4e-4, sd = 1e-4 }\n"
+                           "cross_inertia_kg_m2 = 2.6e-3\n")
+    p = load_protocol(path)
+    q = gimbal_prediction_with_uncertainty(p)["nutation_frequency_rad_s"]
+    th = p.launch.tilt_rad
+    a = 4e-4 + 2.6e-3 * math.sin(th) ** 2 + (p.rig.frame_axial_inertia_kg_m2 or 0.0) * math.cos(th) ** 2
+    w = q["gimbal"]
+    assert q["gimbal_sd"] == pytest.approx(math.hypot(w / (2 * a) * 1e-4, w / 4.725e-4 * 0.1e-4), rel=3e-3)
+    assert q["fast_top_sd"] == pytest.approx(q["fast_top"] * 0.1e-4 / 4.725e-4, rel=1e-4)
+    capsys.readouterr()
+    assert main(["theory", str(path)]) == 0
+    assert "+-" in capsys.readouterr().out

@@ -112,7 +112,7 @@ def gimbal_prediction(protocol) -> dict:
     """What the closed forms say of a gyro in gimbals at its launch tilt and spin: the balanced gyro's nutation
     frequency (small oscillations; for a weighted one only when its centre of mass is on the pivot) and, with a
     weight, the slow steady precession rate; each beside the fast-top formula of a top on a pivot (``Io Omega /
-    I``, ``M g h / (Io Omega)``).  No error bars (the protocol's standard deviations are not carried yet)."""
+    I``, ``M g h / (Io Omega)``).  With error bars: :func:`gyrorig.propagate.gimbal_prediction_with_uncertainty`."""
     rig, launch = protocol.rig, protocol.launch
     spin, tilt = launch.spin_rate_rad_s, launch.tilt_rad
     out: dict = {"protocol": protocol.name, "kind": "gyro in gimbals", "tilt_rad": tilt, "spin_rate_rad_s": spin}

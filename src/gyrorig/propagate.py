@@ -16,11 +16,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from .gimbals import gimbal_prediction
 from .prediction import PREDICTED_KINDS, Prediction, PredictionUncertainty
 from .protocols import Protocol, ProtocolError, checked_rig
 from .theory import predict
 
-__all__ = ["perturbed", "predict_with_uncertainty", "prediction_scalars", "NONLINEAR_RATIO"]
+__all__ = ["perturbed", "predict_with_uncertainty", "prediction_scalars", "gimbal_prediction_with_uncertainty",
+           "NONLINEAR_RATIO"]
 #: |f(+sd) + f(-sd) - 2 f(0)| / |f(+sd) - f(-sd)| above this: the prediction is sampled, not linearised
 NONLINEAR_RATIO = 0.1
 _DAMPING = re.compile(r"pivot\.damping(?:\[(\d+)\])?\.(\w+)")
@@ -28,20 +30,26 @@ _DAMPING = re.compile(r"pivot\.damping(?:\[(\d+)\])?\.(\w+)")
 
 def perturbed(protocol: Protocol, changes: dict[str, float]) -> Protocol:
     """The protocol with the named parameters (``rig.mass_kg``, ``launch.spin_rate_rad_s``,
-    ``pivot.damping.coefficient_N_m_s`` ...) set to new values; ProtocolError for an impossible rig."""
-    rig, launch, damping = protocol.rig, protocol.launch, list(protocol.pivot.damping)
+    ``pivot.damping.coefficient_N_m_s``, ``gimbal.outer_inertia_kg_m2`` ...) set to new values; ProtocolError for an
+    impossible rig."""
+    rig, launch, damping, gimbal = protocol.rig, protocol.launch, list(protocol.pivot.damping), protocol.gimbal
     for name, value in changes.items():
         section, _, key = name.partition(".")
         if section == "rig":
             rig = replace(rig, **{key: float(value)})
         elif section == "launch":
             launch = replace(launch, **{key: float(value)})
+        elif section == "gimbal" and gimbal is not None:
+            if float(value) < 0 or (key == "cross_inertia_kg_m2" and float(value) <= 0):
+                raise ProtocolError(f"{name} = {value:g}: an inertia must be positive")
+            gimbal = replace(gimbal, **{key: float(value)})
         elif (m := _DAMPING.fullmatch(name)) and damping:
             i = int(m.group(1) or 0)
             damping[i] = replace(damping[i], **{m.group(2): float(value)})
         else:
             raise ProtocolError(f"{name}: not a parameter this protocol has")
-    return replace(protocol, rig=checked_rig(rig), launch=launch, pivot=replace(protocol.pivot, damping=tuple(damping)))
+    return replace(protocol, rig=checked_rig(rig), launch=launch, pivot=replace(protocol.pivot, damping=tuple(damping)),
+                   gimbal=gimbal)
 
 
 def prediction_scalars(prediction: Prediction) -> dict[tuple[str, str], float]:
@@ -140,3 +148,45 @@ def predict_with_uncertainty(protocol: Protocol, *, prediction: Prediction | Non
                 by_parameter={n: (float(s / total) if total > 0 else 0.0) for n, s in zip(names, share)})
     return pred.with_quantities({name: replace(q, **changes[name]) for name, q in pred.quantities.items()},
                                 parameter_uncertainty=unc.as_dict())
+
+
+#: the quantities and kinds of :func:`gyrorig.gimbals.gimbal_prediction` that carry error bars
+_GIMBAL_KEYS = tuple((q, kind) for q in ("nutation_frequency_rad_s", "precession_rate_slow_rad_s")
+                     for kind in ("gimbal", "fast_top"))
+
+
+def gimbal_prediction_with_uncertainty(protocol: Protocol) -> dict:
+    """:func:`gyrorig.gimbals.gimbal_prediction` with each value's standard deviation (``gimbal_sd``,
+    ``fast_top_sd``) from the protocol's parameter uncertainties (``[gimbal]``'s included): linear, by central
+    differences over one sd of each parameter (a tenth of one where a whole sd makes the rig impossible), and
+    their covariance; ``parameter_uncertainty`` beside.  Without uncertain parameters the prediction as is."""
+    pred = gimbal_prediction(protocol)
+    unc = protocol.uncertainty
+    keys = [(q, kind) for q, kind in _GIMBAL_KEYS if q in pred and math.isfinite(pred[q].get(kind, math.nan))]
+    if not unc or not keys:
+        return pred
+    idx = [i for i, s in enumerate(unc.sd) if s > 0]
+    cov = unc.covariance()[np.ix_(idx, idx)]
+
+    def values(p: Protocol) -> np.ndarray:
+        moved = gimbal_prediction(p)
+        return np.array([moved.get(q, {}).get(kind, math.nan) for q, kind in keys])
+
+    G = np.zeros((len(keys), len(idx)))
+    for j, i in enumerate(idx):
+        name, x0, sd = unc.names[i], unc.values[i], math.sqrt(cov[j, j])
+        for h in (sd, 0.1 * sd):
+            try:
+                G[:, j] = (values(perturbed(protocol, {name: x0 + h})) - values(perturbed(protocol, {name: x0 - h})))
+                G[:, j] /= 2 * h
+                break
+            except ProtocolError:
+                continue
+        else:
+            raise ProtocolError(f"{name} = {x0:g} +- {sd:g}: moving it by even a tenth of its sd makes the rig "
+                                "impossible")
+    sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0))
+    for (q, kind), s in zip(keys, sd):
+        pred[q][f"{kind}_sd"] = float(s)
+    pred["parameter_uncertainty"] = unc.as_dict()
+    return pred

@@ -31,18 +31,26 @@ def simulate_gimbal_scene(protocol, args: argparse.Namespace):
 
 
 def gimbal_theory(protocol, args: argparse.Namespace) -> int:
-    """``gyrorig theory`` for a gyro in gimbals: its closed forms (:func:`gyrorig.gimbals.gimbal_prediction`)."""
-    from ..gimbals import gimbal_prediction
+    """``gyrorig theory`` for a gyro in gimbals: its closed forms (:func:`gyrorig.gimbals.gimbal_prediction`), with
+    error bars from the protocol's parameter uncertainties
+    (:func:`gyrorig.propagate.gimbal_prediction_with_uncertainty`)."""
+    from .._format import with_error
+    from ..propagate import gimbal_prediction_with_uncertainty
 
-    pred = gimbal_prediction(protocol)
+    pred = gimbal_prediction_with_uncertainty(protocol)
     if args.json:
         print_data(json.dumps(_io.json_safe(pred), indent=2))
         return EXIT_OK
     print(f"{protocol.name}: a gyro in gimbals, tilt {math.degrees(pred['tilt_rad']):.4g} deg, spin "
-          f"{pred['spin_rate_rad_s']:.6g} rad/s (no error bars for gimbals yet)")
+          f"{pred['spin_rate_rad_s']:.6g} rad/s"
+          + (" (+- from the rig's parameter uncertainties)" if "parameter_uncertainty" in pred else ""))
+
+    def pm(q: dict, kind: str) -> str:
+        return with_error(q[kind], q[f"{kind}_sd"]) if q.get(f"{kind}_sd") else f"{q[kind]:.6g}"
+
     for key in ("nutation_frequency_rad_s", "precession_rate_slow_rad_s"):
         if key in pred:
             q = pred[key]
-            print(f"  {key}: {q['gimbal']:.6g} (a top on a pivot, fast-top formula: {q['fast_top']:.6g})"
+            print(f"  {key}: {pm(q, 'gimbal')} (a top on a pivot, fast-top formula: {pm(q, 'fast_top')})"
                   + (f"; {q['note']}" if "note" in q else ""))
     return EXIT_OK
