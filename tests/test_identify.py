@@ -470,3 +470,22 @@ def test_identified_toml_round_trips_and_serves_as_the_next_prior(tmp_path):
             assert getattr(identified.rig, name.split(".")[1]) == pytest.approx(par["value"], rel=1e-12)
     assert main(["identify", *map(str, files), "--protocol", str(first / "identified.toml"), "--out", str(second)]) == 0
     tomllib.loads((second / "identified.toml").read_text())
+
+
+def test_tables_from_a_european_spreadsheet_read_as_written(tmp_path):
+    """Excel in a German or French locale writes CSV with ';' between cells and ',' as the decimal mark (and OSP
+    Tracker exports tab-separated text): the same nutation table, each way, reads to the same numbers (the
+    semicolon one was read as one column and refused)."""
+    rows = [("400", "47.0", "0.1"), ("300.5", "35.25", "0.125")]
+    header = ("spin_rad_s", "nutation_frequency_rad_s", "nutation_frequency_rad_s_sd")
+    variants = {",": lambda v: v, ";": lambda v: v.replace(".", ","), "\t": lambda v: v}
+    tables = []
+    for sep, cell in variants.items():
+        path = tmp_path / f"nutation_{len(tables)}.csv"
+        path.write_text("\n".join([sep.join(header)] + [sep.join(cell(v) for v in r) for r in rows]) + "\n")
+        tables.append(read_table(path))
+    for t in tables[1:]:
+        for name in ("spin", "nutation_frequency"):
+            np.testing.assert_array_equal(t.values[name], tables[0].values[name])
+        np.testing.assert_array_equal(t.sd["nutation_frequency"], tables[0].sd["nutation_frequency"])
+    assert tables[0].values["spin"].tolist() == [400.0, 300.5]

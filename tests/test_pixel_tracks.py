@@ -200,3 +200,14 @@ def test_a_data_sheet_focal_length_known_to_5_percent_is_covered_by_the_error_ba
         fit = _datasheet_fit(tmp_path, p, 1, rel_off)[2]
         for name in ("cone_angle_rad", "nutation_amplitude_rad"):
             assert abs(fit.quantities[name].pull) < 3, (rel_off, name, fit.quantities[name].pull)
+
+
+def test_a_pixel_track_from_a_european_spreadsheet_reads_as_written(tmp_path):
+    """``frame;t_s;x_px;y_px`` with decimal commas (a European locale's export) reads to the same track."""
+    rows = ["0;0,0;320,25;240,5", "1;0,01;321,75;239,125", "2;0,02;323,0;238,0"]
+    (tmp_path / "eu.csv").write_text("frame;t_s;x_px;y_px\n" + "\n".join(rows) + "\n")
+    (tmp_path / "us.csv").write_text("frame,t_s,x_px,y_px\n" + "\n".join(
+        ",".join(c.replace(",", ".") for c in r.split(";")) for r in rows) + "\n")
+    eu, us = read_pixel_track(tmp_path / "eu.csv"), read_pixel_track(tmp_path / "us.csv")
+    assert eu[["frame", "t_s", "x_px", "y_px"]].equals(us[["frame", "t_s", "x_px", "y_px"]])
+    assert us.x_px.tolist() == [320.25, 321.75, 323.0]

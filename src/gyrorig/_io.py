@@ -43,6 +43,25 @@ def read_settings_text(path: str | Path) -> str:
     return Path(path).read_bytes().decode("utf-8-sig")
 
 
+def read_table_csv(path: str | Path, **kwargs) -> pd.DataFrame:
+    """A CSV table as spreadsheets write it: comma-separated with decimal points, or (a European locale's Excel
+    or OSP Tracker export) semicolon-separated with decimal commas, or tab-separated.  The separator is the
+    header's: a ``;`` or a tab in it and no comma; with ``;`` a decimal comma in any cell becomes a point.
+    ``kwargs`` go to :func:`pandas.read_csv` (``comment``, ``skipinitialspace``, ...); its errors as it raises them."""
+    comment = kwargs.get("comment")
+    header = ""
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        for line in fh:
+            if line.strip() and not (comment and line.lstrip().startswith(comment)):
+                header = line
+                break
+    sep = ";" if ";" in header and "," not in header else "\t" if "\t" in header and "," not in header else ","
+    if sep != ";":
+        return pd.read_csv(path, sep=sep, **kwargs)
+    table = pd.read_csv(path, sep=";", dtype=str, keep_default_na=False, **kwargs)
+    return table.apply(lambda column: column.str.replace(",", ".", regex=False))
+
+
 def check_settings_size(path: str | Path, what: str) -> None:
     """Refuse a settings file above :data:`MAX_SETTINGS_BYTES` (:class:`InputTooLarge`, naming it)."""
     try:

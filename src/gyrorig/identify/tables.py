@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .. import _io
+
 __all__ = ["IdentifyInputError", "Table", "read_table", "UNITS", "KINDS", "COLUMNS"]
 
 
@@ -128,7 +130,7 @@ def read_table(path: str | Path) -> Table:
     """Read one lab table into SI units (see the module docstring)."""
     path = Path(path)
     try:
-        frame = pd.read_csv(path, skipinitialspace=True, comment="#")
+        frame = _io.read_table_csv(path, skipinitialspace=True, comment="#")
     except FileNotFoundError:
         raise IdentifyInputError(f"{path}: no such file") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:

@@ -128,7 +128,7 @@ def _read_trk(path: Path, track_name: str | None, fps: float) -> pd.DataFrame:
 
 def _read_csv(path: Path) -> pd.DataFrame:
     try:
-        table = pd.read_csv(path)
+        table = _io.read_table_csv(path)
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise BadInputError(f"cannot read pixel track {path}: {exc}") from exc
     missing = [c for c in ("frame", "t_s", "x_px", "y_px") if c not in table.columns]
