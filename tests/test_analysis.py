@@ -172,3 +172,16 @@ def test_a_calibrated_camera_without_pose_gives_error_bars_that_cover_truth(tmp_
         q = fit["quantities"][k]
         assert q["camera_standard_error"] > 0, k
         assert abs(q["pull"]) < 4, (k, q["pull"])
+
+
+def test_a_manifest_from_a_european_spreadsheet_is_read(tmp_path, monkeypatch):
+    """A manifest saved by Excel in a European locale has ';' between cells: its rows are run (here one, whose
+    video is not a video: that row fails and summary.csv says so), not refused for lacking a video column; a
+    comma in a file name is kept."""
+    (tmp_path / "take 1,5.mkv").write_bytes(b"not a video")
+    proto = PROTOCOL_DIR / "air-cushion-heavy-top.toml"
+    (tmp_path / "manifest.csv").write_text(f"video;protocol;camera\ntake 1,5.mkv;{proto};camera.json\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["analyze", "manifest.csv", "--out", "batch"]) == 3
+    s = pd.read_csv(tmp_path / "batch" / "summary.csv")
+    assert list(s.status) == ["failed"] and s.video[0].endswith("take 1,5.mkv")

@@ -43,11 +43,12 @@ def read_settings_text(path: str | Path) -> str:
     return Path(path).read_bytes().decode("utf-8-sig")
 
 
-def read_table_csv(path: str | Path, **kwargs) -> pd.DataFrame:
+def read_table_csv(path: str | Path, *, numbers: bool = True, **kwargs) -> pd.DataFrame:
     """A CSV table as spreadsheets write it: comma-separated with decimal points, or (a European locale's Excel
     or OSP Tracker export) semicolon-separated with decimal commas, or tab-separated.  The separator is the
-    header's: a ``;`` or a tab in it and no comma; with ``;`` a decimal comma in any cell becomes a point.
-    ``kwargs`` go to :func:`pandas.read_csv` (``comment``, ``skipinitialspace``, ...); its errors as it raises them."""
+    header's: a ``;`` or a tab in it and no comma; with ``;`` and ``numbers`` a decimal comma in any cell becomes a
+    point (``numbers=False``: cells of text, e.g. file names, kept as written).  ``kwargs`` go to
+    :func:`pandas.read_csv` (``comment``, ``dtype``, ...); its errors as it raises them."""
     comment = kwargs.get("comment")
     header = ""
     with open(path, encoding="utf-8-sig", errors="replace") as fh:
@@ -56,7 +57,7 @@ def read_table_csv(path: str | Path, **kwargs) -> pd.DataFrame:
                 header = line
                 break
     sep = ";" if ";" in header and "," not in header else "\t" if "\t" in header and "," not in header else ","
-    if sep != ";":
+    if sep != ";" or not numbers:
         return pd.read_csv(path, sep=sep, **kwargs)
     table = pd.read_csv(path, sep=";", dtype=str, keep_default_na=False, **kwargs)
     return table.apply(lambda column: column.str.replace(",", ".", regex=False))

@@ -164,7 +164,7 @@ def _batch_jobs(source: Path, camera, protocol: Protocol | None) -> list[tuple[P
             raise ValueError(f"no videos ({', '.join(VIDEO_SUFFIXES)}) in {source}")
         return jobs
     try:
-        man = pd.read_csv(source, dtype=str, keep_default_na=False)
+        man = _io.read_table_csv(source, numbers=False, dtype=str, keep_default_na=False)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise ValueError(f"manifest {source}: not a readable CSV table ({exc})") from None
     man.columns = [str(c).strip() for c in man.columns]
