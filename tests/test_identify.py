@@ -474,8 +474,7 @@ def test_identified_toml_round_trips_and_serves_as_the_next_prior(tmp_path):
 
 def test_tables_from_a_european_spreadsheet_read_as_written(tmp_path):
     """Excel in a German or French locale writes CSV with ';' between cells and ',' as the decimal mark (and OSP
-    Tracker exports tab-separated text): the same nutation table, each way, reads to the same numbers (the
-    semicolon one was read as one column and refused)."""
+    Tracker exports tab-separated text): the same nutation table, each way, reads to the same numbers."""
     rows = [("400", "47.0", "0.1"), ("300.5", "35.25", "0.125")]
     header = ("spin_rad_s", "nutation_frequency_rad_s", "nutation_frequency_rad_s_sd")
     variants = {",": lambda v: v, ";": lambda v: v.replace(".", ","), "\t": lambda v: v}

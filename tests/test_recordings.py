@@ -320,7 +320,7 @@ def test_slow_motion_is_refused_without_its_capture_rate_and_tracked_with_it(tmp
     assert res.angles.frame.tolist() == rendered["kept"]
     assert abs(res.frame_times["time_scale"] - 25.0 / 200.0) < 1e-3
     # the overlay reads the file again and numbers its frames as the tracker did: every chosen frame is found,
-    # and its crop holds the tip where the tracker put it (numbered on the file's own rate, it found none)
+    # and its crop holds the tip where the tracker put it
     crops = overlay_crops(rendered["video"], res.angles, res.markers, fps=res.camera.fps,
                           time_scale=res.frame_times["time_scale"])
     assert set(crops) == set(overlay_frames(res.angles))

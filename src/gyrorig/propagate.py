@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -69,15 +70,14 @@ def _vector(pred: Prediction, keys: list) -> np.ndarray:
     return np.array([s.get(k, np.nan) for k in keys])
 
 
-def _moves(protocol: Protocol, name: str, x0: float, sd: float, simulate_damping: bool, keys: list):
-    """f(x0 + h), f(x0 - h) and h: h = sd, or sd / 10 when a whole sd makes the rig impossible."""
+def _moves(protocol: Protocol, name: str, x0: float, sd: float, values: Callable[[Protocol], np.ndarray]):
+    """``values`` at ``x0 + h`` and ``x0 - h`` of parameter ``name``, and ``h``: ``h = sd``, or ``sd / 10`` when a
+    whole sd makes the rig impossible."""
     for h in (sd, 0.1 * sd):
         try:
-            plus = predict(perturbed(protocol, {name: x0 + h}), simulate_damping=simulate_damping)
-            minus = predict(perturbed(protocol, {name: x0 - h}), simulate_damping=simulate_damping)
+            return values(perturbed(protocol, {name: x0 + h})), values(perturbed(protocol, {name: x0 - h})), h
         except ProtocolError:
             continue
-        return _vector(plus, keys), _vector(minus, keys), h
     raise ProtocolError(f"{name} = {x0:g} +- {sd:g}: moving it by even a tenth of its sd makes the rig impossible")
 
 
@@ -121,7 +121,8 @@ def predict_with_uncertainty(protocol: Protocol, *, prediction: Prediction | Non
     G = np.zeros((len(keys), len(names)))
     curvature = np.zeros((len(keys), len(names)))
     for j, name in enumerate(names):
-        plus, minus, h = _moves(protocol, name, x0[j], math.sqrt(cov[j, j]), simulate_damping, keys)
+        plus, minus, h = _moves(protocol, name, x0[j], math.sqrt(cov[j, j]),
+                                lambda p: _vector(predict(p, simulate_damping=simulate_damping), keys))
         G[:, j] = (plus - minus) / (2 * h)
         with np.errstate(divide="ignore", invalid="ignore"):
             curvature[:, j] = np.where(np.abs(plus - minus) > 0, np.abs(plus + minus - 2 * f0) / np.abs(plus - minus),
@@ -174,17 +175,8 @@ def gimbal_prediction_with_uncertainty(protocol: Protocol) -> dict:
 
     G = np.zeros((len(keys), len(idx)))
     for j, i in enumerate(idx):
-        name, x0, sd = unc.names[i], unc.values[i], math.sqrt(cov[j, j])
-        for h in (sd, 0.1 * sd):
-            try:
-                G[:, j] = (values(perturbed(protocol, {name: x0 + h})) - values(perturbed(protocol, {name: x0 - h})))
-                G[:, j] /= 2 * h
-                break
-            except ProtocolError:
-                continue
-        else:
-            raise ProtocolError(f"{name} = {x0:g} +- {sd:g}: moving it by even a tenth of its sd makes the rig "
-                                "impossible")
+        plus, minus, h = _moves(protocol, unc.names[i], unc.values[i], math.sqrt(cov[j, j]), values)
+        G[:, j] = (plus - minus) / (2 * h)
     sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0))
     for (q, kind), s in zip(keys, sd):
         pred[q][f"{kind}_sd"] = float(s)

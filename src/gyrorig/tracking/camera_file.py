@@ -211,9 +211,12 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> Camera:
         if c is not None and (not np.all(np.isfinite(c)) or np.linalg.eigvalsh(0.5 * (c + c.T)).min()
                               < -1e-9 * max(np.abs(c).max(), 1e-300)):
             raise CameraFileError(f"{path}: {key} must be finite, symmetric and positive semi-definite")
-    known = Sensor(bits, *(float(sensor[k]) if sensor.get(k) is not None else default for k, default in (
-        ("full_well_e", math.nan), ("read_noise_e", 0.0), ("gain_e_per_adu", math.nan),
-        ("background_e_per_s", math.nan), ("gamma", 1.0))))
+    def given(key: str, default: float) -> float:  # render writes NaN numbers as null
+        return float(sensor[key]) if sensor.get(key) is not None else default
+
+    known = Sensor(bits, full_well_e=given("full_well_e", math.nan), read_noise_e=given("read_noise_e", 0.0),
+                   gain_e_per_adu=given("gain_e_per_adu", math.nan),
+                   background_e_per_s=given("background_e_per_s", math.nan), gamma=given("gamma", 1.0))
     return Camera(
         np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
         np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),

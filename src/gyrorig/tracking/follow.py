@@ -241,7 +241,7 @@ class TipFollower:
     def _appearance_ok(self, fit: SpotFit) -> bool:
         if len(self.radii) < 3:
             return True
-        r0 = statistics.median(self.radii)  # 15 numbers: statistics is 10x quicker than numpy here
+        r0 = statistics.median(self.radii)  # 15 numbers: no array needed
         # a disc's size changes with its view (its shape gate follows that); a sphere's and a blob's do not
         radius_ok = self.disc is not None or RADIUS_CHANGE[0] * r0 <= fit.radius_px <= RADIUS_CHANGE[1] * r0
         # the limit follows the chi-square's own scatter so far (on a log scale): steady on a flat background,

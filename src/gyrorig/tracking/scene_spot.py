@@ -269,7 +269,7 @@ class _Solution:
 
 @njit(cache=True)
 def _median(values):
-    """The median (compiled: numpy's, called from Python, costs more than the rest of a small fit's bookkeeping)."""
+    """The median of a few numbers, compiled (called once per fit)."""
     return np.median(values)
 
 
