@@ -27,6 +27,7 @@ from gyrorig.protocols import BUNDLED_PROTOCOL_DIR, ProtocolError, parse_protoco
 from gyrorig.render.phone import PhoneStyle, render_phone_video
 from gyrorig.report.overlay import overlay_crops, overlay_frames
 from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, VideoFile, load_camera, track
+from gyrorig.tracking.appearance import MarkerImage
 from gyrorig.tracking.detect import detection_threshold, find_blobs, opening_size_px
 from gyrorig.tracking.scene_spot import fit_scene_spot, sandwich_covariance
 
@@ -364,6 +365,40 @@ def test_ten_bit_video_is_read_at_its_depth(tmp_path):
         image, _ = next(iter(frames))
     assert image.dtype == np.uint16 and image.max() > 900
     np.testing.assert_array_equal(image, ramp)
+
+
+def _encode(path, codec: str, pix_fmt: str, rgb: np.ndarray, options=None) -> None:
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream(codec, rate=Fraction(25))
+        stream.width, stream.height, stream.pix_fmt = rgb.shape[1], rgb.shape[0], pix_fmt
+        stream.options = options or {}
+        for _ in range(2):
+            for packet in stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+
+
+@pytest.mark.parametrize("codec,pix_fmt,options", [
+    ("ffv1", "yuv444p", None),  # limited range, as FFmpeg stores RGB converted to YUV without saying which
+    ("libx264", "yuv420p", {"crf": "0"}),
+    ("libx264", "yuvj420p", {"crf": "0"}),  # full range (a "yuvj" format, as MJPEG cameras write)
+    ("ffv1", "gray", None)])
+def test_a_videos_luma_range_and_gamma_are_undone(tmp_path, codec, pix_fmt, options):
+    """Grey levels with a gamma of 2.2, stored as a codec stores them: the tracker's image is the linear level on the
+    full scale, black 0 and white 255, whether the file holds the limited range (16-235, what phones record and
+    FFmpeg assumes unless a file says otherwise) or the full range.  Tolerance: 8-bit steps of the encoded value,
+    at most 2.2 x 255 / 219 / 2 = 1.3 ADU of linear level, and a step more for the colour conversion's rounding."""
+    linear = np.linspace(0.0, 1.0, 48)
+    code = np.round(255 * linear ** (1 / 2.2)).astype(np.uint8)
+    rgb = np.repeat(np.tile(code, (32, 1))[:, :, None], 3, axis=2)
+    path = tmp_path / ("clip.mkv" if codec == "ffv1" else "clip.mp4")
+    _encode(path, codec, pix_fmt, rgb, options)
+    tip = parse_markers({"tip": {"body": "frame", "position_m": [0, 0, 0.1], "radius_m": 0.003}}).tip()
+    camera = _camera(size=(48, 32)).with_sensor(gamma=2.2)
+    with VideoFile(path).open() as frames:
+        image = MarkerImage(tip, camera, frames.levels)(next(iter(frames))[0])
+    np.testing.assert_allclose(image[16], 255 * linear, atol=2.7)
 
 
 def test_colour_frames_are_read_as_luma_not_one_channel(tmp_path):

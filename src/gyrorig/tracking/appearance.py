@@ -1,7 +1,8 @@
 """The image the tracker works on: one where the tip marker is brighter than what is around it.
 
 - a bright marker (``polarity = "bright"``, ``colour = "any"``): the frame's luma, linearised when the
-  camera records with a gamma;
+  camera records with a gamma, from the video's black and white levels (a phone's limited range, 16-235,
+  stretched to full scale: its white is the full scale, saturated);
 - a dark marker (``polarity = "dark"``): the linearised luma turned over (full scale minus it);
 - a coloured sticker (``colour = "red" | "green" | "blue"``): from the RGB frame, each channel linearised,
   that channel minus the mean of the other two (grey, white and black scenes give about 0, the sticker
@@ -30,13 +31,13 @@ class MarkerImage:
     """Turns decoded frames (RGB for a coloured marker) into the tracker's image (module docstring); calling it
     maps one decoded frame; ``keeps_sensor_model`` whether the sensor's noise model still describes the result."""
 
-    def __init__(self, marker: Marker, camera: Camera):
+    def __init__(self, marker: Marker, camera: Camera, levels: tuple[int, int] | None = None):
         self.colour = marker.colour != "any"
         self.dark = marker.polarity == "dark"
         self.keeps_sensor_model = not (self.colour or self.dark)
         self.top = float(camera.max_adu)
         self.channel = _CHANNEL.get(marker.colour)
-        self._linear = _linearizer(camera)
+        self._linear = _linearizer(camera, None if self.colour else levels)
 
     def describe(self, marker: Marker) -> str:
         """Why the sensor model no longer holds ('' when it does)."""
@@ -55,13 +56,16 @@ class MarkerImage:
         return image
 
 
-def _linearizer(camera: Camera) -> Callable[[np.ndarray], np.ndarray] | None:
-    """For a sensor with gamma: a function that maps recorded values back to linear ones (same full scale,
-    float32); None for a linear sensor."""
-    if camera.gamma == 1.0:
-        return None
+def _linearizer(camera: Camera, levels: tuple[int, int] | None) -> Callable[[np.ndarray], np.ndarray] | None:
+    """A function that maps recorded values back to linear ones on the full scale (float32): ``levels`` (the
+    values of black and white; None: 0 and full scale) stretched to 0 and full scale (below black: 0; above
+    white: beyond full scale), then the gamma undone.  None for a linear sensor recorded on the full scale."""
     top = float(camera.max_adu)
-    table = (top * (np.arange(camera.max_adu + 1) / top) ** camera.gamma).astype(np.float32)
+    black, white = levels if levels is not None else (0, camera.max_adu)
+    if camera.gamma == 1.0 and (black, white) == (0, camera.max_adu):
+        return None
+    level = np.maximum(np.arange(camera.max_adu + 1) - black, 0) / float(white - black)
+    table = (top * level ** camera.gamma).astype(np.float32)
     if camera.max_adu == 255:
         return lambda frame: cv2.LUT(frame, table) if frame.dtype == np.uint8 else table[np.minimum(frame, 255)]
     return lambda frame: table[np.minimum(frame, camera.max_adu)]

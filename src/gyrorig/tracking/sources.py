@@ -58,6 +58,10 @@ class Frames:
     #: each frame's picture type as the codec coded it (``I``, ``P``, ``B`` ...), filled as the frames are read;
     #: None when the source has none (image files, frames in memory)
     frame_types: list[str] | None = None
+    #: the luma values that mean black and white (a YUV video in the "limited" range most phones record, and
+    #: FFmpeg assumes when a file does not say, stores 16-235 at 8 bits, 64-940 at 10); None: 0 and the bit
+    #: depth's largest value.  RGB frames (``colour``) come converted to the full range.
+    levels: tuple[int, int] | None = None
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -145,30 +149,56 @@ class VideoFile:
         if not count and stream.duration and stream.time_base and math.isfinite(fps):  # Matroska states no count
             count = int(round(float(stream.duration * stream.time_base) * fps))
         types: list[str] = []
-        turns = self.display_turns()
+        first = self._first_frame()
+        turns = self.display_turns(first)
+        levels = None if colour else _luma_levels(first, bits)
         width, height = (int(ctx.height), int(ctx.width)) if turns % 2 else (int(ctx.width), int(ctx.height))
         return Frames(width, height, fps, count, _decoded_frames(container, stream, colour, types, turns=turns),
-                      lossy=lossy, bit_depth=bits, frame_types=types)
+                      lossy=lossy, bit_depth=bits, frame_types=types, levels=levels)
 
-    def display_turns(self) -> int:
-        """Quarter turns counter-clockwise from the stored picture to the displayed one: a phone held upright stores
-        its sensor's landscape picture and says in the stream's display matrix how to turn it (PyAV's
-        ``VideoFrame.rotation``, read from the first frame).  Frames are delivered as displayed, so what the user
-        sees, what camera.json describes and what is tracked agree.  A rotation that is not a quarter turn is
-        refused."""
+    def _first_frame(self):
+        """The stream's first decoded frame (None when it has none): what its display matrix and colour range say."""
         import av
 
         try:
             with av.open(str(self.path), "r") as container:
-                frame = next(container.decode(video=0), None)
+                return next(container.decode(video=0), None)
         except (av.FFmpegError, IndexError, ValueError) as exc:
             raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})") from exc
+
+    def display_turns(self, first=None) -> int:
+        """Quarter turns counter-clockwise from the stored picture to the displayed one: a phone held upright stores
+        its sensor's landscape picture and says in the stream's display matrix how to turn it (PyAV's
+        ``VideoFrame.rotation``, read from the first frame, decoded here unless given).  Frames are delivered as
+        displayed, so what the user sees, what camera.json describes and what is tracked agree.  A rotation that is
+        not a quarter turn is refused."""
+        frame = self._first_frame() if first is None else first
         # VideoFrame.rotation (the display matrix's turn) is read where this PyAV has it; older ones give none
         degrees = int(round(float(getattr(frame, "rotation", 0) or 0))) if frame is not None else 0
         if degrees % 90:
             raise BadInputError(f"video {self.path}: its display matrix turns the picture by {degrees} degrees; only "
                                 "quarter turns are supported (re-encode it upright)")
         return (degrees // 90) % 4
+
+
+#: FFmpeg's colour range of a frame that says it holds full-range values (AVCOL_RANGE_JPEG)
+_RANGE_FULL = 2
+
+
+def _luma_levels(frame, bits: int) -> tuple[int, int] | None:
+    """The luma values of black and white in ``frame``'s format: a YUV picture not marked full-range (a "yuvj"
+    format or the JPEG range) holds the limited range, 16-235 scaled to its bit depth, as FFmpeg and every
+    player read it; None (0 to full scale) for grey and RGB formats and full-range YUV."""
+    if frame is None:
+        return None
+    fmt = frame.format
+    name = fmt.name
+    if not (fmt.components[0].is_luma and name.startswith(("yuv", "nv", "p0", "p2", "y2", "uyvy", "yuyv"))):
+        return None
+    if name.startswith("yuvj") or int(getattr(frame, "color_range", 0) or 0) == _RANGE_FULL:
+        return None
+    scale = 1 << max(bits - 8, 0)
+    return 16 * scale, 235 * scale
 
 
 def _plane_image(frame, colour: bool) -> np.ndarray:
@@ -432,7 +462,7 @@ class Clip:
                 raise BadInputError(f"{self}: no frame lies between the clip's ends")
 
         return Frames(inner.width_px, inner.height_px, inner.fps, 0, items(), lossy=inner.lossy,
-                      bit_depth=inner.bit_depth, frame_types=types)
+                      bit_depth=inner.bit_depth, frame_types=types, levels=inner.levels)
 
 
 def as_source(video) -> VideoFile | ImageFolder | FrameArrays:

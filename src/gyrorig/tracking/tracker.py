@@ -378,7 +378,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         camera, time_scale = settle_timing(camera, frames, source)
         camera = _matched(camera, frames, source)
         lossy = frames.lossy
-        appearance = MarkerImage(tip, camera)
+        appearance = MarkerImage(tip, camera, frames.levels)
         if (lossy or not appearance.keeps_sensor_model) and camera.sensor_known:
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = camera.with_sensor(gain_e_per_adu=math.nan)
