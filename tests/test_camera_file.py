@@ -57,6 +57,8 @@ BAD = {
     "no-dist": _with(["dist_coeffs"], _DELETE),
     "shutter": _with(["shutter"], "sideways"),
     "gamma-0": _with(["sensor", "gamma"], 0.0),
+    "transfer-pq": _with(["sensor", "transfer"], "pq"),  # HDR10's display light is not undone
+    "transfer-number": _with(["sensor", "transfer"], 2.2),
 }
 
 

@@ -6,6 +6,7 @@ recordings come from :mod:`gyrorig.render.phone` (the simulator's trajectory thr
 front of a drifting photograph, encoded by libx264/libx265 with jittered 90 kHz times and dropped frames).
 """
 
+import json
 import math
 from dataclasses import replace
 from fractions import Fraction
@@ -28,6 +29,7 @@ from gyrorig.render.phone import PhoneStyle, render_phone_video
 from gyrorig.report.overlay import overlay_crops, overlay_frames
 from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, VideoFile, load_camera, track
 from gyrorig.tracking.appearance import MarkerImage
+from gyrorig.tracking.transfer import settle_transfer
 from gyrorig.tracking.detect import detection_threshold, find_blobs, opening_size_px
 from gyrorig.tracking.scene_spot import fit_scene_spot, sandwich_covariance
 
@@ -367,11 +369,13 @@ def test_ten_bit_video_is_read_at_its_depth(tmp_path):
     np.testing.assert_array_equal(image, ramp)
 
 
-def _encode(path, codec: str, pix_fmt: str, rgb: np.ndarray, options=None) -> None:
+def _encode(path, codec: str, pix_fmt: str, rgb: np.ndarray, options=None, trc: int | None = None) -> None:
     with av.open(str(path), "w") as container:
         stream = container.add_stream(codec, rate=Fraction(25))
         stream.width, stream.height, stream.pix_fmt = rgb.shape[1], rgb.shape[0], pix_fmt
         stream.options = options or {}
+        if trc is not None:  # the stream's transfer tag (FFmpeg's code), as a phone writes it
+            stream.codec_context.color_trc = trc
         for _ in range(2):
             for packet in stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")):
                 container.mux(packet)
@@ -399,6 +403,41 @@ def test_a_videos_luma_range_and_gamma_are_undone(tmp_path, codec, pix_fmt, opti
     with VideoFile(path).open() as frames:
         image = MarkerImage(tip, camera, frames.levels)(next(iter(frames))[0])
     np.testing.assert_allclose(image[16], 255 * linear, atol=2.7)
+
+
+def _bt709_oetf(linear):
+    return np.where(linear < 0.018, 4.5 * linear, 1.099 * linear ** 0.45 - 0.099)
+
+
+def _hlg_oetf(linear):
+    a = 0.17883277
+    with np.errstate(divide="ignore"):
+        return np.where(linear <= 1 / 12, np.sqrt(3 * linear), a * np.log(np.maximum(12 * linear - 1 + 4 * a, 1e-300))
+                        + 0.5 - a * math.log(4 * a))
+
+
+@pytest.mark.parametrize("trc,oetf,gamma,atol", [
+    (1, _bt709_oetf, None, 2.7),  # BT.709, as phones tag SDR video; camera.json states no gamma
+    (18, _hlg_oetf, None, 4.0),  # HLG, an iPhone's HDR video (steeper at white: 8-bit steps are 3.5 ADU there)
+    (None, lambda v: v, None, 2.0),  # untagged, no gamma stated: taken as linear
+    (1, lambda v: v ** (1 / 2.2), 2.2, 2.7)])  # a stated gamma is used whatever the tag says
+def test_a_videos_transfer_tag_is_undone_when_camera_json_states_no_gamma(tmp_path, trc, oetf, gamma, atol):
+    """Grey levels through the transfer curve a stream is tagged with (H.264, the limited range), camera.json
+    without ``sensor.gamma``: the tracker's image is the linear level.  Tolerance: 8-bit steps of the stored
+    value through the curve's slope (1.3 ADU for BT.709 near white, 3.5 for HLG) and a step of rounding."""
+    linear = np.linspace(0.0, 1.0, 48)
+    rgb = np.repeat(np.tile(np.round(255 * oetf(linear)).astype(np.uint8), (32, 1))[:, :, None], 3, axis=2)
+    _encode(tmp_path / "clip.mp4", "libx264", "yuv420p", rgb, {"crf": "0"}, trc)
+    sensor = {} if gamma is None else {"sensor": {"gamma": gamma}}
+    (tmp_path / "camera.json").write_text(json.dumps({"camera_matrix": [[500, 0, 24], [0, 500, 16], [0, 0, 1]],
+                                                      "dist_coeffs": [0, 0, 0, 0, 0], "image_size": [48, 32],
+                                                      "fps": 25, **sensor}))
+    camera = load_camera(tmp_path / "camera.json", require_pose=False)
+    tip = parse_markers({"tip": {"body": "frame", "position_m": [0, 0, 0.1], "radius_m": 0.003}}).tip()
+    with VideoFile(tmp_path / "clip.mp4").open() as frames:
+        camera = settle_transfer(camera, frames.transfer, "clip")
+        image = MarkerImage(tip, camera, frames.levels)(next(iter(frames))[0])
+    np.testing.assert_allclose(image[16], 255 * linear, atol=atol)
 
 
 def test_colour_frames_are_read_as_luma_not_one_channel(tmp_path):

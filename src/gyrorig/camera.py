@@ -65,6 +65,10 @@ class Sensor:
     background_e_per_s: float = math.nan
     #: response exponent: recorded = max (linear / max)^(1 / gamma); 1 is linear
     gamma: float = 1.0
+    #: a standard transfer curve instead of the power law (:data:`gyrorig.tracking.transfer.TRANSFERS`: ``bt709``,
+    #: ``srgb``, ``hlg``, ``linear``); ``"video"``: camera.json stated neither, the video's own tag decides
+    #: (tracking); None: the power law ``gamma``
+    transfer: str | None = None
 
     @property
     def max_adu(self) -> int:
@@ -136,7 +140,8 @@ class Camera:
     @property
     def sensor_known(self) -> bool:
         """True when pixel variances follow from the sensor model: a known gain and a linear response."""
-        return math.isfinite(self.sensor.gain_e_per_adu) and self.sensor.gamma == 1.0
+        return (math.isfinite(self.sensor.gain_e_per_adu) and self.sensor.gamma == 1.0
+                and self.sensor.transfer in (None, "linear", "video"))
 
     def with_sensor(self, **changes) -> "Camera":
         """The camera with the sensor's numbers changed (``bit_depth``, ``gain_e_per_adu``, ...)."""
@@ -193,7 +198,7 @@ class Camera:
             "motion_blur_samples": self.motion_blur_samples,
             "sensor": {"bit_depth": s.bit_depth, "full_well_e": s.full_well_e, "read_noise_e": s.read_noise_e,
                        "gain_e_per_adu": s.gain_e_per_adu, "background_e_per_s": s.background_e_per_s,
-                       "gamma": s.gamma},
+                       "gamma": s.gamma, **({"transfer": s.transfer} if s.transfer not in (None, "video") else {})},
             "conventions": "x_cam = R(rvec) X_lab + tvec (OpenCV); pixel centres at integer coordinates; "
                            "rolling shutter: row y starts its exposure at t_frame + (y / height_px) * readout_time_s",
         }

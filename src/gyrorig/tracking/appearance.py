@@ -1,8 +1,8 @@
 """The image the tracker works on: one where the tip marker is brighter than what is around it.
 
 - a bright marker (``polarity = "bright"``, ``colour = "any"``): the frame's luma, linearised when the
-  camera records with a gamma, from the video's black and white levels (a phone's limited range, 16-235,
-  stretched to full scale: its white is the full scale, saturated);
+  camera records with a gamma or a standard transfer curve, from the video's black and white levels (a
+  phone's limited range, 16-235, stretched to full scale: its white is the full scale, saturated);
 - a dark marker (``polarity = "dark"``): the linearised luma turned over (full scale minus it);
 - a coloured sticker (``colour = "red" | "green" | "blue"``): from the RGB frame, each channel linearised,
   that channel minus the mean of the other two (grey, white and black scenes give about 0, the sticker
@@ -21,6 +21,7 @@ import numpy as np
 
 from ..markers import Marker
 from ..camera import Camera
+from .transfer import TRANSFERS, linear_level
 
 __all__ = ["MarkerImage"]
 
@@ -59,13 +60,15 @@ class MarkerImage:
 def _linearizer(camera: Camera, levels: tuple[int, int] | None) -> Callable[[np.ndarray], np.ndarray] | None:
     """A function that maps recorded values back to linear ones on the full scale (float32): ``levels`` (the
     values of black and white; None: 0 and full scale) stretched to 0 and full scale (below black: 0; above
-    white: beyond full scale), then the gamma undone.  None for a linear sensor recorded on the full scale."""
+    white: beyond full scale), then the sensor's transfer curve (:mod:`gyrorig.tracking.transfer`) or its gamma
+    undone.  None for a linear sensor recorded on the full scale."""
     top = float(camera.max_adu)
     black, white = levels if levels is not None else (0, camera.max_adu)
-    if camera.gamma == 1.0 and (black, white) == (0, camera.max_adu):
+    curve = camera.sensor.transfer if camera.sensor.transfer in TRANSFERS else None
+    if curve in (None, "linear") and camera.gamma == 1.0 and (black, white) == (0, camera.max_adu):
         return None
     level = np.maximum(np.arange(camera.max_adu + 1) - black, 0) / float(white - black)
-    table = (top * level ** camera.gamma).astype(np.float32)
+    table = (top * (linear_level(level, curve) if curve else level ** camera.gamma)).astype(np.float32)
     if camera.max_adu == 255:
         return lambda frame: cv2.LUT(frame, table) if frame.dtype == np.uint8 else table[np.minimum(frame, 255)]
     return lambda frame: table[np.minimum(frame, camera.max_adu)]

@@ -17,6 +17,7 @@ import numpy as np
 from .. import _io
 from ..camera import INTRINSIC_PARAMETERS, Camera, Sensor
 from .errors import CameraFileError
+from .transfer import TRANSFERS
 
 __all__ = ["load_camera"]
 
@@ -96,6 +97,8 @@ def _check_camera_values(path: Path, d: dict) -> None:
         raise CameraFileError(f"{path}: sensor.bit_depth = {bits!r}: allowed integers 8 to 16")
     if "gamma" in sensor:
         _scalar(path, "sensor.gamma", sensor["gamma"], 0.1, hi=10.0)
+    if sensor.get("transfer") is not None and sensor["transfer"] not in TRANSFERS:
+        raise CameraFileError(f"{path}: sensor.transfer = {sensor['transfer']!r}: allowed {', '.join(TRANSFERS)}")
 
 
 #: the principal point's standard deviation, as a fraction of the image width, when a data-sheet camera states none
@@ -216,7 +219,8 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> Camera:
 
     known = Sensor(bits, full_well_e=given("full_well_e", math.nan), read_noise_e=given("read_noise_e", 0.0),
                    gain_e_per_adu=given("gain_e_per_adu", math.nan),
-                   background_e_per_s=given("background_e_per_s", math.nan), gamma=given("gamma", 1.0))
+                   background_e_per_s=given("background_e_per_s", math.nan), gamma=given("gamma", 1.0),
+                   transfer=sensor.get("transfer") or (None if sensor.get("gamma") is not None else "video"))
     return Camera(
         np.asarray(d["camera_matrix"], dtype=float), np.asarray(d["dist_coeffs"], dtype=float).ravel(),
         np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),

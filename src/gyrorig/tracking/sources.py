@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from .errors import BadInputError, TrackingError
+from .transfer import transfer_of_video
 
 __all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "Clip", "Cut", "parse_cut", "as_source", "fingerprint",
            "IMAGE_SUFFIXES"]
@@ -62,6 +63,9 @@ class Frames:
     #: FFmpeg assumes when a file does not say, stores 16-235 at 8 bits, 64-940 at 10); None: 0 and the bit
     #: depth's largest value.  RGB frames (``colour``) come converted to the full range.
     levels: tuple[int, int] | None = None
+    #: the transfer characteristic the stream states (:func:`gyrorig.tracking.transfer.transfer_of_video`: ``bt709``,
+    #: ``hlg`` ...); None when it says none or the source is not a video
+    transfer: str | None = None
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -152,9 +156,10 @@ class VideoFile:
         first = self._first_frame()
         turns = self.display_turns(first)
         levels = None if colour else _luma_levels(first, bits)
+        transfer = transfer_of_video(getattr(first, "color_trc", None)) if first is not None else None
         width, height = (int(ctx.height), int(ctx.width)) if turns % 2 else (int(ctx.width), int(ctx.height))
         return Frames(width, height, fps, count, _decoded_frames(container, stream, colour, types, turns=turns),
-                      lossy=lossy, bit_depth=bits, frame_types=types, levels=levels)
+                      lossy=lossy, bit_depth=bits, frame_types=types, levels=levels, transfer=transfer)
 
     def _first_frame(self):
         """The stream's first decoded frame (None when it has none): what its display matrix and colour range say."""
@@ -462,7 +467,7 @@ class Clip:
                 raise BadInputError(f"{self}: no frame lies between the clip's ends")
 
         return Frames(inner.width_px, inner.height_px, inner.fps, 0, items(), lossy=inner.lossy,
-                      bit_depth=inner.bit_depth, frame_types=types, levels=inner.levels)
+                      bit_depth=inner.bit_depth, frame_types=types, levels=inner.levels, transfer=inner.transfer)
 
 
 def as_source(video) -> VideoFile | ImageFolder | FrameArrays:

@@ -41,6 +41,7 @@ from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_count, camera_mo
 from ..camera import Camera
 from .detect import Detection, detection_threshold, opening_size_px
 from .appearance import MarkerImage
+from .transfer import settle_transfer
 from .follow import ANCHOR_FRAMES, SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
@@ -242,7 +243,9 @@ def _sensor_doubts(camera: Camera, lossy: bool, follower: TipFollower) -> str:
     doubts = []
     if not math.isfinite(camera.gain_e_per_adu):
         doubts.append("no sensor gain in camera.json")
-    if camera.gamma != 1.0:
+    if camera.sensor.transfer not in (None, "linear"):
+        doubts.append(f"transfer curve {camera.sensor.transfer}")
+    elif camera.gamma != 1.0:
         doubts.append(f"sensor gamma {camera.gamma:g}")
     if lossy:
         doubts.append("lossy codec")
@@ -335,6 +338,7 @@ def _matched(camera: Camera, frames, source) -> Camera:
         logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
                     frames.bit_depth, camera.max_adu.bit_length())
         camera = camera.with_sensor(bit_depth=frames.bit_depth)
+    camera = settle_transfer(camera, frames.transfer, source)
     if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
         raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                             f"{frames.width_px} x {frames.height_px}")
