@@ -182,6 +182,37 @@ def nutation_frequency(t_s: np.ndarray, xy_px: np.ndarray) -> float:
     return float(ws[np.argmax(power)])
 
 
+def _start_frequency(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w_image: float, slow: bool,
+                     harmonics: int) -> float:
+    """The nutation frequency to start the joint fit from: the one whose motion model, fitted linearly to the angles
+    from the starting pose, leaves the least residual, over frequencies within twice the precession rate and two
+    Fourier steps (``2 pi / T``) of ``w_image`` (the image's strongest oscillation).  The image shows the nod
+    modulated by the precession (lines at ``w +- Omega``), so ``w_image`` may be off by the precession rate, and
+    over a record of many nutations a start that far off leaves the fit in a local minimum of the phase."""
+    tt = t - t[0]
+    span = max(float(tt[-1]), 1e-9)
+    ph = np.unwrap(phi) - phi[0]
+    omega = abs(float(np.polyfit(tt, ph, 1)[0]))
+    half = 2.0 * omega + 2.0 * (2.0 * np.pi / span)
+    step = 0.05 * (2.0 * np.pi / span)  # a twentieth of a Fourier step: the phase off by 0.3 rad at the end at most
+    candidates = np.arange(max(w_image - half, 0.5 * w_image), w_image + half + step, step)
+    weight = max(float(np.median(np.sin(theta))), 1e-3)  # phi's residuals as arc
+    n = len(tt)
+    base_t = np.column_stack([np.ones(n)] + ([tt] if slow else []))
+    base_p = np.column_stack([np.ones(n), tt] + ([tt * tt] if slow else []))
+    best, best_w = math.inf, w_image
+    for w in candidates:
+        harm = np.column_stack([f((k + 1) * w * tt) for k in range(harmonics) for f in (np.cos, np.sin)])
+        rss = 0.0
+        for base, y, scale in ((base_t, theta, 1.0), (base_p, ph, weight)):
+            a = np.column_stack([base, harm])
+            r = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
+            rss += scale * scale * float(r @ r)
+        if rss < best:
+            best, best_w = rss, float(w)
+    return best_w
+
+
 def _start_motion(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w: float, slow: bool, harmonics: int):
     """Motion parameters fitted linearly to angles from the starting pose, at nutation frequency ``w``."""
     tt = t - t[0]
@@ -220,7 +251,8 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
     if hit.mean() < 0.5:
         raise TrackingError("from the starting pose (the protocol's camera placement) most of the tip's rays miss its "
                             "sphere: give a closer starting placement")
-    motion, phi0 = _start_motion(t[hit], theta[hit], phi[hit], nutation_frequency(t, xy), slow_terms, harmonics)
+    w0 = _start_frequency(t[hit], theta[hit], phi[hit], nutation_frequency(t, xy), slow_terms, harmonics)
+    motion, phi0 = _start_motion(t[hit], theta[hit], phi[hit], w0, slow_terms, harmonics)
     # the gauge: turn the starting pose about the vertical so that phi's slow part starts at 0
     rot = cv2.Rodrigues(start.rvec)[0] @ _rot_z(phi0)
     focal = focal_sd_rel > 0
