@@ -229,12 +229,14 @@ def test_the_tip_is_found_again_after_it_was_hidden(tmp_path):
     with VideoFile(rendered["video"]).open() as source:
         frames = [np.array(f) for f, _ in source]
         t_s = np.arange(len(frames)) / 200.0
+        stored = {"levels": source.levels, "transfer": source.transfer}  # what the file says of its values
     for k in range(40, 48):
         x, y = tip.loc[k, ["x_px", "y_px"]]
         yy, xx = np.mgrid[0:frames[k].shape[0], 0:frames[k].shape[1]]
         cover = np.hypot(xx - x, yy - y) < 14
         frames[k][cover] = np.median(frames[k][(np.hypot(xx - x, yy - y) < 20) & ~cover])
-    res = track(FrameArrays(frames, t_s), load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+    res = track(FrameArrays(frames, t_s, **stored), load_camera(rendered["camera"]), parse_protocol(user),
+                frame_dots=False)
     m, found, e_th, e_ph = _pulls(res, truth)
     after = m[m.frame >= 55]
     assert after.theta_rad.notna().mean() >= 0.9

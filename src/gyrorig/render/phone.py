@@ -4,12 +4,14 @@ The markers come from the renderer (:func:`gyrorig.render.render_frames`: the si
 the camera model, motion blur, rolling shutter) as each pixel's coverage by a marker; the scene
 behind them is a real photograph (one of scikit-image's, e.g. ``coffee``, ``brick``, ``astronaut``),
 drifting across the field (something moving behind the rig) under flickering light.  Composited in
-linear light, with shot and read noise, then encoded as a phone does: gamma 2.2, 8-bit YUV 4:2:0,
+linear light, with shot and read noise, then encoded as a phone does: the BT.709 transfer curve (the
+file tagged with it, as phones tag theirs; or an untagged power law), 8-bit YUV 4:2:0 in the limited range,
 H.264 or HEVC at a constant quality, frame times on a 90 kHz clock with jitter and dropped frames, or a
 slow-motion file whose container rate is lower than the capture rate.
 
 The truth beside the video is the renderer's (frame numbers on the capture grid); the camera file is the
-one a user would write: intrinsics and pose, frame rate and exposure, gamma, and no sensor numbers.
+one a user would write: intrinsics and pose, frame rate and exposure, no sensor numbers (and the gamma only
+for an untagged file).
 """
 
 from __future__ import annotations
@@ -62,7 +64,9 @@ class PhoneStyle:
     crf: int = 23
     #: 8 or 10 bits per value in the file
     bit_depth: int = 8
-    #: gamma of the stored values (recorded = linear^(1/gamma))
+    #: the transfer curve of the stored values, tagged in the file ("bt709", as phones record SDR video); None: the
+    #: power law ``gamma`` (recorded = linear^(1/gamma)), the file untagged and the gamma written in camera.json
+    transfer: str | None = "bt709"
     gamma: float = 2.2
     #: full well and read noise of a phone pixel [e]
     full_well_e: float = 6000.0
@@ -82,6 +86,8 @@ class PhoneStyle:
             raise ValueError(f"photo = {self.photo!r}: allowed {', '.join(PHOTOS)} or None")
         if self.codec not in ("libx264", "libx265", "ffv1"):
             raise ValueError(f"codec = {self.codec!r}: allowed 'libx264', 'libx265', 'ffv1'")
+        if self.transfer not in ("bt709", None):
+            raise ValueError(f"transfer = {self.transfer!r}: allowed 'bt709' or None")
         if self.bit_depth not in (8, 10):
             raise ValueError(f"bit_depth = {self.bit_depth}: allowed 8, 10")
         if not 0.0 <= self.drop_fraction < 0.5:
@@ -90,6 +96,17 @@ class PhoneStyle:
             raise ValueError(f"jitter_fraction = {self.jitter_fraction}: allowed [0, 0.25)")
         if not 0.0 <= self.shake_px < 50.0 or not self.shake_hz > 0.0:
             raise ValueError(f"shake_px = {self.shake_px}, shake_hz = {self.shake_hz}: allowed [0, 50) px, > 0 Hz")
+
+
+#: FFmpeg's code of the BT.709 transfer characteristic (AVCOL_TRC_BT709)
+_TRC_BT709 = 1
+
+
+def _encoded(linear: np.ndarray, style: PhoneStyle) -> np.ndarray:
+    """Stored values (0-1) of linear light (0-1): the BT.709 OETF, or the power law ``1 / gamma``."""
+    if style.transfer == "bt709":
+        return np.where(linear < 0.018, 4.5 * linear, 1.099 * np.power(linear, 0.45) - 0.099)
+    return linear ** (1.0 / style.gamma)
 
 
 def _shake(style: PhoneStyle, rng: np.random.Generator):
@@ -193,6 +210,8 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
         clock = Fraction(1, 90000)
         stream.time_base = clock
         stream.codec_context.time_base = clock
+        if style.transfer == "bt709":
+            stream.codec_context.color_trc = _TRC_BT709
         if style.codec != "ffv1":
             stream.options = {"crf": str(style.crf), "preset": "veryfast"}
             if style.codec == "libx265":
@@ -217,7 +236,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
                 truths[-1] = truth
             electrons = rng.poisson(np.clip(linear, 0.0, 1.0) * style.full_well_e).astype(np.float32)
             electrons += rng.normal(0.0, style.read_noise_e, electrons.shape).astype(np.float32)
-            value = np.clip(electrons / style.full_well_e, 0.0, 1.0) ** (1.0 / style.gamma)
+            value = _encoded(np.clip(electrons / style.full_well_e, 0.0, 1.0), style)
             quantised = np.round(value * top)
             if ten:  # quantised to 10 bits, given as rgb48le (16-bit values: scaled up to its full range)
                 frame = av.VideoFrame.from_ndarray((quantised * (65535 / top)).astype(np.uint16), format="rgb48le")
@@ -242,7 +261,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     truth = pd.concat(truths, ignore_index=True)
     _io.write_csv(truth, out / "truth.csv")
     camera = {k: v for k, v in cam.to_json().items() if k not in ("sensor", "psf_sigma_px", "motion_blur_samples")}
-    camera["sensor"] = {"bit_depth": style.bit_depth, "gamma": style.gamma}
+    camera["sensor"] = {"bit_depth": style.bit_depth, **({} if style.transfer else {"gamma": style.gamma})}
     if style.container_fps:  # slow motion: the user states the capture rate
         camera["capture_fps"] = cam.fps
     _io.write_json(camera, out / "camera.json")

@@ -222,9 +222,11 @@ def _plane_image(frame, colour: bool) -> np.ndarray:
 
 
 class FrameArrays:
-    """Frames held in memory (2-D arrays of one size), with their start times [s] if known."""
+    """Frames held in memory (2-D arrays of one size), with their start times [s] if known, and, for frames taken
+    from a video, its black and white levels and transfer tag (:class:`Frames`' ``levels`` and ``transfer``)."""
 
-    def __init__(self, frames: Sequence[np.ndarray], t_s: Sequence[float] | None = None, *, name: str = "frames"):
+    def __init__(self, frames: Sequence[np.ndarray], t_s: Sequence[float] | None = None, *, name: str = "frames",
+                 levels: tuple[int, int] | None = None, transfer: str | None = None):
         if not len(frames):
             raise TrackingError(f"{name}: no frames")
         shapes = {np.shape(f)[:2] for f in frames}
@@ -233,6 +235,7 @@ class FrameArrays:
         if t_s is not None and len(t_s) != len(frames):
             raise TrackingError(f"{name}: {len(t_s)} times for {len(frames)} frames")
         self.frames, self.t_s, self.name = frames, t_s, name
+        self.levels, self.transfer = levels, transfer
 
     def __str__(self) -> str:
         return self.name
@@ -249,7 +252,8 @@ class FrameArrays:
         h, w = np.shape(self.frames[0])[:2]
         times = self.t_s if self.t_s is not None else [math.nan] * len(self.frames)
         items = ((_as_wanted(np.asarray(f), colour, "RGB"), float(t)) for f, t in zip(self.frames, times))
-        return Frames(int(w), int(h), math.nan, len(self.frames), items)
+        return Frames(int(w), int(h), math.nan, len(self.frames), items, levels=None if colour else self.levels,
+                      transfer=self.transfer)
 
 
 #: image files an :class:`ImageFolder` reads
