@@ -53,6 +53,9 @@ class PhoneStyle:
     background_level: float = 0.55
     #: the background drifts by this many pixels per second (something moving behind the rig); 0: static
     drift_px_per_s: float = 40.0
+    #: the photograph's place behind the rig is drawn per seed, up to this many pixels either way along each axis
+    #: (each seed sees other texture under the tip: the texture's errors vary between seeds as between recordings)
+    photo_shift_px: float = 80.0
     #: light flicker: relative amplitude and frequency [Hz]
     flicker_fraction: float = 0.03
     flicker_hz: float = 7.0
@@ -94,6 +97,8 @@ class PhoneStyle:
             raise ValueError(f"drop_fraction = {self.drop_fraction}: allowed [0, 0.5)")
         if not 0.0 <= self.jitter_fraction < 0.25:
             raise ValueError(f"jitter_fraction = {self.jitter_fraction}: allowed [0, 0.25)")
+        if not 0.0 <= self.photo_shift_px <= 1000.0:
+            raise ValueError(f"photo_shift_px = {self.photo_shift_px}: allowed [0, 1000] px")
         if not 0.0 <= self.shake_px < 50.0 or not self.shake_hz > 0.0:
             raise ValueError(f"shake_px = {self.shake_px}, shake_hz = {self.shake_hz}: allowed [0, 50) px, > 0 Hz")
 
@@ -189,7 +194,8 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     n = int(math.floor(duration * cam.fps + 1e-9))
     keep, t_store = _frame_times(n, cam.fps, style, rng)
     shake = _shake(style, rng)
-    margin = int(math.ceil(abs(style.drift_px_per_s) * duration)) + 2
+    placed = rng.uniform(-style.photo_shift_px, style.photo_shift_px, 2)
+    margin = int(math.ceil(abs(style.drift_px_per_s) * duration + style.photo_shift_px)) + 2
     photo = photo_background(style.photo, cam.width_px, cam.height_px, margin)
     peak = _COVERAGE_E_PER_S * cam.exposure_s
     rgb = np.asarray(style.marker_rgb, np.float32)
@@ -223,7 +229,8 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
                 continue
             t = k / cam.fps
             shift = style.drift_px_per_s * t  # along (0.8, 0.6), by fractions of a pixel (bilinear)
-            centre = (margin + 0.8 * shift + (cam.width_px - 1) / 2, margin + 0.6 * shift + (cam.height_px - 1) / 2)
+            centre = (margin + placed[0] + 0.8 * shift + (cam.width_px - 1) / 2,
+                      margin + placed[1] + 0.6 * shift + (cam.height_px - 1) / 2)
             bg = cv2.getRectSubPix(photo, (cam.width_px, cam.height_px), centre) * style.background_level
             light = 1.0 + style.flicker_fraction * math.sin(2 * math.pi * style.flicker_hz * t)
             alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
