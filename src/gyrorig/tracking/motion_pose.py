@@ -22,7 +22,8 @@ this assumes, and what it fixes:
   nearly free: the tilt and the distance then trade off along a flat valley that the linearised
   covariance does not see, so the distance's sd is also read from the fit's profile (the
   distance held 5 % either side, the rest refitted), and a distance known worse than
-  :data:`MAX_DEPTH_SCALE_SD_REL` is refused.
+  :data:`MAX_DEPTH_SCALE_SD_REL` is refused (the first pass, tracked from the rough placement, only
+  starts the second, and is held to :data:`FIRST_PASS_DEPTH_SCALE_SD_REL`).
 - **the azimuth origin** is free: ``phi``'s slow part is 0 at the first tracked frame (the fit
   has no constant in ``phi``).
 
@@ -49,7 +50,8 @@ from .errors import TrackingError
 from .rays import pixel_rays, tips_from_pixels
 from .sources import as_source, fingerprint
 
-__all__ = ["MotionPose", "AzimuthMark", "pose_from_motion", "fit_pose_to_track", "fix_azimuth", "MIN_FRAMES"]
+__all__ = ["MotionPose", "AzimuthMark", "pose_from_motion", "fit_pose_to_track", "fix_azimuth", "MIN_FRAMES",
+           "MAX_DEPTH_SCALE_SD_REL", "FIRST_PASS_DEPTH_SCALE_SD_REL"]
 
 #: tracked frames needed (the joint fit has about 25 parameters)
 MIN_FRAMES = 100
@@ -58,6 +60,9 @@ HARMONICS = 6
 #: the largest relative sd of the camera's distance accepted: beyond it the fit's valley is too flat for its
 #: linearised covariance (a camera straight above the pivot: 3.5 % sd, the error 4 of them)
 MAX_DEPTH_SCALE_SD_REL = 0.01
+#: the first pass tracks from the rough placement, and its pose only starts the second: it is refused beyond this
+#: (the motion then says nothing of the distance), the final pose beyond :data:`MAX_DEPTH_SCALE_SD_REL`
+FIRST_PASS_DEPTH_SCALE_SD_REL = 0.05
 #: the distance's profile is taken this far (relative) either side of the fitted one
 PROFILE_STEP = 0.05
 
@@ -324,7 +329,7 @@ def pose_from_motion(video, start: Camera, protocol: Protocol, *, progress=None)
     video = as_source(video)
     camera = replace(start, pose_covariance=None, pose_points=None, pose_recording=None)
     focal_sd_rel = _focal_sd_rel(start)
-    for _ in range(2):  # the second pass tracks with the pose found: frames the rough pose lost come back
+    for final in (False, True):  # the second pass tracks with the pose found: frames the rough pose lost come back
         result = track(video, camera, protocol, progress=progress, frame_dots=False)
         m = result.markers
         rows = m[(m.marker == tip.name) & m.frame.isin(result.angles.frame[result.angles.theta_rad.notna()])]
@@ -333,10 +338,11 @@ def pose_from_motion(video, start: Camera, protocol: Protocol, *, progress=None)
         pose = fit_pose_to_track(rows.t_s.to_numpy(), rows[["x_px", "y_px"]].to_numpy(),
                                  rows[["sigma_x_px", "sigma_y_px"]].to_numpy(), fit_start, float(tip.position_m[2]),
                                  slow_terms=protocol.is_damped, focal_sd_rel=focal_sd_rel)
-        if pose.depth_scale_sd_rel > MAX_DEPTH_SCALE_SD_REL:  # before tracking again with a pose that may be far off
+        limit = MAX_DEPTH_SCALE_SD_REL if final else FIRST_PASS_DEPTH_SCALE_SD_REL
+        if pose.depth_scale_sd_rel > limit:  # before tracking again with a pose that may be far off
             raise TrackingError(
                 f"the tip's motion fixes the camera's distance only to {pose.depth_scale_sd_rel:.1%} (limit "
-                f"{MAX_DEPTH_SCALE_SD_REL:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or "
+                f"{limit:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or "
                 "the nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a "
                 "known place or lab fiducials")
         camera = replace(camera, rvec=pose.rvec, tvec=pose.tvec)
