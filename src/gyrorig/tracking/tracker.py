@@ -333,7 +333,8 @@ def _follower(camera: Camera, tip: Marker, markers: MarkerSet, source) -> TipFol
 
 
 def _matched(camera: Camera, frames, source) -> Camera:
-    """The camera at the video's bit depth; BadInputError when its picture size is not the video's."""
+    """The camera at the video's bit depth, its transfer curve settled
+    (:func:`~gyrorig.tracking.transfer.settle_transfer`); BadInputError when its picture size is not the video's."""
     if frames.bit_depth is not None and frames.bit_depth < 16 and (1 << frames.bit_depth) - 1 != camera.max_adu:
         logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
                     frames.bit_depth, camera.max_adu.bit_length())
