@@ -187,6 +187,11 @@ def nutation_frequency(t_s: np.ndarray, xy_px: np.ndarray) -> float:
     return float(ws[np.argmax(power)])
 
 
+def _harmonic_columns(tt: np.ndarray, w: float, harmonics: int) -> list[np.ndarray]:
+    """``cos(k w t), sin(k w t)`` for k = 1 .. ``harmonics``, in the motion model's order."""
+    return [f((k + 1) * w * tt) for k in range(harmonics) for f in (np.cos, np.sin)]
+
+
 def _start_frequency(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w_image: float, slow: bool,
                      harmonics: int) -> float:
     """The nutation frequency to start the joint fit from: the one whose motion model, fitted linearly to the angles
@@ -199,7 +204,7 @@ def _start_frequency(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w_image:
     ph = np.unwrap(phi) - phi[0]
     omega = abs(float(np.polyfit(tt, ph, 1)[0]))
     half = 2.0 * omega + 2.0 * (2.0 * np.pi / span)
-    step = 0.05 * (2.0 * np.pi / span)  # a twentieth of a Fourier step: the phase off by 0.3 rad at the end at most
+    step = 0.05 * (2.0 * np.pi / span)  # a twentieth of a Fourier step: the phase off by 0.16 rad at the end at most
     candidates = np.arange(max(w_image - half, 0.5 * w_image), w_image + half + step, step)
     weight = max(float(np.median(np.sin(theta))), 1e-3)  # phi's residuals as arc
     n = len(tt)
@@ -207,7 +212,7 @@ def _start_frequency(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w_image:
     base_p = np.column_stack([np.ones(n), tt] + ([tt * tt] if slow else []))
     best, best_w = math.inf, w_image
     for w in candidates:
-        harm = np.column_stack([f((k + 1) * w * tt) for k in range(harmonics) for f in (np.cos, np.sin)])
+        harm = np.column_stack(_harmonic_columns(tt, w, harmonics))
         rss = 0.0
         for base, y, scale in ((base_t, theta, 1.0), (base_p, ph, weight)):
             a = np.column_stack([base, harm])
@@ -225,9 +230,7 @@ def _start_motion(t: np.ndarray, theta: np.ndarray, phi: np.ndarray, w: float, s
     n = len(tt)
     cols_t = [np.ones(n)] + ([tt] if slow else [])
     cols_p = [tt] + ([tt * tt] if slow else [])
-    harm = []
-    for k in range(harmonics):
-        harm += [np.cos((k + 1) * w * tt), np.sin((k + 1) * w * tt)]
+    harm = _harmonic_columns(tt, w, harmonics)
     a_t = np.linalg.lstsq(np.column_stack(cols_t + harm), theta, rcond=None)[0]
     # phi's constant is taken out by the gauge (0 at the first frame): fit it, then drop it
     a_p = np.linalg.lstsq(np.column_stack([np.ones(n)] + cols_p + harm), phi, rcond=None)[0]
