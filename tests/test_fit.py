@@ -517,8 +517,9 @@ def test_bootstrap_errors_hold_when_each_frames_error_differs():
     """Frames whose error bars differ tenfold (drawn from 0.3-3 x 2e-4 rad, stated per frame) and whose noise is
     correlated from frame to frame (AR(1), rho 0.6: the residuals are not white, so the errors come from the
     block bootstrap): over 30 noise draws the pulls of every quantity have SD within 0.65-1.45 (30 pulls give the
-    SD to +- 13 %; three of those, and the moving-block bootstrap's small-sample bias).  Resampled as raw angles,
-    a down-weighted frame's residual moved onto a precise frame made the SDs 0.32-0.44."""
+    SD to +- 13 %; three of those, and the moving-block bootstrap's small-sample bias): each residual must be
+    resampled in its own frame's units, or a down-weighted frame's residual moved onto a precise frame inflates
+    the errors."""
     p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     truth = simulate(p, duration_s=2.0, rate_hz=200.0)
     n, rho = len(truth), 0.6

@@ -365,8 +365,8 @@ def test_the_motion_pose_starts_at_the_nutation_not_its_precession_sideband(seed
     """The simulated tip of the heavy top seen from 0.2 m off the vertical (3 s at 200 frames/s, 0.1 px of noise),
     the fit started from a placement 3 cm off and a focal length 4 % short (stated +- 5 %).  The image's strongest
     oscillation is the nod moved by the precession (w + Omega, 1.8 rad/s above w); started there, the joint fit
-    of 3 s (many nutations) could end with the phase slipped and the model not fitting (chi2_red 37,000 on a
-    rendered clip).  It must converge: chi2_red within 1 +- 0.3 (about 6 of its SDs for 1,000 residuals), the
+    of 3 s (many nutations) can end with the phase slipped and the model not fitting.  It must converge:
+    chi2_red within 1 +- 0.3 (about 7 of its SDs for 1,200 residuals), the
     nutation frequency within the spectrum's resolution (2 pi / 3 s) of the simulated tilt's strongest line, the
     focal length within 3 of its sd of the truth."""
     from gyrorig.camera import placement_pose

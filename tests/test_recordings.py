@@ -7,6 +7,7 @@ front of a drifting photograph, encoded by libx264/libx265 with jittered 90 kHz 
 """
 
 import json
+import logging
 import math
 from dataclasses import replace
 from fractions import Fraction
@@ -389,7 +390,8 @@ def _encode(path, codec: str, pix_fmt: str, rgb: np.ndarray, options=None, trc: 
     ("ffv1", "yuv444p", None),  # limited range, as FFmpeg stores RGB converted to YUV without saying which
     ("libx264", "yuv420p", {"crf": "0"}),
     ("libx264", "yuvj420p", {"crf": "0"}),  # full range (a "yuvj" format, as MJPEG cameras write)
-    ("ffv1", "gray", None)])
+    ("ffv1", "gray", None),
+    ("rawvideo", "yuyv422", None)])  # packed luma and chroma: FFmpeg's grey conversion gives it on the full range
 def test_a_videos_luma_range_and_gamma_are_undone(tmp_path, codec, pix_fmt, options):
     """Grey levels with a gamma of 2.2, stored as a codec stores them: the tracker's image is the linear level on the
     full scale, black 0 and white 255, whether the file holds the limited range (16-235, what phones record and
@@ -398,7 +400,7 @@ def test_a_videos_luma_range_and_gamma_are_undone(tmp_path, codec, pix_fmt, opti
     linear = np.linspace(0.0, 1.0, 48)
     code = np.round(255 * linear ** (1 / 2.2)).astype(np.uint8)
     rgb = np.repeat(np.tile(code, (32, 1))[:, :, None], 3, axis=2)
-    path = tmp_path / ("clip.mkv" if codec == "ffv1" else "clip.mp4")
+    path = tmp_path / ("clip.mp4" if codec == "libx264" else "clip.mkv")
     _encode(path, codec, pix_fmt, rgb, options)
     tip = parse_markers({"tip": {"body": "frame", "position_m": [0, 0, 0.1], "radius_m": 0.003}}).tip()
     camera = _camera(size=(48, 32)).with_sensor(gamma=2.2)
@@ -423,10 +425,11 @@ def _hlg_oetf(linear):
     (18, _hlg_oetf, None, 4.0),  # HLG, an iPhone's HDR video (steeper at white: 8-bit steps are 3.5 ADU there)
     (None, lambda v: v, None, 2.0),  # untagged, no gamma stated: taken as linear
     (1, lambda v: v ** (1 / 2.2), 2.2, 2.7)])  # a stated gamma is used whatever the tag says
-def test_a_videos_transfer_tag_is_undone_when_camera_json_states_no_gamma(tmp_path, trc, oetf, gamma, atol):
+def test_a_videos_transfer_tag_is_undone_when_camera_json_states_no_gamma(tmp_path, caplog, trc, oetf, gamma, atol):
     """Grey levels through the transfer curve a stream is tagged with (H.264, the limited range), camera.json
     without ``sensor.gamma``: the tracker's image is the linear level.  Tolerance: 8-bit steps of the stored
-    value through the curve's slope (1.3 ADU for BT.709 near white, 3.5 for HLG) and a step of rounding."""
+    value through the curve's slope (1.3 ADU for BT.709 near white, 3.5 for HLG) and a step of rounding.  A
+    compressed file that says nothing, with nothing stated, is taken as linear with a warning (and only then)."""
     linear = np.linspace(0.0, 1.0, 48)
     rgb = np.repeat(np.tile(np.round(255 * oetf(linear)).astype(np.uint8), (32, 1))[:, :, None], 3, axis=2)
     _encode(tmp_path / "clip.mp4", "libx264", "yuv420p", rgb, {"crf": "0"}, trc)
@@ -437,9 +440,12 @@ def test_a_videos_transfer_tag_is_undone_when_camera_json_states_no_gamma(tmp_pa
     camera = load_camera(tmp_path / "camera.json", require_pose=False)
     tip = parse_markers({"tip": {"body": "frame", "position_m": [0, 0, 0.1], "radius_m": 0.003}}).tip()
     with VideoFile(tmp_path / "clip.mp4").open() as frames:
-        camera = settle_transfer(camera, frames.transfer, "clip")
+        with caplog.at_level(logging.WARNING, logger="gyrorig"):
+            camera = settle_transfer(camera, frames.transfer, "clip", lossy=frames.lossy)
         image = MarkerImage(tip, camera, frames.levels)(next(iter(frames))[0])
     np.testing.assert_allclose(image[16], 255 * linear, atol=atol)
+    warned = [r for r in caplog.records if r.levelno == logging.WARNING and r.name.startswith("gyrorig")]
+    assert len(warned) == int(trc is None and gamma is None)
 
 
 def test_colour_frames_are_read_as_luma_not_one_channel(tmp_path):

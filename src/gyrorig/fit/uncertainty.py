@@ -77,8 +77,7 @@ def block_bootstrap(spec: ModelSpec, x: np.ndarray, data: FitData, fns: dict, rn
     The residuals are resampled in units of their own frame's error (each ``(theta, phi)`` pair through the
     Cholesky factor of its covariance) and put back in the units of the frame they land on: a frame's error
     bars vary (codec picture types, blends, the scene), and a large residual of a down-weighted frame moved
-    raw onto a precise one would count as noise the fit never saw (with errors varying tenfold, raw residuals
-    gave standard errors 2-3 times the scatter over noise draws).
+    raw onto a precise one would count as noise the fit never saw.
 
     The camera modes are held at their fitted values (taken out of the data, left out of the refits):
     the bootstrap measures the statistical part, to which the fit adds the camera's share as it does

@@ -191,19 +191,22 @@ _RANGE_FULL = 2
 
 
 def _luma_levels(frame, bits: int) -> tuple[int, int] | None:
-    """The luma values of black and white in ``frame``'s format: a YUV picture not marked full-range (a "yuvj"
-    format or the JPEG range) holds the limited range, 16-235 scaled to its bit depth, as FFmpeg and every
-    player read it; None (0 to full scale) for grey and RGB formats and full-range YUV."""
-    if frame is None:
+    """The luma values of black and white as :func:`_plane_image` gives them: a YUV picture's own luma plane,
+    unless marked full-range (a "yuvj" format or the JPEG range), holds the limited range, 16-235 scaled to its
+    bit depth, as FFmpeg and every player read it; None (0 to full scale) for grey formats, full-range YUV and
+    pictures FFmpeg converts to grey (which it stretches to the full range)."""
+    if frame is None or not _luma_plane(frame.format) or len(frame.format.components) < 3:
         return None
-    fmt = frame.format
-    name = fmt.name
-    if not (fmt.components[0].is_luma and name.startswith(("yuv", "nv", "p0", "p2", "y2", "uyvy", "yuyv"))):
-        return None
-    if name.startswith("yuvj") or int(getattr(frame, "color_range", 0) or 0) == _RANGE_FULL:
+    if frame.format.name.startswith("yuvj") or int(getattr(frame, "color_range", 0) or 0) == _RANGE_FULL:
         return None
     scale = 1 << max(bits - 8, 0)
     return 16 * scale, 235 * scale
+
+
+def _luma_plane(fmt) -> bool:
+    """Whether a picture of format ``fmt`` stores its luma as its own first plane (read as it is)."""
+    luma = fmt.components[0]
+    return bool(fmt.is_planar and luma.is_luma and luma.plane == 0 and not fmt.is_big_endian)
 
 
 def _plane_image(frame, colour: bool) -> np.ndarray:
@@ -212,8 +215,7 @@ def _plane_image(frame, colour: bool) -> np.ndarray:
     bits = fmt.components[0].bits
     if colour:
         return frame.to_ndarray(format="rgb48le" if bits > 8 else "rgb24")
-    luma = fmt.components[0]
-    if fmt.is_planar and luma.is_luma and luma.plane == 0 and not fmt.is_big_endian:
+    if _luma_plane(fmt):
         plane = frame.planes[0]
         dtype = np.uint16 if bits > 8 else np.uint8
         row = np.frombuffer(plane, dtype=dtype).reshape(frame.height, -1)

@@ -339,7 +339,7 @@ def _matched(camera: Camera, frames, source) -> Camera:
         logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
                     frames.bit_depth, camera.max_adu.bit_length())
         camera = camera.with_sensor(bit_depth=frames.bit_depth)
-    camera = settle_transfer(camera, frames.transfer, source)
+    camera = settle_transfer(camera, frames.transfer, source, lossy=frames.lossy)
     if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
         raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                             f"{frames.width_px} x {frames.height_px}")

@@ -4,7 +4,7 @@ Cameras store a nonlinear function of the light (the opto-electronic transfer fu
 light linearly, so the tracker undoes it.  camera.json may state ``sensor.gamma`` (a power law,
 ``recorded = linear^(1/gamma)``) or ``sensor.transfer`` (a standard curve by name, :data:`TRANSFERS`); when it
 states neither, the video's own tag is used (a phone's H.264 or HEVC file says ``bt709``, an iPhone's HDR file
-``hlg``), and an untagged file is taken as linear, as before.
+``hlg``), and an untagged file is taken as linear (a compressed one with a warning).
 
 The curves, each on values normalised to black 0 and white 1 (the inverse of the standard's OETF):
 
@@ -63,10 +63,11 @@ def linear_level(v: np.ndarray, transfer: str) -> np.ndarray:
     raise ValueError(f"transfer {transfer!r}: allowed {', '.join(TRANSFERS)}")
 
 
-def settle_transfer(camera: Camera, video: str | None, source) -> Camera:
+def settle_transfer(camera: Camera, video: str | None, source, *, lossy: bool = False) -> Camera:
     """The camera with its transfer curve settled: when camera.json states neither ``gamma`` nor ``transfer``
-    the video's tag (``video``) is used (untagged: linear); a stated one is kept, with a warning when the video
-    says it is HDR (its values then follow HLG or PQ, not the stated curve)."""
+    the video's tag (``video``) is used (untagged: linear, with a warning for a ``lossy`` file, which consumer
+    cameras write with a curve); a stated one is kept, with a warning when the video says it is HDR (its values
+    then follow HLG or PQ, not the stated curve)."""
     stated = camera.sensor.transfer != "video"
     if stated:
         if video in ("hlg", "pq") and camera.sensor.transfer != video:
@@ -83,4 +84,8 @@ def settle_transfer(camera: Camera, video: str | None, source) -> Camera:
     if video == "pq":
         logger.warning("%s: the video is HDR10 (PQ), display light in absolute units; it is tracked as stored "
                        "(not linearised)", source)
+    elif video is None and lossy:
+        logger.warning("%s: neither the video nor camera.json says how its values relate to light: taken as linear; "
+                       "a phone's or camera's compressed video seldom is (state sensor.gamma, e.g. 2.2, or "
+                       "sensor.transfer = \"bt709\" in camera.json)", source)
     return camera.with_sensor(transfer=None)
