@@ -57,6 +57,10 @@ class SigmaCheck:
     #: and its standard error; 0 when not looked for
     floor_px: float = 0.0
     floor_px_se: float = 0.0
+    #: an error common to the frames of each group (``check_sigmas``' ``groups``), independent from group to group
+    #: (per axis) [px], and its standard error; 0 when not looked for
+    shared_px: float = 0.0
+    shared_px_se: float = 0.0
 
     def as_dict(self) -> dict:
         return {"factor": self.factor, "factor_se": self.factor_se, "coordinates": self.coordinates,
@@ -64,7 +68,8 @@ class SigmaCheck:
                 "by_class": {k: {"factor": f, "factor_se": se, "coordinates": n}
                              for k, (f, se, n) in self.by_class.items()},
                 "applied": self.applied, "applied_factors": self.applied_factors, "reason": self.reason,
-                "floor_px": self.floor_px, "floor_px_se": self.floor_px_se}
+                "floor_px": self.floor_px, "floor_px_se": self.floor_px_se,
+                "shared_px": self.shared_px, "shared_px_se": self.shared_px_se}
 
 
 def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -126,17 +131,36 @@ def neighbour_positions(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray) -> 
     return pred
 
 
-def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_factor: float) -> tuple[dict, float, float]:
+def _shared_coefficients(idx: np.ndarray, nb: np.ndarray, w: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """How much of an error common to the frames of each group reaches each stencil's residual: with the residual
+    ``x_i - sum_j w_j x_j`` and ``S_G`` the signed weights of group ``G``'s frames in it (1 for the frame itself),
+    ``sum_G S_G^2`` over the groups (``groups`` >= 0; -1 is no group).  A stencil inside one group gives 0 (the
+    common error moves the path with the frame); one that reaches across a group's end sees it."""
+    members = np.column_stack([idx, nb])
+    signed = np.column_stack([np.ones(len(idx)), -w])
+    g = groups[members]
+    coef = np.zeros(len(idx))
+    for a in range(members.shape[1]):
+        same = np.sum(signed * (g == g[:, [a]]), axis=1)
+        coef += np.where(g[:, a] >= 0, signed[:, a] * same, 0.0)
+    return coef
+
+
+def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_factor: float, groups=None
+                    ) -> tuple[dict, float, float, float, float]:
     """Each class's factor and, with ``floor``, an error added to every frame, solved jointly: a residual's expected
     square is linear in the classes' squared factors and the floor's variance (``E r^2 = sum_c f_c^2 A_c + tau^2 B``,
     ``A_c`` the reported variances of the stencil's frames of class ``c`` times their squared weights, ``B`` the
     stencil's squared weights summed, 1 for the frame itself), so they follow from weighted least squares of
     ``r^2`` (weights ``1 / (2 (E r^2)^2)``, found in passes).  Factors below ``min_factor`` are held there and the
-    rest solved again.  Returns ``({class: (factor, se, coordinates)}, tau^2, its se)``; ``({}, nan, nan)`` when
-    the check has too few frames."""
+    rest solved again.  With ``groups`` (n,) (an integer per frame, -1 for none) an error common to the frames of
+    each group, independent from group to group, is solved beside them (its variance ``kappa^2`` enters with
+    :func:`_shared_coefficients`).  Returns ``({class: (factor, se, coordinates)}, tau^2, its se, kappa^2, its se)``;
+    ``({}, nan, nan, nan, nan)`` when the check has too few frames."""
     idx, nb, w = _stencils(t_s, frames, active)
     if len(idx) == 0:
-        return {}, math.nan, math.nan
+        return {}, math.nan, math.nan, math.nan, math.nan
+    shared = groups is not None and bool(np.any(np.asarray(groups)[idx] >= 0))
     classes = sorted(set(labels[idx]) | set(labels[nb].ravel()))
     pred = np.einsum("mj,mjk->mk", w, xy[nb])
     r2 = ((xy[idx] - pred) ** 2).ravel()
@@ -146,6 +170,8 @@ def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_facto
         columns.append((col + np.einsum("mj,mjk->mk", w * w * (labels[nb] == label), var[nb])).ravel())
     if floor:
         columns.append(np.repeat(1.0 + np.sum(w * w, axis=1), 2))
+    if shared:
+        columns.append(np.repeat(_shared_coefficients(idx, nb, w, np.asarray(groups, int)), 2))
     design = np.column_stack(columns)
     k = len(classes)
     lower = np.array([min_factor**2] * k + [0.0] * (design.shape[1] - k))
@@ -165,19 +191,24 @@ def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_facto
     for c, label in enumerate(classes):
         f = math.sqrt(max(x[c], 1e-12))
         out[str(label)] = (f, math.sqrt(max(full[c, c], 0.0)) / (2 * f), 2 * int(np.sum(labels[idx] == label)))
-    if floor:
-        return out, float(x[-1]), math.sqrt(max(full[-1, -1], 0.0))
-    return out, 0.0, 0.0
+    extra = [(float(x[j]), math.sqrt(max(full[j, j], 0.0))) for j in range(k, design.shape[1])]
+    tau = extra.pop(0) if floor else (0.0, 0.0)
+    kappa = extra.pop(0) if shared else (0.0, 0.0)
+    return out, *tau, *kappa
 
 
-def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min_factor: float = 0.0) -> SigmaCheck:
+def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min_factor: float = 0.0,
+                 groups=None) -> SigmaCheck:
     """Compare the reported errors with the scatter about the path (module docstring); outliers removed
     one at a time (the worst first, since its residual also reaches its neighbours' predictions).
 
     ``classes`` (n,), optional: a label per frame (e.g. its quality flag); the factor is then also found
     per label, from the residuals of the frames that carry it.  With ``floor`` an error the same for every
     frame and independent from frame to frame (a lossy codec's) is found beside the factors
-    (:attr:`SigmaCheck.floor_px`), and the factors are held at ``min_factor`` or above."""
+    (:attr:`SigmaCheck.floor_px`), and the factors are held at ``min_factor`` or above.  ``groups`` (n,),
+    optional: an integer per frame (-1: none); an error common to the frames of each group and independent
+    from group to group (a codec's run of B pictures between two reference pictures, predicted from the same
+    two) is found beside them (:attr:`SigmaCheck.shared_px`)."""
     t_s, frames = np.asarray(t_s, float), np.asarray(frames, int)
     xy, var = np.asarray(xy, float), np.asarray(var, float)
     active = np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(var) & (var > 0), axis=1)
@@ -194,11 +225,21 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
             break
         active[centres[k]] = False
         outliers.append(int(centres[k]))
-    by_class, tau2, tau2_se = {}, 0.0, 0.0
-    if classes is not None or floor:
+    by_class, tau2, tau2_se, kappa2, kappa2_se = {}, 0.0, 0.0, 0.0, 0.0
+    if classes is not None or floor or groups is not None:
         labels = np.asarray(classes).astype(str) if classes is not None else np.full(len(t_s), "all")
-        by_class, tau2, tau2_se = _variance_model(t_s, frames, xy, var, active, labels, floor, min_factor)
+        by_class, tau2, tau2_se, kappa2, kappa2_se = _variance_model(t_s, frames, xy, var, active, labels, floor,
+                                                                     min_factor, groups)
     factor = math.sqrt(float(np.mean(z * z)))
-    floor_px = math.sqrt(tau2) if tau2 > 0 else 0.0
+    floor_px, floor_se = _root(tau2, tau2_se)
+    shared_px, shared_se = _root(kappa2, kappa2_se)
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
-                      floor_px=floor_px, floor_px_se=tau2_se / (2 * floor_px) if floor_px > 0 else tau2_se)
+                      floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se)
+
+
+def _root(value: float, se: float) -> tuple[float, float]:
+    """A variance's root and the root's standard error (the variance's own where the root is 0)."""
+    if not value > 0:
+        return 0.0, se
+    root = math.sqrt(value)
+    return root, se / (2 * root)

@@ -276,9 +276,10 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     blended = angles.quality.to_numpy()[index].astype(str)
     classes = np.where(np.char.find(blended, "blended") >= 0, "blended", "clear")
     var = np.array([np.diag(rows.tip_cov[r]) for r in index])
+    runs = b_picture_runs(angles)[index] if lossy else None
     check = check_sigmas(angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index],
                          np.array([rows.tip_px[r] for r in index]), var, classes, floor=lossy,
-                         min_factor=1.0 if doubts else 0.0)
+                         min_factor=1.0 if doubts else 0.0, groups=runs)
     if not math.isfinite(check.factor):
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
     factors, reasons = {}, []
@@ -298,9 +299,12 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     tau2 = check.floor_px**2
     tip_rows = markers.marker == tip_name
     cols = ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]
+    in_run = np.zeros(len(index), bool) if runs is None else runs >= 0
     for label, f in factors.items():
         rows_c = index[classes == label]
-        covs = f * f * np.array([rows.tip_cov[r] for r in rows_c]).reshape(-1, 2, 2) + tau2 * np.eye(2)
+        added = tau2 + check.shared_px**2 * in_run[classes == label]
+        covs = (f * f * np.array([rows.tip_cov[r] for r in rows_c]).reshape(-1, 2, 2)
+                + added[:, None, None] * np.eye(2))
         c = angle_covariances(np.array([rows.tip_px[r] for r in rows_c]).reshape(-1, 2), covs, camera, length_m)[3]
         sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
         angles.loc[rows_c, cols] = np.column_stack([sth, sph, c[:, 0, 1] / (sth * sph)])
@@ -308,8 +312,9 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
             rows.tip_cov[r] = cov
         frames_c = angles.frame.to_numpy()[rows_c]
         sel = tip_rows & markers.frame.isin(frames_c)
+        extra = markers.loc[sel, "frame"].map(dict(zip(frames_c, added))).to_numpy(float)
         for col in ("sigma_x_px", "sigma_y_px"):
-            markers.loc[sel, col] = np.sqrt(f * f * markers.loc[sel, col] ** 2 + tau2)
+            markers.loc[sel, col] = np.sqrt(f * f * markers.loc[sel, col] ** 2 + extra)
     bad = index[list(check.outliers)]
     if len(bad):
         cols = [c for c in ("theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
@@ -320,6 +325,18 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
         for r in bad:
             del rows.tip_px[r]
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
+
+
+def b_picture_runs(angles: pd.DataFrame) -> np.ndarray:
+    """Each row's run of B pictures: the B pictures between two others (I or P, which they are predicted from)
+    share a number, counted from 0; -1 for any other row, and for every row when the table has no picture types
+    or no B picture.  A codec renders such a run from the same two pictures, so an error it makes in one of them
+    it makes in its neighbours too."""
+    types = angles["frame_type"].to_numpy().astype(str) if "frame_type" in angles else np.array([], str)
+    if not np.any(types == "B"):
+        return np.full(len(angles), -1)
+    b = types == "B"
+    return np.where(b, np.cumsum(~b), -1)
 
 
 def _follower(camera: Camera, tip: Marker, markers: MarkerSet, source) -> TipFollower:
