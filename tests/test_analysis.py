@@ -49,6 +49,7 @@ def test_analyze_recovers_truth_within_errors_and_writes_a_report(rendered, caps
         assert abs(q[name]["diff_exact_se"]) < 4, (name, q[name])
         assert q[name]["units"] in ("rad/s", "rad")
     assert "tilt_time_constant_s" not in q  # undamped: no tau
+    assert "psi_rad" not in pd.read_csv(out / "track" / "angles.csv")  # the fit does not use the frame's dots
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html and "wrong sign" in html
     sm = pd.read_csv(out / "smoothed.csv")
@@ -84,6 +85,13 @@ def test_batch_skips_an_unreadable_video_and_summarises(rendered, tmp_path, caps
     single = json.loads((tmp_path / "single" / "fit.json").read_text())["quantities"]
     assert s.precession_rate_rad_s[0] == pytest.approx(single["precession_rate_rad_s"]["value"], rel=1e-12)
     assert "precession_rate_rad_s" in (tmp_path / "batch" / "a_good" / "report.html").read_text()
+    # asked for, the frame's dots are tracked too (psi); the tip's frames are the same but for where a dot is near
+    # it, so the fit agrees within a small part of its standard error
+    assert main(["-q", "analyze", str(root / "video" / "video.mkv"), "--camera", str(root / "video" / "camera.json"),
+                 "--protocol", str(proto), "--out", str(tmp_path / "dots"), "--frame-dots"]) == 0
+    assert pd.read_csv(tmp_path / "dots" / "track" / "angles.csv").psi_rad.notna().mean() > 0.9
+    dots = json.loads((tmp_path / "dots" / "fit.json").read_text())["quantities"]["precession_rate_rad_s"]
+    assert abs(dots["value"] - single["precession_rate_rad_s"]["value"]) < 0.5 * dots["standard_error"]
 
 
 def test_batch_rows_get_their_own_folders_inside_out_and_inert_cells(rendered, tmp_path, monkeypatch):

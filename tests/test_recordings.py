@@ -191,6 +191,24 @@ def test_a_phone_recording_on_a_real_background_is_tracked_honestly(phone_clip):
         assert lo - 0.25 <= pulls[~wrong].std() <= hi + 0.25
 
 
+@pytest.mark.parametrize("codec", ["libx264", "libx265"])
+def test_a_phone_style_without_b_pictures_stores_only_i_and_p_pictures(tmp_path, codec):
+    """Many phones' hardware encoders write I and P pictures only: ``b_frames = 0`` renders such a file (the
+    encoders' own choice has B pictures, on which the record check finds their runs' common error)."""
+    scene, _, _ = variant_protocols("sphere", 0.1)
+    types = {}
+    for b in (0, None):
+        rendered = render_phone_video(scene, tmp_path / str(b), style=PhoneStyle(photo="brick", codec=codec,
+                                                                                  b_frames=b), seed=1)
+        with VideoFile(rendered["video"]).open() as frames:
+            for _ in frames:
+                pass
+            types[b] = set(frames.frame_types)
+    assert types[0] <= {"I", "P"} and "B" in types[None]
+    with pytest.raises(ValueError):
+        PhoneStyle(b_frames=-1).check()
+
+
 def test_a_phone_recording_renders_from_a_protocol_as_from_its_dict(tmp_path):
     """``render_phone_video`` takes the parsed protocol (the fit benchmark's ``--phone``) as well as its dict: the
     same seed gives the same truth and the same stored frames."""

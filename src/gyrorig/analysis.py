@@ -134,9 +134,10 @@ def analyze_video(video, camera, protocol: Protocol, out: str | Path, *, truth_c
                   progress: Progress | None = None, rng: np.random.Generator | None = None,
                   stage: Callable[[str], None] | None = None, terms: FitTerms | str = "data",
                   constraints: Constraints | None = None, prediction: Prediction | None = None,
-                  title: str | None = None) -> dict:
+                  title: str | None = None, frame_dots: bool = False) -> dict:
     """Track, smooth, fit and report one video (:func:`gyrorig.pipeline.analyze`); returns a summary dict
-    (``video, out, report, fit, analysis, frames, tracked_fraction, time_s``).
+    (``video, out, report, fit, analysis, frames, tracked_fraction, time_s``).  ``frame_dots``: track the frame's
+    dots too (``psi_rad`` in ``track/angles.csv``; the fit does not use it).
 
     ``progress(done, total)`` follows the tracking frame by frame; ``stage(message)`` is told
     when each later step starts.
@@ -144,7 +145,7 @@ def analyze_video(video, camera, protocol: Protocol, out: str | Path, *, truth_c
     out = Path(out)
     truth = load_truth(truth_csv) if truth_csv is not None else None
     res = analyze(video, camera, protocol, truth=truth, prediction=prediction, terms=terms, constraints=constraints,
-                  rng=rng, progress=progress,
+                  rng=rng, progress=progress, frame_dots=frame_dots,
                   stage=stage, on_tracked=lambda tracked: _write_tracking(out, tracked))
     (stage or logger.info)("writing the report ...")
     report = write_analysis(out, res, protocol, title=title or f"{protocol.name}: {Path(str(video)).name}")
@@ -206,8 +207,9 @@ def _result_name(video: Path, base: Path, taken: set[str]) -> str:
 
 def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | None = None,
                   protocol: Protocol | None = None, progress_line: Callable[[str], None] | None = None,
-                  terms: FitTerms | str = "data") -> pd.DataFrame:
-    """Analyse a folder of videos (one camera and protocol) or a manifest CSV.
+                  terms: FitTerms | str = "data", frame_dots: bool = False) -> pd.DataFrame:
+    """Analyse a folder of videos (one camera and protocol) or a manifest CSV (``frame_dots`` as in
+    :func:`analyze_video`).
 
     The manifest has columns ``video, protocol[, camera]`` (paths relative to the manifest).
     A video that fails is reported in the summary and skipped; the batch goes on.  Writes
@@ -225,7 +227,7 @@ def analyze_batch(source: str | Path, out: str | Path, *, camera: str | Path | N
         try:
             p = prot if isinstance(prot, Protocol) else load_protocol(prot)
             row["protocol"] = p.name
-            res = analyze_video(video, cam, p, out / stem, terms=terms)
+            res = analyze_video(video, cam, p, out / stem, terms=terms, frame_dots=frame_dots)
             row.update(status="ok", error="", frames=res["frames"], tracked_fraction=res["tracked_fraction"],
                        chi2_red=res["fit"].chi2_red)
             for name, q in res["fit"].quantities.items():

@@ -30,7 +30,9 @@ of the frames dropped; the user's camera.json has no sensor numbers), 1280x720 a
   (in front of ``astronaut``'s orange suit or ``rocket``'s lit pad the sticker is lost: they are as red);
 - ``phone-astronaut-10bit``: ``astronaut``, 10-bit HEVC;
 - ``phone-slowmo``: ``gravel``, captured at 240 fps and stored at 30 (the user states ``capture_fps``), HEVC;
-- ``phone-handheld``: ``coffee``, HEVC, the phone held in the hand: the whole picture moves by 2 px RMS at 3-7 Hz.
+- ``phone-handheld``: ``coffee``, HEVC, the phone held in the hand: the whole picture moves by 2 px RMS at 3-7 Hz;
+- ``phone-camera-ippp``: ``camera`` (the cameraman, in grey), HEVC with no B pictures (I and P only, as many phones'
+  hardware encoders write).
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ PHONE_VARIANTS = {
     "phone-astronaut-10bit": (dict(photo="astronaut", codec="libx265", bit_depth=10), {}),
     "phone-slowmo": (dict(photo="gravel", codec="libx265", container_fps=30.0), {}),
     "phone-handheld": (dict(photo="coffee", codec="libx265", shake_px=2.0), {}),
+    "phone-camera-ippp": (dict(photo="camera", codec="libx265", b_frames=0), {}),
 }
 VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip", *PHONE_VARIANTS)
 

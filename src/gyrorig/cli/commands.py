@@ -483,7 +483,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         if args.start is not None or args.end is not None:
             raise ValueError("--start and --end apply to one video, not to a batch")
         summary = analyze_batch(src, out, camera=args.camera, protocol=protocol, progress_line=print,
-                                terms=terms_arg(args.terms))
+                                terms=terms_arg(args.terms), frame_dots=args.frame_dots)
         ok = int((summary.status == "ok").sum())
         print(f"{ok} of {len(summary)} videos analysed -> {out / 'summary.csv'}")
         if ok < len(summary):  # on stderr too: with -q it is all the user sees
@@ -499,7 +499,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
         camera = _with_capture_fps(load_camera(args.camera, require_pose=False), args.capture_fps)
     res = analyze_video(clipped(src, args), camera, protocol, out, truth_csv=args.truth, progress=progress_printer("track"),
-                        terms=terms_arg(args.terms), constraints=constraints,
+                        terms=terms_arg(args.terms), constraints=constraints, frame_dots=args.frame_dots,
                         stage=lambda msg: print(msg, flush=True))
     ts = res["time_s"]
     print(f"{res['frames']} frames, {res['tracked_fraction']:.1%} tracked; track {ts['track']:.1f} s, smooth "

@@ -254,6 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_capture_fps(an)
     add_clip_options(an)
     add_fit_options(an)
+    an.add_argument("--frame-dots", action="store_true",
+                    help="also track the frame's off-axis dots (psi_rad in track/angles.csv; the fit does not use it, "
+                         "and it takes 30-40 %% of the tracking time)")
     an.set_defaults(func="_cmd_analyze")
 
     idf = sub.add_parser("identify", help="a rig's parameters with covariance from its measurements: fit.json files "

@@ -65,6 +65,9 @@ class PhoneStyle:
     codec: str = "libx265"
     #: constant-quality factor of the encoder (phones record at about 20-28)
     crf: int = 23
+    #: the most B pictures in a row (0: only I and P pictures, as many phones' hardware encoders write); None: the
+    #: encoder's own choice
+    b_frames: int | None = None
     #: 8 or 10 bits per value in the file
     bit_depth: int = 8
     #: the transfer curve of the stored values, tagged in the file ("bt709", as phones record SDR video); None: the
@@ -93,6 +96,8 @@ class PhoneStyle:
             raise ValueError(f"transfer = {self.transfer!r}: allowed 'bt709' or None")
         if self.bit_depth not in (8, 10):
             raise ValueError(f"bit_depth = {self.bit_depth}: allowed 8, 10")
+        if self.b_frames is not None and not 0 <= self.b_frames <= 16:
+            raise ValueError(f"b_frames = {self.b_frames}: allowed 0-16 or None")
         if not 0.0 <= self.drop_fraction < 0.5:
             raise ValueError(f"drop_fraction = {self.drop_fraction}: allowed [0, 0.5)")
         if not 0.0 <= self.jitter_fraction < 0.25:
@@ -105,6 +110,16 @@ class PhoneStyle:
 
 #: FFmpeg's code of the BT.709 transfer characteristic (AVCOL_TRC_BT709)
 _TRC_BT709 = 1
+
+
+def _encoder_options(style: PhoneStyle) -> dict[str, str]:
+    """The lossy encoder's options: constant quality, a fast preset, and the B pictures the style asks for."""
+    options = {"crf": str(style.crf), "preset": "veryfast"}
+    if style.codec == "libx265":
+        options["x265-params"] = "log-level=error" + (f":bframes={style.b_frames}" if style.b_frames is not None else "")
+    elif style.b_frames is not None:
+        options["bf"] = str(style.b_frames)
+    return options
 
 
 def _encoded(linear: np.ndarray, style: PhoneStyle) -> np.ndarray:
@@ -219,9 +234,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
         if style.transfer == "bt709":
             stream.codec_context.color_trc = _TRC_BT709
         if style.codec != "ffv1":
-            stream.options = {"crf": str(style.crf), "preset": "veryfast"}
-            if style.codec == "libx265":
-                stream.options["x265-params"] = "log-level=error"
+            stream.options = _encoder_options(style)
         top = (1 << style.bit_depth) - 1
         for k, (image, truth) in enumerate(render_frames(protocol, seed=seed, duration_s=duration, noise=False)):
             truths.append(truth)
