@@ -81,6 +81,24 @@ def test_errors_from_the_scatter_are_the_pixel_noise(seed):
         assert abs(q.pull) < 4.0, (name, q.pull)
 
 
+def test_a_track_too_coarse_in_time_for_its_path_is_not_checked_by_it():
+    """At 25 frames/s the heavy top's nutation (9.5 Hz) turns by 2.4 rad between frames: no path through a frame's
+    neighbours predicts it, and the scatter about one is the motion, not the noise (it gave errors 50x too large on
+    a 30 frames/s phone render).  Without stated errors the track is refused (errors from that scatter would be the
+    motion's); with them they are used as stated, and the fit recovers the truth (pulls within 4)."""
+    p = load_protocol(HEAVY)
+    table, truth, cam = _pixels(p, 0.3, 0, duration_s=4.0, rate_hz=25.0)
+    with pytest.raises(BadInputError):
+        angles_from_pixel_track(table.assign(sigma_px=np.nan), cam, p)
+    angles, summary = angles_from_pixel_track(table.assign(sigma_px=0.3), cam, p)
+    assert summary["sigma_px"] == pytest.approx(0.3) and not summary["sigma_check"]["smooth_path"]
+    assert (angles.quality == "ok").all()  # no frame taken for an outlier of a path that cannot follow the motion
+    fit = fit_angles(angles, p, prediction=predict(p, simulate_damping=False),
+                     truth=truth[["t_s", "theta_rad", "phi_rad"]])
+    for name, q in fit.quantities.items():
+        assert abs(q.pull) < 4.0, (name, q.pull)
+
+
 def test_a_tracker_file_gives_the_angles_of_the_same_csv(tmp_path):
     p = load_protocol(HEAVY)
     table, truth, cam = _pixels(p, 0.3, 0, duration_s=1.0)

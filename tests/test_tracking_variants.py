@@ -128,6 +128,26 @@ def test_scatter_check_finds_an_error_common_to_each_run_of_b_pictures():
     assert (error[b] / np.hypot(f * sigma, check.floor_px)[b, None]).std() > 2.0
 
 
+def test_scatter_check_knows_when_the_path_cannot_follow_the_motion():
+    """The check holds while a path through six neighbours predicts a frame far below its noise.  A 9.5 Hz nod seen
+    at 30 frames/s (2 rad per frame) leaves residuals that are the motion: the check says so (``smooth_path``) rather
+    than read them as errors 50x too large.  Noise correlated from frame to frame as a P-picture chain's (AR(1), 0.6)
+    at 240 frames/s is still noise to it (its residuals' correlations at lags 1-4 move by up to 0.1 from white
+    noise's, where the coarse path's move by 0.4-1.2)."""
+    rng = np.random.default_rng(9)
+    t = np.arange(120) / 30.0
+    xy = np.column_stack([300 + 40 * np.cos(1.7 * t) + 6 * np.sin(59.5 * t), 200 + 30 * np.sin(1.7 * t)
+                          + 6 * np.cos(59.5 * t)])
+    coarse = check_sigmas(t, np.arange(120), xy + rng.normal(0, 0.1, xy.shape), np.full(xy.shape, 0.01))
+    assert not coarse.smooth_path
+    t, frames, xy = _path(1000)
+    noise = np.zeros(xy.shape)
+    for k in range(1, len(t)):
+        noise[k] = 0.6 * noise[k - 1] + rng.normal(0, 0.05, 2)
+    fine = check_sigmas(t, frames, xy + noise, np.full(xy.shape, 0.05**2))
+    assert fine.smooth_path, fine.residual_acf
+
+
 def _camera():
     """1280x720, f = 1000 px, a lens with k1, k2, k3, looking down at the pivot from 0.7 m, 10 deg off
     vertical."""

@@ -22,6 +22,7 @@ tracker adds them.  Times are the frames' start times plus half camera.json's ex
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -33,7 +34,7 @@ from ..protocols import Protocol
 from ..camera import Camera
 from .errors import BadInputError
 from .rays import angle_covariances
-from .scatter import check_sigmas
+from .scatter import NOISE_ACF, check_sigmas
 from .pose import add_camera_modes
 from .tracker import SIGMA_CHECK_Z, tip_marker
 
@@ -194,7 +195,15 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
     if not math.isfinite(check.factor):
         raise BadInputError("the pixel track has too few runs of 7 nearby frames to find its errors from its scatter "
                             "(give sigma_px)")
-    if given.all():
+    if not check.smooth_path:
+        if not given.all():
+            raise BadInputError(
+                f"the tip moves too far between the track's frames for its errors to come from its scatter (the "
+                f"residuals about its path are correlated {np.round(check.residual_acf, 2).tolist()} 1-4 frames apart, "
+                f"{np.round(NOISE_ACF, 2).tolist()} for noise): give sigma_px")
+        check = replace(check, outliers=())
+        scale, source = 1.0, "stated (the track moves too far between frames to check them)"
+    elif given.all():
         scale = check.factor if check.factor > 1.0 + SIGMA_CHECK_Z * check.factor_se else 1.0
         source = "stated" + (f", scaled by {scale:.3g} (the scatter about the path)" if scale != 1.0 else "")
     else:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import lsq_linear
+from scipy.stats import chi2
 
 __all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN"]
 
@@ -32,6 +33,32 @@ HALF_WINDOW = 3
 MAX_SPAN = 2 * HALF_WINDOW + 4
 #: a frame whose residual exceeds this many of its (scaled) standard deviations is an outlier
 OUTLIER_Z = 5.0
+
+
+#: the residuals' correlations from frame to frame are compared at lags 1 to this
+ACF_LAGS = 4
+
+
+def _noise_acf() -> np.ndarray:
+    """The correlation of residuals ``k = 1 ..`` :data:`ACF_LAGS` frames apart when they hold only noise, independent
+    and alike from frame to frame, on a uniform grid: ``sum_j c_j c_(j+k) / sum_j c_j^2`` of the stencil's weights
+    (-0.857, 0.536, -0.234, 0.071)."""
+    nodes = [j for j in range(-HALF_WINDOW, HALF_WINDOW + 1) if j != 0]
+    weights = [math.prod((0 - b) / (a - b) for b in nodes if b != a) for a in nodes]
+    c = np.array(weights[:HALF_WINDOW] + [-1.0] + weights[HALF_WINDOW:])
+    return np.array([np.sum(c[:-k] * c[k:]) for k in range(1, ACF_LAGS + 1)]) / np.sum(c * c)
+
+
+#: :func:`_noise_acf`
+NOISE_ACF = _noise_acf()
+#: how far the correlations may depart from :data:`NOISE_ACF` before it counts: noise correlated from frame to frame
+#: (a P-picture chain's, AR(1) 0.6-0.85) moves them by up to 0.06; a share ``s`` of the residuals' variance from the
+#: tip's own motion moves them by ``s`` times the difference from the motion's (``cos k omega`` for a nod of
+#: ``omega`` per frame), so 0.1 lets through up to about 5-10 % of it
+ACF_TOLERANCE = 0.1
+#: the path is taken as not following the motion when the correlations' departures beyond the tolerance are this
+#: unlikely for noise (chi-square with :data:`ACF_LAGS` degrees of freedom, Bartlett's variance of each)
+ACF_TAIL = 1e-4
 
 
 @dataclass(frozen=True)
@@ -57,6 +84,12 @@ class SigmaCheck:
     #: and its standard error; 0 when not looked for
     floor_px: float = 0.0
     floor_px_se: float = 0.0
+    #: the correlations of checked frames' residuals 1 .. :data:`ACF_LAGS` frames apart (empty when too few frames are
+    #: neighbours), and whether they say that the residuals hold noise (:data:`NOISE_ACF`): where the tip moves too far
+    #: between frames for the path to follow it (a low frame rate for the motion) the residuals hold the motion, and
+    #: the check says nothing of the errors
+    residual_acf: tuple = ()
+    smooth_path: bool = True
     #: an error common to the frames of each group (``check_sigmas``' ``groups``), independent from group to group
     #: (per axis) [px], and its standard error; 0 when not looked for
     shared_px: float = 0.0
@@ -69,6 +102,7 @@ class SigmaCheck:
                              for k, (f, se, n) in self.by_class.items()},
                 "applied": self.applied, "applied_factors": self.applied_factors, "reason": self.reason,
                 "floor_px": self.floor_px, "floor_px_se": self.floor_px_se,
+                "residual_acf": list(self.residual_acf), "smooth_path": self.smooth_path,
                 "shared_px": self.shared_px, "shared_px_se": self.shared_px_se}
 
 
@@ -233,8 +267,28 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     factor = math.sqrt(float(np.mean(z * z)))
     floor_px, floor_se = _root(tau2, tau2_se)
     shared_px, shared_se = _root(kappa2, kappa2_se)
+    acf, smooth = _path_follows(centres, z)
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
-                      floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se)
+                      floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se,
+                      residual_acf=acf, smooth_path=smooth)
+
+
+def _path_follows(centres: np.ndarray, z: np.ndarray) -> tuple[tuple, bool]:
+    """The residuals' correlations 1 .. :data:`ACF_LAGS` checked frames apart (both axes pooled, over frames that
+    many apart in the record), and whether they are noise's (:data:`NOISE_ACF` within :data:`ACF_TOLERANCE`, the
+    rest no more than chance: :data:`ACF_TAIL`).  ``((), True)`` with fewer than 20 pairs at some lag."""
+    acf, counts = [], []
+    for k in range(1, ACF_LAGS + 1):
+        pair = np.flatnonzero(centres[k:] - centres[:-k] == k)
+        if len(pair) < 20:
+            return (), True
+        a, b = z[pair], z[pair + k]
+        acf.append(float(np.sum(a * b) / math.sqrt(np.sum(a * a) * np.sum(b * b))))
+        counts.append(a.size)
+    excess = np.maximum(np.abs(np.array(acf) - NOISE_ACF) - ACF_TOLERANCE, 0.0)
+    bartlett = 1.0 + 2.0 * float(np.sum(NOISE_ACF**2))  # the variance of a sample correlation, times its count
+    stat = float(np.sum(excess**2 * np.array(counts) / bartlett))
+    return tuple(round(v, 4) for v in acf), stat <= chi2.isf(ACF_TAIL, ACF_LAGS)
 
 
 def _root(value: float, se: float) -> tuple[float, float]:

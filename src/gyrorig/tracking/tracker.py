@@ -47,7 +47,7 @@ from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .pose import add_camera_modes, estimate_pose
 from .rays import angle_covariances, angles_with_covariance
-from .scatter import SigmaCheck, check_sigmas
+from .scatter import NOISE_ACF, SigmaCheck, check_sigmas
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
 from .timing import FrameClock, check_frame_rate, frame_interval_stats, settle_timing
 from .sources import as_source, fingerprint
@@ -282,6 +282,12 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
                          min_factor=1.0 if doubts else 0.0, groups=runs)
     if not math.isfinite(check.factor):
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
+    if not check.smooth_path:
+        why = (f"the tip moves too far between frames for a path through its neighbours to predict it (their "
+               f"residuals' correlations 1-4 frames apart {_rounded(check.residual_acf)}, {_rounded(NOISE_ACF)} for noise): the "
+               "errors are the spot fits' own, unchecked")
+        logger.warning("%s; a higher frame rate lets the record check them", why)
+        return replace(check, outliers=(), reason=why)
     factors, reasons = {}, []
     for label in ("clear", "blended"):
         f, se, n = check.by_class.get(label, (check.factor, check.factor_se, 0))
@@ -325,6 +331,10 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
         for r in bad:
             del rows.tip_px[r]
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
+
+
+def _rounded(values) -> str:
+    return "(" + ", ".join(f"{v:.2f}" for v in values) + ")"
 
 
 def b_picture_runs(angles: pd.DataFrame) -> np.ndarray:
