@@ -333,7 +333,9 @@ def pose_from_motion(video, start: Camera, protocol: Protocol, *, progress=None)
     camera = replace(start, pose_covariance=None, pose_points=None, pose_recording=None)
     focal_sd_rel = _focal_sd_rel(start)
     for final in (False, True):  # the second pass tracks with the pose found: frames the rough pose lost come back
-        result = track(video, camera, protocol, progress=progress, frame_dots=False)
+        # the rough placement puts the lab fiducials where they are not: the camera's motion is followed on them only
+        # once the pose is the motion's
+        result = track(video, camera, protocol, progress=progress, frame_dots=False, watch_camera=final)
         m = result.markers
         rows = m[(m.marker == tip.name) & m.frame.isin(result.angles.frame[result.angles.theta_rad.notna()])]
         # the focal length's prior is the starting camera's (a data sheet's), whatever the tracking pass used

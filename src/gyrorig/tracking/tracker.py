@@ -368,8 +368,14 @@ def _matched(camera: Camera, frames, source) -> Camera:
         camera = camera.with_sensor(bit_depth=frames.bit_depth)
     camera = settle_transfer(camera, frames.transfer, source, lossy=frames.lossy)
     if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
+        sx, sy = frames.width_px / camera.width_px, frames.height_px / camera.height_px
+        hint = (f" (a {sx:.4g}x picture: if the camera records the same field of view at both sizes, its intrinsics "
+                f"scale by {sx:.4g}; many phones crop the sensor differently per video mode, so calibrate or pose at "
+                "the video's size)" if abs(sx - sy) < 1e-3 else
+                " (another aspect ratio: the camera crops differently in this mode; calibrate or pose at the video's "
+                "size)")
         raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
-                            f"{frames.width_px} x {frames.height_px}")
+                            f"{frames.width_px} x {frames.height_px}{hint}")
     return camera
 
 
@@ -385,7 +391,7 @@ def _steadied(rows: _Tables, watch: CameraWatch, camera: Camera, length_m: float
 
 
 def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | None = None,
-          frame_dots: bool = True) -> TrackResult:
+          frame_dots: bool = True, watch_camera: bool = True) -> TrackResult:
     """Track the tip marker through a video (a path, or a frame source of :mod:`gyrorig.tracking.sources`).
 
     With ``frame_dots`` (and frame-fixed dots off the axis in the protocol, like the crossbar)
@@ -395,7 +401,9 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     are gaps; a variable rate's frames keep their order and own times; a slow-motion file's times are
     scaled by its rate over ``camera.capture_fps``); a frame identical to the one before is marked
     ``duplicate``.  Frames are read at the video's own bit depth.  Reads only the video, the camera and
-    the protocol's markers.
+    the protocol's markers.  With ``watch_camera`` (and lab fiducials in the protocol) the camera's own motion is
+    followed on the fiducials and taken off the tip (:mod:`gyrorig.tracking.steady`); without it (a rough pose, which
+    puts the fiducials where they are not) it is not looked for.
 
     Raises :class:`TrackingError` for an unreadable video, a camera that does not match the
     video, or a tip that is never found.
@@ -415,7 +423,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = camera.with_sensor(gain_e_per_adu=math.nan)
         follower = _follower(camera, tip, markers, source)
-        watch = CameraWatch(camera, follower.lab_px)
+        watch = CameraWatch(camera, follower.lab_px if watch_camera else [])
         dot_markers = markers.frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
