@@ -116,7 +116,8 @@ def _encoder_options(style: PhoneStyle) -> dict[str, str]:
     """The lossy encoder's options: constant quality, a fast preset, and the B pictures the style asks for."""
     options = {"crf": str(style.crf), "preset": "veryfast"}
     if style.codec == "libx265":
-        options["x265-params"] = "log-level=error" + (f":bframes={style.b_frames}" if style.b_frames is not None else "")
+        bframes = f":bframes={style.b_frames}" if style.b_frames is not None else ""
+        options["x265-params"] = "log-level=error" + bframes
     elif style.b_frames is not None:
         options["bf"] = str(style.b_frames)
     return options

@@ -11,6 +11,10 @@ the tracker reports), if those errors are right.  :func:`check_sigmas` compares:
 :data:`OUTLIER_Z` of their scaled error) are outliers: a position that is not the tip's, or one that
 light from another marker pulled away.
 
+Beside the factors the check can solve an error common to every frame (a lossy codec's floor) and one common to
+the frames of each group (a codec's run of B pictures), and it says when the path cannot follow the motion at all
+(the residuals then correlated from frame to frame as a motion, not as noise: a frame rate too low for it).
+
 This needs no model of the sensor or of the spot: it is how the tracker's errors are made honest
 for footage whose sensor response is unknown (no gain, gamma, a lossy codec) or whose marker has no
 exact model, and how they are checked otherwise.
@@ -25,7 +29,8 @@ import numpy as np
 from scipy.optimize import lsq_linear
 from scipy.stats import chi2
 
-__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN"]
+__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN",
+           "NOISE_ACF"]
 
 #: neighbours on each side that predict a frame
 HALF_WINDOW = 3
@@ -288,7 +293,7 @@ def _path_follows(centres: np.ndarray, z: np.ndarray) -> tuple[tuple, bool]:
     excess = np.maximum(np.abs(np.array(acf) - NOISE_ACF) - ACF_TOLERANCE, 0.0)
     bartlett = 1.0 + 2.0 * float(np.sum(NOISE_ACF**2))  # the variance of a sample correlation, times its count
     stat = float(np.sum(excess**2 * np.array(counts) / bartlett))
-    return tuple(round(v, 4) for v in acf), stat <= chi2.isf(ACF_TAIL, ACF_LAGS)
+    return tuple(round(v, 4) for v in acf), bool(stat <= chi2.isf(ACF_TAIL, ACF_LAGS))
 
 
 def _root(value: float, se: float) -> tuple[float, float]:

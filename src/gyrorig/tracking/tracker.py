@@ -284,8 +284,8 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
     if not check.smooth_path:
         why = (f"the tip moves too far between frames for a path through its neighbours to predict it (their "
-               f"residuals' correlations 1-4 frames apart {_rounded(check.residual_acf)}, {_rounded(NOISE_ACF)} for noise): the "
-               "errors are the spot fits' own, unchecked")
+               f"residuals' correlations 1-4 frames apart {_rounded(check.residual_acf)}, "
+               f"{_rounded(NOISE_ACF)} for noise): the errors are the spot fits' own, unchecked")
         logger.warning("%s; a higher frame rate lets the record check them", why)
         return replace(check, outliers=(), reason=why)
     factors, reasons = {}, []
@@ -334,6 +334,7 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
 
 
 def _rounded(values) -> str:
+    """Numbers as ``(a, b, ...)`` to two decimals, for a message."""
     return "(" + ", ".join(f"{v:.2f}" for v in values) + ")"
 
 
