@@ -47,15 +47,13 @@ ACF_LAGS = 4
 def _noise_acf() -> np.ndarray:
     """The correlation of residuals ``k = 1 ..`` :data:`ACF_LAGS` frames apart when they hold only noise, independent
     and alike from frame to frame, on a uniform grid: ``sum_j c_j c_(j+k) / sum_j c_j^2`` of the stencil's weights
-    (-0.857, 0.536, -0.234, 0.071)."""
-    nodes = [j for j in range(-HALF_WINDOW, HALF_WINDOW + 1) if j != 0]
-    weights = [math.prod((0 - b) / (a - b) for b in nodes if b != a) for a in nodes]
-    c = np.array(weights[:HALF_WINDOW] + [-1.0] + weights[HALF_WINDOW:])
+    (-0.857, 0.536, -0.238, 0.071)."""
+    n = 2 * HALF_WINDOW + 1
+    _, _, w = _stencils(np.arange(n, dtype=float), np.arange(n), np.ones(n, bool))  # the one stencil of n frames
+    c = np.r_[-w[0, :HALF_WINDOW], 1.0, -w[0, HALF_WINDOW:]]
     return np.array([np.sum(c[:-k] * c[k:]) for k in range(1, ACF_LAGS + 1)]) / np.sum(c * c)
 
 
-#: :func:`_noise_acf`
-NOISE_ACF = _noise_acf()
 #: how far the correlations may depart from :data:`NOISE_ACF` before it counts: noise correlated from frame to frame
 #: (a P-picture chain's, AR(1) 0.6-0.85) moves them by up to 0.06; a share ``s`` of the residuals' variance from the
 #: tip's own motion moves them by ``s`` times the difference from the motion's (``cos k omega`` for a nod of
@@ -130,6 +128,10 @@ def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray) -> tuple[
             if a != b:
                 weights[:, a] *= (t0 - t_s[nb[:, b]]) / (t_s[nb[:, a]] - t_s[nb[:, b]])
     return idx, nb, weights
+
+
+#: :func:`_noise_acf`
+NOISE_ACF = _noise_acf()
 
 
 def path_residuals(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray, var: np.ndarray, active: np.ndarray
