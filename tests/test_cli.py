@@ -202,3 +202,16 @@ def test_a_settings_file_larger_than_any_real_one_is_refused(tmp_path, capsys):
     path.write_text((PROTOCOL_DIR / "free-top.toml").read_text() + "#" + "x" * (MAX_SETTINGS_BYTES + 2**20) + "\n")
     assert main(["theory", str(path), "--no-simulate"]) == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_progress_of_a_source_of_unknown_length_is_a_count_not_a_line_per_call(capsys):
+    """A source that states no length (total 0) in a log file: the count so far at most every 5 s, not a line per
+    call (each call once made a new tenth of the work), and the last call (done of done) gives the total."""
+    from gyrorig.cli.printing import progress_printer
+
+    show = progress_printer("track")
+    for done in range(50, 5050, 50):
+        show(done, 0)
+    show(5000, 5000)
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("track")]
+    assert len(lines) <= 3 and lines[-1].startswith("track: 5000/5000")

@@ -296,6 +296,27 @@ def test_a_phone_video_stored_turned_is_tracked_as_displayed(tmp_path, phone_cli
         pd.testing.assert_frame_equal(expected, got)
 
 
+def test_a_file_cut_short_is_tracked_as_far_as_it_goes_and_said_to_be(tmp_path, phone_clip):
+    """A Matroska file cut in transfer still opens (its header states the whole length): the frames it holds are
+    tracked as in the whole file and the result says it was cut short; an MP4 cut short (no index) is refused
+    as bad input."""
+    scene, user, rendered = phone_clip
+    with VideoFile(rendered["video"]).open() as frames:
+        upright = [f for f, _ in frames]
+    _write_ffv1(tmp_path / "whole.mkv", upright)
+    data = (tmp_path / "whole.mkv").read_bytes()
+    (tmp_path / "cut.mkv").write_bytes(data[: len(data) // 2])
+    cam = load_camera(Path(rendered["video"]).parent / "camera.json")
+    whole = track(tmp_path / "whole.mkv", cam, parse_protocol(user))
+    cut = track(tmp_path / "cut.mkv", cam, parse_protocol(user))
+    assert whole.source_problems == ()
+    assert cut.source_problems and cut.frames < 0.6 * whole.frames
+    mp4 = Path(rendered["video"]).read_bytes()
+    (tmp_path / "cut.mp4").write_bytes(mp4[: len(mp4) // 2])
+    with pytest.raises(BadInputError):
+        track(tmp_path / "cut.mp4", cam, parse_protocol(user))
+
+
 def test_a_hand_held_phone_is_steadied_by_the_fiducials(tmp_path, phone_clip):
     """A hand-held phone: the whole picture moves by 2 px RMS at 3-7 Hz (a small turn of the camera), which the
     fixed pose turns into tilt and azimuth errors of many sigma, each flagged ok (122 of 196 frames on a 1 s clip).

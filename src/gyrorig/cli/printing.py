@@ -41,6 +41,15 @@ def progress_printer(label: str):
     logged = [-1]
 
     def show(done: int, total: int) -> None:
+        if total < done or total <= 0:  # a length the source does not state: the count so far, every 5 s
+            now = time.perf_counter() - start
+            if tty:
+                sys.stderr.write(f"\r{label}: {done} ({done / max(now, 1e-9):.0f}/s)")
+            elif now >= 5.0 * (logged[0] + 1):
+                logged[0] = int(now // 5.0)
+                sys.stderr.write(f"{label}: {done} after {now:.0f} s\n")
+            sys.stderr.flush()
+            return
         if not tty:
             tenth = 10 * done // max(total, 1)
             if tenth > logged[0]:

@@ -23,7 +23,7 @@ import queue
 import re
 import threading
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -66,6 +66,9 @@ class Frames:
     #: the transfer characteristic the stream states (:func:`gyrorig.tracking.transfer.transfer_of_video`: ``bt709``,
     #: ``hlg`` ...); None when it says none or the source is not a video
     transfer: str | None = None
+    #: what went wrong while reading, filled as the frames are read (a stream that breaks off: the decoder's
+    #: message); the frames before it stand
+    problems: list[str] = field(default_factory=list)
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -138,7 +141,8 @@ class VideoFile:
             container = av.open(str(self.path), "r")
             stream = container.streams.video[0]
         except (av.FFmpegError, IndexError, ValueError) as exc:
-            raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})") from exc
+            raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})"
+                                f"{_cut_hint(self.path)}") from exc
         stream.thread_type = "AUTO"
         ctx = stream.codec_context
         pix = ctx.format
@@ -150,16 +154,22 @@ class VideoFile:
         fps = float(rate) if rate else math.nan
         lossy = ctx.name not in LOSSLESS_CODECS
         count = int(stream.frames or 0)
-        if not count and stream.duration and stream.time_base and math.isfinite(fps):  # Matroska states no count
-            count = int(round(float(stream.duration * stream.time_base) * fps))
+        if not count and math.isfinite(fps):  # Matroska states no count: the duration in the stream or its header
+            if stream.duration and stream.time_base:
+                count = int(round(float(stream.duration * stream.time_base) * fps))
+            elif container.duration:
+                count = int(round(container.duration / av.time_base * fps))
         types: list[str] = []
         first = self._first_frame()
         turns = self.display_turns(first)
         levels = None if colour else _luma_levels(first, bits)
         transfer = transfer_of_video(getattr(first, "color_trc", None)) if first is not None else None
         width, height = (int(ctx.height), int(ctx.width)) if turns % 2 else (int(ctx.width), int(ctx.height))
-        return Frames(width, height, fps, count, _decoded_frames(container, stream, colour, types, turns=turns),
-                      lossy=lossy, bit_depth=bits, frame_types=types, levels=levels, transfer=transfer)
+        problems: list[str] = []
+        return Frames(width, height, fps, count,
+                      _decoded_frames(container, stream, colour, types, turns=turns, problems=problems),
+                      lossy=lossy, bit_depth=bits, frame_types=types, levels=levels, transfer=transfer,
+                      problems=problems)
 
     def _first_frame(self):
         """The stream's first decoded frame (None when it has none): what its display matrix and colour range say."""
@@ -184,6 +194,14 @@ class VideoFile:
             raise BadInputError(f"video {self.path}: its display matrix turns the picture by {degrees} degrees; only "
                                 "quarter turns are supported (re-encode it upright)")
         return (degrees // 90) % 4
+
+
+def _cut_hint(path: Path) -> str:
+    """What an MP4 or MOV file FFmpeg cannot open most often is: one copied or sent before the recording ended."""
+    if path.suffix.lower() not in (".mp4", ".mov", ".m4v", ".3gp"):
+        return ""
+    return ("; an MP4 or MOV file cut short (copied before the recording stopped, or truncated in transfer) has no "
+            "index, which the camera writes when recording stops: a complete copy of the file is needed")
 
 
 #: FFmpeg's colour range of a frame that says it holds full-range values (AVCOL_RANGE_JPEG)
@@ -473,7 +491,8 @@ class Clip:
                 raise BadInputError(f"{self}: no frame lies between the clip's ends")
 
         return Frames(inner.width_px, inner.height_px, inner.fps, 0, items(), lossy=inner.lossy,
-                      bit_depth=inner.bit_depth, frame_types=types, levels=inner.levels, transfer=inner.transfer)
+                      bit_depth=inner.bit_depth, frame_types=types, levels=inner.levels, transfer=inner.transfer,
+                      problems=inner.problems)
 
 
 def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
@@ -490,15 +509,16 @@ def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
 PICTURE_TYPES = {1: "I", 2: "P", 3: "B", 4: "S", 5: "SI", 6: "SP", 7: "BI"}
 
 
-def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8, turns: int = 0
-                    ) -> Iterator[tuple[np.ndarray, float]]:
+def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8, turns: int = 0,
+                    problems: list[str] | None = None) -> Iterator[tuple[np.ndarray, float]]:
     """Yield ``(frame, start time s)``, decoding in a background thread (decoding the next frames overlaps
     with tracking this one: two cores give the slower of the two, not their sum); each yielded frame's
     picture type (:data:`PICTURE_TYPES`, '' when the codec does not say) is appended to ``types`` first.
     Each picture is turned by ``turns`` quarter turns counter-clockwise (its display orientation).
 
     Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
-    then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there.
+    then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there, its
+    decoder's message appended to ``problems``.
     """
     import av
 
@@ -521,8 +541,9 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
                 if turns:
                     image = np.ascontiguousarray(np.rot90(image, turns))
                 q.put((image, t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
-        except (av.FFmpegError, ValueError, MemoryError):
-            pass  # a truncated or damaged stream: the frames decoded so far stand
+        except (av.FFmpegError, ValueError, MemoryError) as exc:  # the frames decoded so far stand
+            if problems is not None:
+                problems.append(f"decoding stopped: {exc}")
         finally:
             q.put(None)
 

@@ -64,6 +64,9 @@ MAX_TIP_IMAGE_FRACTION = 0.25
 #: errors the sensor and spot models give are scaled up when the scatter exceeds them by this many standard
 #: errors of the check
 SIGMA_CHECK_Z = 4.0
+#: a video whose decoded frames fall short of its header's count by more than this fraction is reported as cut short
+#: (a Matroska file's count is estimated from its duration, which frames its camera dropped also fill)
+CUT_SHORT = 0.9
 #: a class of frames (blended or clear) needs this many checked coordinates for a factor of its own
 MIN_CLASS_COORDINATES = 30
 #: ... and a relative standard error below this (the classes' factors are told apart only when frames of one
@@ -101,6 +104,9 @@ class TrackResult:
     frame_times: dict = field(default_factory=dict)
     #: the camera's motion seen on its fiducials (:mod:`gyrorig.tracking.steady`; None: none in view)
     camera_motion: CameraMotion | None = None
+    #: what went wrong reading the source (a file cut short, a decoder stopped on damaged data); the frames
+    #: before it are tracked
+    source_problems: tuple[str, ...] = ()
 
     @property
     def camera_modes(self) -> int:
@@ -120,7 +126,7 @@ class TrackResult:
                 "camera_sigma_rad": self.camera_sigma_rad, "rvec": self.camera.rvec.tolist(),
                 "tvec": self.camera.tvec.tolist(),
                 "sigma_check": self.sigma_check.as_dict() if self.sigma_check is not None else None,
-                "frame_times": self.frame_times}
+                "frame_times": self.frame_times, "source_problems": list(self.source_problems)}
 
 
 def _markers_and_tip(protocol: Protocol) -> tuple[MarkerSet, Marker]:
@@ -467,6 +473,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     if k == 0:
         raise TrackingError(f"{source}: no frame could be decoded (unreadable or truncated video)")
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
+    source_problems = _source_problems(frames, k, source)
     motion = _steadied(rows, watch, camera, tip.position_m[2], source)
     angles, markers = rows.tables(camera, dots is not None)
     if frame_types:
@@ -483,14 +490,33 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
                                      pose_info or camera.pose_points, own_pose)
     if progress:
         progress(k, k)
+    times = _frame_times(clock, camera, time_scale, source)
+    return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
+                       pose_info, camera_sigma, check, times, motion, source_problems)
+
+
+def _frame_times(clock, camera: Camera, time_scale: float, source) -> dict:
+    """The frame intervals measured against the camera's rate (:func:`frame_interval_stats`, with the time scale
+    and renumbering applied); a warning when they disagree."""
     times = frame_interval_stats(np.asarray(clock.times), camera.fps)
     if times:
         times.update(time_scale=time_scale, renumbered_frames=clock.renumbered,
                      capture_fps=camera.capture_fps if math.isfinite(camera.capture_fps) else None)
     if not times.get("agrees_with_camera", True):
         logger.warning("%s: %s", source, times["warning"])
-    return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
-                       pose_info, camera_sigma, check, times, motion)
+    return times
+
+
+def _source_problems(frames, decoded: int, source) -> tuple[str, ...]:
+    """What went wrong reading (its decoder stopped on damaged data, or the video ended before its header said it
+    would), each logged as a warning."""
+    problems = [f"{problem} after {decoded} frames" for problem in frames.problems]
+    if frames.count and decoded < CUT_SHORT * frames.count:
+        problems.append(f"the video ends after {decoded} of the {frames.count} frames its header states: a file cut "
+                        "short (copied before the recording stopped, or truncated in transfer)")
+    for problem in problems:
+        logger.warning("%s: %s; the frames before it are tracked", source, problem)
+    return tuple(problems)
 
 
 def _protocol_exposure(camera: Camera, protocol: Protocol) -> Camera:
