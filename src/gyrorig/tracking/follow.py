@@ -55,10 +55,6 @@ __all__ = ["TipFollower", "Located", "SIZE_RANGE", "Verdict", "Candidate", "Firs
 
 #: the fitted radius over the marker's expected image radius allowed for the tip (a sphere, or a blob)
 SIZE_RANGE = {"sphere": (0.7, 1.4), "blob": (0.4, 2.5)}
-#: a round tip recorded (no sensor model) with an exposure of at least this fraction of the frame interval, or none
-#: stated, may be drawn out into a streak by its motion: an elongated spot is fitted as one
-#: (:func:`gyrorig.tracking.scene_spot.fit_scene_spot`)
-STREAK_EXPOSURE_FRACTION = 0.25
 #: once followed, the fitted radius and amplitude must stay within these factors of their running medians
 RADIUS_CHANGE = (0.8, 1.25)
 AMPLITUDE_CHANGE = (0.6, 1.6)
@@ -221,10 +217,6 @@ class TipFollower:
         self.r_expected = camera.camera_matrix[0, 0] * tip.radius_m / depth  # tip upright [px]
         self.last: deque[tuple[float, float]] = deque(maxlen=4)  # accepted positions, latest last
         self.last_r = self.r_expected
-        #: a round tip's spot may be a streak (the exposure a good part of the frame interval, or not stated)
-        exposed = camera.exposure_s * camera.fps
-        self.streaks = not (math.isfinite(exposed) and 0.0 < exposed < STREAK_EXPOSURE_FRACTION)
-        self.travel_px = 0.0
         self.radii: deque[float] = deque(maxlen=15)
         self.amplitudes: deque[float] = deque(maxlen=15)
         self.chi2s: deque[float] = deque(maxlen=15)
@@ -295,7 +287,7 @@ class TipFollower:
     def _fit(self, frame: np.ndarray, x0: float, y0: float, r0: float, neighbour: str = "joint") -> SpotFit | None:
         """The shape's spot fit at a start point; for a disc, moved to its centre's image."""
         if self.shape == "sphere":
-            return fit_round_spot(frame, x0, y0, r0, self.camera, neighbour=neighbour, streaks=self.streaks)
+            return fit_round_spot(frame, x0, y0, r0, self.camera, neighbour=neighbour)
         fit = fit_ellipse_spot(frame, x0, y0, max(r0, 0.5 * self.r_expected), self.camera)
         if fit is None or self.disc is None:
             return fit
@@ -314,18 +306,7 @@ class TipFollower:
     def _acceptable(self, fit: SpotFit | None, predicted: np.ndarray | None, gate: float) -> bool:
         if fit is None or not self._looks_like_tip(fit) or not self._appearance_ok(fit):
             return False
-        # a streak (the last accepted spot's or this one) shows how far the tip travels in a frame interval: it may
-        # have turned anywhere within that since the last frame
-        travel = max(self.travel_px, self._travel(fit))
-        if travel > 0.0:
-            gate = max(gate, MIN_GATE_PX + 2.0 * travel * (1 + self.misses))
         return predicted is None or math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) <= gate
-
-    def _travel(self, fit: SpotFit) -> float:
-        """How far the tip travels in a frame interval as ``fit``'s streak shows (its chord over the exposure; at
-        least the streak itself when the exposure is not stated) [px]; 0 for a round spot."""
-        exposed = self.camera.exposure_s * self.camera.fps
-        return fit.streak_px / (min(exposed, 1.0) if exposed > 0.0 else 1.0)
 
     def _clear(self, at: np.ndarray, gate: float, others) -> bool:
         """Whether no other spot (``others`` and the lab markers, each ``(x, y, r)`` [px]) lies within
@@ -579,7 +560,6 @@ class TipFollower:
 
     def _accept(self, fit: SpotFit) -> None:
         self.last.append((fit.x_px, fit.y_px))
-        self.travel_px = self._travel(fit)
         self.last_r = fit.radius_px
         self.radii.append(fit.radius_px)
         self.amplitudes.append(self._level(fit))

@@ -467,7 +467,12 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
                                                                  it < RING_PASSES, samples)
         if converged:
             break
-        step, ok = _lu_solve(fisher, grad)
+        if m == 9 and it < RING_PASSES:  # a streak: its chord first (the bend held straight while the ring moves)
+            sub, ok = _lu_solve(fisher[:7, :7].copy(), grad[:7].copy())
+            step = np.zeros(9)
+            step[:7] = sub
+        else:
+            step, ok = _lu_solve(fisher, grad)
         if not ok:
             return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
         # converged when the full step is small (one more pass then evaluates the weights, residuals and Fisher
@@ -516,12 +521,13 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     With ``streaks`` (a camera whose exposure lets the marker move), a spot drawn out along a line
     (:func:`gyrorig.tracking.streak.streak_start`) is fitted as the disc swept along a segment during the exposure (:func:`_swept`; the
     segment fitted too, the centre its middle: the marker's place at mid-exposure), the ring following the
-    streak's outline; a streak that does not converge is fitted as a round spot.
+    streak's outline; where the streak's fit does not converge the spot is fitted as a round one (the follower's
+    size and motion tests then judge it).
     """
     if streaks:
         start = streak_start(image, x0, y0, r0, cam, MAX_BLUR * cam.psf_sigma_px + 1.0)
         if start is not None:
-            fit = _fit_disc(image, start[0], start[1], r0, cam, iterations, start[2:])
+            fit = _fit_disc(image, start[0], start[1], r0, cam, 2 * iterations, start[2:])
             if fit is not None:
                 return fit
     return _fit_disc(image, x0, y0, r0, cam, iterations)
@@ -570,7 +576,8 @@ def _fit_disc(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, i
     chi2 = float(np.sum(sol.resid ** 2 * sol.weight)) / max(n_used - p.size, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
                    bool(saturated.any()), True, blended, chi2_own=chi2,
-                   streak_px=0.0 if sweep is None else float(math.hypot(p[5], p[6])))
+                   streak_px=0.0 if sweep is None else float(math.hypot(p[5], p[6])),
+                   streak_bend_px=0.0 if sweep is None else float(math.hypot(p[7], p[8])))
 
 
 def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
