@@ -39,8 +39,10 @@ MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma
 #: ``ok``; ``blended`` (fitted jointly with a neighbouring spot); ``saturated``; ``reacquired`` (found
 #: by a full-frame search after a loss); ``missing`` (no position: a gap); ``off-sphere`` (the ray
 #: misses the tip's sphere); ``duplicate`` (a repeated frame); ``outlier`` (off the tip's smooth path by more
-#: than 5 of its errors: angles removed, see :mod:`gyrorig.tracking.scatter`)
-QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate", "outlier")
+#: than 5 of its errors: angles removed, see :mod:`gyrorig.tracking.scatter`); ``damaged`` (the decoder reported
+#: damaged data in this picture or one it is predicted from: angles removed, see :mod:`gyrorig.tracking.sources`)
+QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate", "outlier",
+                 "damaged")
 
 
 def camera_mode_columns(k: int) -> tuple[str, str]:

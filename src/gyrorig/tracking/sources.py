@@ -69,6 +69,10 @@ class Frames:
     #: what went wrong while reading, filled as the frames are read (a stream that breaks off: the decoder's
     #: message); the frames before it stand
     problems: list[str] = field(default_factory=list)
+    #: stretches of pictures the decoder reported damaged data in, or predicted from such (``(first, end,
+    #: message)``, positions in decoding order, ``end`` exclusive: up to the next key picture), filled when the
+    #: stream has been read
+    damaged: list[tuple[int, int, str]] = field(default_factory=list)
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -166,10 +170,12 @@ class VideoFile:
         transfer = transfer_of_video(getattr(first, "color_trc", None)) if first is not None else None
         width, height = (int(ctx.height), int(ctx.width)) if turns % 2 else (int(ctx.width), int(ctx.height))
         problems: list[str] = []
+        damaged: list[tuple[int, int, str]] = []
         return Frames(width, height, fps, count,
-                      _decoded_frames(container, stream, colour, types, turns=turns, problems=problems),
+                      _decoded_frames(container, stream, colour, types, turns=turns, problems=problems,
+                                      damaged=damaged),
                       lossy=lossy, bit_depth=bits, frame_types=types, levels=levels, transfer=transfer,
-                      problems=problems)
+                      problems=problems, damaged=damaged)
 
     def _first_frame(self):
         """The stream's first decoded frame (None when it has none): what its display matrix and colour range say."""
@@ -492,7 +498,7 @@ class Clip:
 
         return Frames(inner.width_px, inner.height_px, inner.fps, 0, items(), lossy=inner.lossy,
                       bit_depth=inner.bit_depth, frame_types=types, levels=inner.levels, transfer=inner.transfer,
-                      problems=inner.problems)
+                      problems=inner.problems)  # a clip's positions are not its source's: no damaged stretches
 
 
 def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
@@ -509,8 +515,27 @@ def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
 PICTURE_TYPES = {1: "I", 2: "P", 3: "B", 4: "S", 5: "SI", 6: "SP", 7: "BI"}
 
 
+def _damaged_stretches(errors: list[tuple[int, str]], keys: list[int], count: int, lag: int
+                       ) -> list[tuple[int, int, str]]:
+    """Stretches ``(first, end, message)`` of pictures a decoder's errors reach: from the key picture (``keys``:
+    positions of the pictures decodable on their own) at or before ``lag`` pictures ahead of the one delivered
+    when the error was reported (the message may reach the log after pictures decoded later, on other threads, are
+    delivered) up to the next key picture (the pictures between are predicted from the damaged ones), merged where
+    they overlap."""
+    out: list[tuple[int, int, str]] = []
+    for at, message in errors:
+        first = max((k for k in keys if k <= max(at - lag, 0)), default=0)
+        end = next((k for k in keys if k > at), count)
+        if out and first <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], end), out[-1][2])
+        else:
+            out.append((first, end, message))
+    return out
+
+
 def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8, turns: int = 0,
-                    problems: list[str] | None = None) -> Iterator[tuple[np.ndarray, float]]:
+                    problems: list[str] | None = None, damaged: list | None = None
+                    ) -> Iterator[tuple[np.ndarray, float]]:
     """Yield ``(frame, start time s)``, decoding in a background thread (decoding the next frames overlaps
     with tracking this one: two cores give the slower of the two, not their sum); each yielded frame's
     picture type (:data:`PICTURE_TYPES`, '' when the codec does not say) is appended to ``types`` first.
@@ -518,7 +543,9 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
 
     Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
     then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there, its
-    decoder's message appended to ``problems``.
+    decoder's message appended to ``problems``.  The decoder's error messages (FFmpeg's log, captured while the
+    stream is read) mark the pictures they reach in ``damaged`` (:func:`_damaged_stretches`), filled when the
+    stream has been read.
     """
     import av
 
@@ -527,24 +554,42 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
     base = stream.time_base
 
     def reader() -> None:
+        import av.logging
+
         first = None
+        keys: list[int] = []
+        errors: list[tuple[int, str]] = []
+        level = av.logging.get_level()
+        av.logging.set_level(av.logging.ERROR)
+        n = 0  # pictures delivered
         try:
-            for frame in container.decode(stream):
-                if stop.is_set():
-                    return
-                if frame.pts is None or base is None:
-                    t = math.nan
-                else:
-                    first = frame.pts if first is None else first
-                    t = float((frame.pts - first) * base)
-                image = _plane_image(frame, colour)
-                if turns:
-                    image = np.ascontiguousarray(np.rot90(image, turns))
-                q.put((image, t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
+            with av.logging.Capture(local=False) as logs:
+                for frame in container.decode(stream):
+                    if stop.is_set():
+                        return
+                    if len(logs) > len(errors):
+                        errors += [(n, str(entry[2]).strip()) for entry in logs[len(errors):]]
+                    if frame.key_frame:
+                        keys.append(n)
+                    n += 1
+                    if frame.pts is None or base is None:
+                        t = math.nan
+                    else:
+                        first = frame.pts if first is None else first
+                        t = float((frame.pts - first) * base)
+                    image = _plane_image(frame, colour)
+                    if turns:
+                        image = np.ascontiguousarray(np.rot90(image, turns))
+                    q.put((image, t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
         except (av.FFmpegError, ValueError, MemoryError) as exc:  # the frames decoded so far stand
             if problems is not None:
                 problems.append(f"decoding stopped: {exc}")
         finally:
+            av.logging.set_level(level)
+            if damaged is not None and errors:
+                ctx = stream.codec_context
+                lag = max(int(ctx.thread_count or 0), 1) + int(getattr(ctx, "reorder_depth", 0) or 0) + 1
+                damaged.extend(_damaged_stretches(errors, keys, n, lag))
             q.put(None)
 
     thread = threading.Thread(target=reader, daemon=True)

@@ -329,14 +329,24 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
             markers.loc[sel, col] = np.sqrt(f * f * markers.loc[sel, col] ** 2 + extra)
     bad = index[list(check.outliers)]
     if len(bad):
-        cols = [c for c in ("theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
-                            "tip_x", "tip_y", "tip_z", "psi_rad", "psi_sigma_rad") if c in angles]
-        angles.loc[bad, cols] = np.nan
-        angles.loc[bad, "quality"] = "outlier"
-        markers.loc[tip_rows & markers.frame.isin(angles.frame.to_numpy()[bad]), "quality"] = "outlier"
-        for r in bad:
-            del rows.tip_px[r]
+        _drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
+
+
+def _drop_tip(rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame, positions, quality: str, *,
+              tip_name: str | None = None) -> None:
+    """The angle rows at ``positions`` lose their tip (angles NaN, ``quality``); with ``tip_name`` its marker rows
+    in those frames are marked so, without it every marker row of those frames."""
+    positions = np.asarray(positions, int)
+    cols = [c for c in ("theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
+                        "tip_x", "tip_y", "tip_z", "psi_rad", "psi_sigma_rad") if c in angles]
+    angles.loc[positions, cols] = np.nan
+    angles.loc[positions, "quality"] = quality
+    at = markers.frame.isin(angles.frame.to_numpy()[positions])
+    markers.loc[at & (markers.marker == tip_name) if tip_name is not None else at, "quality"] = quality
+    for r in positions:
+        rows.tip_px.pop(int(r), None)
+        rows.tip_cov.pop(int(r), None)
 
 
 def _rounded(values) -> str:
@@ -473,9 +483,9 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     if k == 0:
         raise TrackingError(f"{source}: no frame could be decoded (unreadable or truncated video)")
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
-    source_problems = _source_problems(frames, k, source)
     motion = _steadied(rows, watch, camera, tip.position_m[2], source)
     angles, markers = rows.tables(camera, dots is not None)
+    source_problems = _source_problems(frames, k, source, rows, angles, markers)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
     if not angles.theta_rad.notna().any():
@@ -507,15 +517,23 @@ def _frame_times(clock, camera: Camera, time_scale: float, source) -> dict:
     return times
 
 
-def _source_problems(frames, decoded: int, source) -> tuple[str, ...]:
-    """What went wrong reading (its decoder stopped on damaged data, or the video ended before its header said it
-    would), each logged as a warning."""
-    problems = [f"{problem} after {decoded} frames" for problem in frames.problems]
+def _source_problems(frames, decoded: int, source, rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame
+                     ) -> tuple[str, ...]:
+    """What went wrong reading (damaged data, a decoder that stopped on it, a video that ended before its header
+    said it would), each logged as a warning.  The pictures damaged data reaches (``frames.damaged``) lose their
+    tip (quality ``damaged``): a decoder conceals damage by copying picture parts from elsewhere, which puts a
+    spot where no marker was."""
+    problems = [f"{problem} after {decoded} frames (these are tracked)" for problem in frames.problems]
+    for first, end, message in frames.damaged:
+        _drop_tip(rows, angles, markers, np.arange(first, min(end, len(angles))), "damaged")
+        problems.append(f"the decoder reported damaged data ({message!r}); frames {angles.frame.iloc[first]}-"
+                        f"{angles.frame.iloc[min(end, len(angles)) - 1]} (up to the next key picture) are left out")
     if frames.count and decoded < CUT_SHORT * frames.count:
         problems.append(f"the video ends after {decoded} of the {frames.count} frames its header states: a file cut "
-                        "short (copied before the recording stopped, or truncated in transfer)")
+                        "short (copied before the recording stopped, or truncated in transfer); the frames it has "
+                        "are tracked")
     for problem in problems:
-        logger.warning("%s: %s; the frames before it are tracked", source, problem)
+        logger.warning("%s: %s", source, problem)
     return tuple(problems)
 
 
