@@ -125,7 +125,8 @@ def write_analysis(out: str | Path, analysis: Analysis, protocol: Protocol, *, t
     check = analysis.tracking.sigma_check
     tracking = {"frames": analysis.tracking.frames, "tracked_fraction": analysis.tracking.tracked_fraction,
                 "quality_counts": quality_counts(analysis.angles),
-                "sigma_check": check.as_dict() if check is not None else None}
+                "sigma_check": check.as_dict() if check is not None else None,
+                "source_problems": list(analysis.tracking.source_problems)}
     return write_report(out / "report.html", protocol=protocol, fit=analysis.fit, angles=analysis.angles,
                         smooth=analysis.smooth, prediction=analysis.prediction, tracking=tracking, title=title)
 

@@ -135,6 +135,8 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
                               f"{'applied' if check['applied'] else 'not applied'} ({check['reason']}); "
                               f"{check['outliers']} outlier frame(s).")
         tr += "</p>"
+        tr += "".join(f'<p class="bad">The video: {html.escape(problem)}.</p>'
+                      for problem in tracking.get("source_problems", ()))
     spec = fit.spec
     model = (f"axis {'fitted' if spec.fit_axis else 'vertical'}; {'damped' if spec.damped else 'undamped'}; "
              f"{FitTerms.of(spec).describe()}; "

@@ -517,14 +517,14 @@ PICTURE_TYPES = {1: "I", 2: "P", 3: "B", 4: "S", 5: "SI", 6: "SP", 7: "BI"}
 
 def _damaged_stretches(errors: list[tuple[int, str]], keys: list[int], count: int, lag: int
                        ) -> list[tuple[int, int, str]]:
-    """Stretches ``(first, end, message)`` of pictures a decoder's errors reach: from the key picture (``keys``:
-    positions of the pictures decodable on their own) at or before ``lag`` pictures ahead of the one delivered
-    when the error was reported (the message may reach the log after pictures decoded later, on other threads, are
-    delivered) up to the next key picture (the pictures between are predicted from the damaged ones), merged where
-    they overlap."""
+    """Stretches ``(first, end, message)`` of pictures a decoder's errors reach: from three times ``lag`` pictures
+    before the one delivered when the error was reported (frame threads and reordering deliver pictures behind the
+    one being decoded, and a message from another thread reaches the log later still: 8 pictures late with a lag
+    of 6 measured) up to the next key picture (``keys``: positions of the pictures decodable on their own; the ones
+    between are predicted from the damaged one), merged where they overlap."""
     out: list[tuple[int, int, str]] = []
     for at, message in errors:
-        first = max((k for k in keys if k <= max(at - lag, 0)), default=0)
+        first = max(at - 3 * lag, 0)
         end = next((k for k in keys if k > at), count)
         if out and first <= out[-1][1]:
             out[-1] = (out[-1][0], max(out[-1][1], end), out[-1][2])
