@@ -65,6 +65,20 @@ def test_b_pictures_shrunk_nutation_is_taken_off():
     assert NoteKind.CODEC_SMOOTHING in [n.kind for n in told.notes]
 
 
+def test_error_bars_far_larger_than_the_scatter_are_said_to_be():
+    """Frames whose stated errors are 5 times their noise (as when a record's check reads motion as noise at a
+    low frame rate): the reduced chi-square is about 1/25, far below its band, and a note says the standard
+    errors are conservative; with the errors as they are, no such note."""
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    angles, truth = _noisy(p, 3.0, seed=5)
+    pred = predict(p, simulate_damping=False)
+    honest = fit_angles(angles, p, prediction=pred, truth=truth)
+    large = fit_angles(angles.assign(theta_sigma_rad=5 * angles.theta_sigma_rad,
+                                     phi_sigma_rad=5 * angles.phi_sigma_rad), p, prediction=pred, truth=truth)
+    assert not honest.notes_of(NoteKind.ERRORS_LARGE)
+    assert large.notes_of(NoteKind.ERRORS_LARGE) and large.chi2_red < chi2_red_band(large.dof)[0]
+
+
 def test_heavy_top_recovers_exact_values_within_errors():
     p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     angles, truth = _noisy(p, 4.0)

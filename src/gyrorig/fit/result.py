@@ -96,6 +96,8 @@ class NoteKind(StrEnum):
     TERM_LEFT_OUT = "term-left-out"
     RESIDUALS_NOT_WHITE = "residuals-not-white"
     ERRORS_SCALED = "errors-scaled"
+    #: the residuals scatter far less than the frames' errors say: the standard errors are conservative
+    ERRORS_LARGE = "errors-large"
     RECORD_TOO_SHORT = "record-too-short"
     SYSTEMATIC = "systematic"
     CAMERA_MODES = "camera-modes"

@@ -174,6 +174,12 @@ def choose_errors(spec: ModelSpec, x: np.ndarray, chi2_value: float, dof: int, d
     rho = lag1_autocorrelation(FitModel(spec), data, x)
     white_limit = 4.0 / math.sqrt(data.n)
     chi2_red = chi2_value / max(dof, 1)
+    large = [] if not chi2.cdf(chi2_value, dof) < 1e-3 else [Note(
+        NoteKind.ERRORS_LARGE,
+        f"reduced chi-square {chi2_red:.3g} is significantly below 1: the frames' error bars are larger than the "
+        f"residuals' scatter (by about {1 / math.sqrt(max(chi2_red, 1e-12)):.3g}x; at a low frame rate the tracker "
+        "cannot tell the motion from noise when it checks them); formal standard errors are then conservative, and "
+        "the chi-square tests that choose the model's terms may leave out a term the record holds")]
     if max(abs(rho[0]), abs(rho[1])) > white_limit:
         rng = rng if rng is not None else np.random.default_rng(0)
         block = max(2, int(math.ceil(1 + 2 * max(abs(rho[0]), abs(rho[1])) / (1 - min(0.99, max(abs(r) for r in rho)))
@@ -183,10 +189,10 @@ def choose_errors(spec: ModelSpec, x: np.ndarray, chi2_value: float, dof: int, d
         note = Note(NoteKind.RESIDUALS_NOT_WHITE,
                     f"residuals are not white (lag-1 autocorrelation {rho[0]:.3f} in theta, {rho[1]:.3f} in phi; "
                     f"limit {white_limit:.3f}): standard errors from the bootstrap")
-        return ErrorKind.BOOTSTRAP, (replicates, block), sd, [note]
+        return ErrorKind.BOOTSTRAP, (replicates, block), sd, [note, *large]
     if chi2.sf(chi2_value, dof) < 1e-3 and chi2_red > 1:
         note = Note(NoteKind.ERRORS_SCALED,
                     f"reduced chi-square {chi2_red:.3f} is significantly above 1 (the tracker's error bars are too "
                     "small or the model misses something): standard errors scaled by sqrt(chi2_red)")
         return ErrorKind.SCALED, None, {}, [note]
-    return ErrorKind.FORMAL, None, {}, []
+    return ErrorKind.FORMAL, None, {}, large
