@@ -23,6 +23,7 @@ from the frames, not known beside them (``cam_k_prior`` 0).  The tables' columns
 
 from __future__ import annotations
 
+import itertools
 import logging
 
 import math
@@ -270,7 +271,8 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
 
     When the models are in doubt (``doubts``: a recording, a lossy codec, an approximate marker model) each
     class's errors are scaled by its factor, never down (the path sees only what changes from frame to frame;
-    what the scene or the codec does to several frames alike it cannot see); for a ``lossy`` codec an error the
+    what the scene or the codec does to several frames alike it cannot see); for a ``lossy`` codec, or a camera
+    without a sensor gain (a recording, whose frames may be a lossless copy of a lossy one), an error the
     same for every frame is found beside the factors and added (the codec's displacement of the whole spot,
     which no single frame shows).  Otherwise a
     class's errors are scaled only when evidently too small (by :data:`SIGMA_CHECK_Z` of the check's standard
@@ -283,8 +285,11 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     classes = np.where(np.char.find(blended, "blended") >= 0, "blended", "clear")
     var = np.array([np.diag(rows.tip_cov[r]) for r in index])
     runs = b_picture_runs(angles)[index] if lossy else None
+    # an error the same for every frame: a lossy codec's, or any recording's whose pixels no sensor model describes
+    # (frames exported losslessly from a phone's video keep its codec's errors but not its codec's name)
+    floor = lossy or not math.isfinite(camera.gain_e_per_adu)
     check = check_sigmas(angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index],
-                         np.array([rows.tip_px[r] for r in index]), var, classes, floor=lossy,
+                         np.array([rows.tip_px[r] for r in index]), var, classes, floor=floor,
                          min_factor=1.0 if doubts else 0.0, groups=runs)
     if not math.isfinite(check.factor):
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
@@ -302,7 +307,7 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
         if doubts:
             # interleaved classes are told apart imprecisely: a class is never given narrower errors than the record
             # as a whole shows (without a floor, which the overall factor would count again), nor scaled down
-            f = max(f, 1.0) if lossy else max(f, check.factor, 1.0)
+            f = max(f, 1.0) if floor else max(f, check.factor, 1.0)
         if doubts or f > 1.0 + SIGMA_CHECK_Z * se:
             factors[label] = f
             if not doubts:
@@ -383,6 +388,16 @@ def _matched(camera: Camera, frames, source) -> Camera:
         logger.info("%s: %d-bit video; camera.json's bit_depth says %d: the video's is used", source,
                     frames.bit_depth, camera.max_adu.bit_length())
         camera = camera.with_sensor(bit_depth=frames.bit_depth)
+    elif frames.bit_depth == 16 and camera.max_adu < 65535:
+        # a 16-bit file may hold fewer significant bits (camera.json's); values above them say it holds all 16
+        first = next(frames.items, None)
+        if first is not None:
+            frames.items = itertools.chain([first], frames.items)
+            if float(np.max(first[0])) > camera.max_adu:
+                logger.warning("%s: 16-bit values up to %.0f, above camera.json's sensor.bit_depth = %d (largest %d): "
+                               "taken as 16-bit (state sensor.bit_depth = 16 in camera.json)", source,
+                               float(np.max(first[0])), camera.max_adu.bit_length(), camera.max_adu)
+                camera = camera.with_sensor(bit_depth=16)
     camera = settle_transfer(camera, frames.transfer, source, lossy=frames.lossy)
     if (frames.width_px, frames.height_px) != (camera.width_px, camera.height_px):
         sx, sy = frames.width_px / camera.width_px, frames.height_px / camera.height_px
