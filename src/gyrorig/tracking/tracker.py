@@ -23,7 +23,6 @@ from the frames, not known beside them (``cam_k_prior`` 0).  The tables' columns
 
 from __future__ import annotations
 
-import itertools
 import logging
 
 import math
@@ -105,8 +104,8 @@ class TrackResult:
     frame_times: dict = field(default_factory=dict)
     #: the camera's motion seen on its fiducials (:mod:`gyrorig.tracking.steady`; None: none in view)
     camera_motion: CameraMotion | None = None
-    #: what went wrong reading the source (a file cut short, a decoder stopped on damaged data); the frames
-    #: before it are tracked
+    #: what went wrong reading the source (a file cut short, damaged data whose pictures were left out, a decoder
+    #: that stopped), as the warnings said it
     source_problems: tuple[str, ...] = ()
 
     @property
@@ -392,7 +391,7 @@ def _matched(camera: Camera, frames, source) -> Camera:
         # a 16-bit file may hold fewer significant bits (camera.json's); values above them say it holds all 16
         first = next(frames.items, None)
         if first is not None:
-            frames.items = itertools.chain([first], frames.items)
+            frames.items = _prepended(first, frames.items)
             if float(np.max(first[0])) > camera.max_adu:
                 logger.warning("%s: 16-bit values up to %.0f, above camera.json's sensor.bit_depth = %d (largest %d): "
                                "taken as 16-bit (state sensor.bit_depth = 16 in camera.json)", source,
@@ -409,6 +408,17 @@ def _matched(camera: Camera, frames, source) -> Camera:
         raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                             f"{frames.width_px} x {frames.height_px}{hint}")
     return camera
+
+
+def _prepended(first, items):
+    """``first``, then ``items``; closing it closes ``items`` (a video's decoding thread)."""
+    try:
+        yield first
+        yield from items
+    finally:
+        close = getattr(items, "close", None)
+        if close is not None:
+            close()
 
 
 def _steadied(rows: _Tables, watch: CameraWatch, camera: Camera, length_m: float,
