@@ -28,9 +28,7 @@ from numba import njit
 
 from ..camera import Camera
 from . import ellipse, spot
-from .sandwich import sandwich_covariance
 from .spot import SpotFit, fit_spot, spot_window
-from .streak import streak_start
 
 __all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX"]
 
@@ -60,6 +58,64 @@ EDGE_HARMONICS = 5
 MIN_ARC_FRACTION = 0.5
 
 
+#: the spatial kernel of :func:`sandwich_covariance`: Bartlett weights over a 5 x 5 neighbourhood (a positive-definite
+#: kernel, so the estimate is positive semi-definite), reaching residuals correlated over a PSF, a texture's grain or
+#: a codec's block edge
+_BARTLETT_1D = np.array([1 / 3, 2 / 3, 1.0, 2 / 3, 1 / 3])
+
+
+@njit(cache=True)
+def _projected_meat(pick, shape, jac, weight, resid, proj):
+    """``P M P^T`` of :func:`sandwich_covariance`'s ``M = sum_ij k(i - j) u_i u_j^T`` over the fitted pixels
+    (flat indices ``pick`` into a window of ``shape``; the rows of ``jac``, ``weight``, ``resid`` theirs),
+    with ``P = proj`` (rows of ``F^-1``: only the parameters asked for are carried through the sum)."""
+    h, w = shape
+    m, n = proj.shape
+    grid = np.zeros((h, w, m))
+    for k in range(pick.size):
+        iy, ix = pick[k] // w, pick[k] % w
+        wr = weight[k] * resid[k]
+        for a in range(m):
+            acc = 0.0
+            for c in range(n):
+                acc += proj[a, c] * jac[k, c]
+            grid[iy, ix, a] = acc * wr
+    meat = np.zeros((m, m))
+    for k in range(pick.size):
+        iy, ix = pick[k] // w, pick[k] % w
+        for dy in range(-2, 3):
+            jy = iy + dy
+            if jy < 0 or jy >= h:
+                continue
+            for dx in range(-2, 3):
+                jx = ix + dx
+                if jx < 0 or jx >= w:
+                    continue
+                kern = _BARTLETT_1D[dy + 2] * _BARTLETT_1D[dx + 2]
+                for a in range(m):
+                    ua = kern * grid[iy, ix, a]
+                    for c in range(m):
+                        meat[a, c] += ua * grid[jy, jx, c]
+    return 0.5 * (meat + meat.T)
+
+
+def sandwich_covariance(pick: np.ndarray, shape: tuple[int, int], jac: np.ndarray, weight: np.ndarray,
+                        resid: np.ndarray, fisher_inv: np.ndarray, parameters: int | None = None) -> np.ndarray:
+    """The parameters' covariance from the residuals themselves: ``F^-1 M F^-1`` with
+    ``M = sum_ij k(i - j) u_i u_j^T``, ``u_i = J_i w_i r_i`` over the fitted pixels and ``k`` a Bartlett kernel
+    over neighbours up to 2 px apart.
+
+    Where the noise model is right and the pixels independent, ``E M = F`` and this is ``F^-1``; where the
+    residuals hold what the model lacks (the scene behind the spot's edge, a lossy codec's ringing,
+    spatially correlated noise) it grows by what those do to the centre: a heteroscedasticity- and
+    autocorrelation-consistent estimate (White; Newey-West, in two dimensions).  ``pick`` the fitted pixels'
+    flat indices in a window of ``shape``; ``jac`` (n, parameters), ``weight, resid`` (n) theirs.  With
+    ``parameters`` only the covariance of the first that many parameters is computed."""
+    proj = np.ascontiguousarray(fisher_inv[:parameters], np.float64)
+    return _projected_meat(np.asarray(pick, np.int64), shape, np.asarray(jac, np.float64),
+                           np.asarray(weight, np.float64), np.asarray(resid, np.float64), proj)
+
+
 @njit(cache=True)
 def _bin_of(dx, dy):
     """The angular bin of the direction ``(dx, dy)`` (bins of :data:`ANGLE_BINS` from ``-pi``)."""
@@ -67,9 +123,9 @@ def _bin_of(dx, dy):
 
 
 @njit(cache=True)
-def _ring(win, x_first, y_first, cx, cy, r_out, allowed, vx=0.0, vy=0.0):
-    """The ring about ``(cx, cy)`` starting at ``r_out`` (from the segment ``(cx, cy) +- (vx, vy) / 2`` for a
-    streak), and the pixels inside it: ``(ok, bins, pick, scene, spread)``.  ``bins`` the ring's bin means; ``pick`` the flat indices of the allowed pixels nearer than
+def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
+    """The ring about ``(cx, cy)`` starting at ``r_out``, and the pixels inside it: ``(ok, bins, pick, scene,
+    spread)``.  ``bins`` the ring's bin means; ``pick`` the flat indices of the allowed pixels nearer than
     ``r_out``, ``scene`` the scene ``B`` at each (the bins interpolated in angle); ``spread`` the ring pixels'
     robust SD about their bins' means.  ``ok`` False when a bin is empty."""
     h, w = win.shape
@@ -81,13 +137,11 @@ def _ring(win, x_first, y_first, cx, cy, r_out, allowed, vx=0.0, vy=0.0):
     angle = np.empty(h * w)
     n_ring = 0
     n_pick = 0
-    vv = vx * vx + vy * vy
     for iy in range(h):
         dy = y_first + iy - cy
         for ix in range(w):
             dx = x_first + ix - cx
-            t = 0.0 if vv == 0.0 else min(max((dx * vx + dy * vy) / vv, -0.5), 0.5)
-            rho = math.sqrt((dx - t * vx) ** 2 + (dy - t * vy) ** 2) + 1e-12
+            rho = math.sqrt(dx * dx + dy * dy) + 1e-12
             if rho < r_out:
                 if allowed[iy, ix]:
                     pick[n_pick] = iy * w + ix
@@ -120,57 +174,18 @@ def _ring(win, x_first, y_first, cx, cy, r_out, allowed, vx=0.0, vy=0.0):
 
 
 @njit(cache=True)
-def _swept(xs, ys, scene, p, samples, jac, resid, values, cover):
-    """A streak's model and Jacobian (``p`` = ``x, y, r, M, blur, vx, vy, ax, ay``): the disc's coverage averaged
-    over ``samples`` evenly spaced moments of the exposure, ``-1/2 < u < 1/2``, the disc then at
-    ``(x, y) + u (vx, vy) + (u^2 - 1/12) (ax, ay)`` (a path that curves and changes speed; ``(x, y)`` is its mean over
-    the exposure, the place the fit's exposure-averaged model compares with)."""
-    s2 = math.sqrt(2.0) * p[4]
-    norm = 1.0 / (math.sqrt(2.0 * math.pi) * p[4])
-    for k in range(xs.size):
-        c = d0 = d1 = d2 = d4 = d5 = d6 = d7 = d8 = 0.0
-        for j in range(samples):
-            u = (j + 0.5) / samples - 0.5
-            bend = u * u - 1.0 / 12.0
-            dx, dy = xs[k] - p[0] - u * p[5] - bend * p[7], ys[k] - p[1] - u * p[6] - bend * p[8]
-            rho = math.sqrt(dx * dx + dy * dy) + 1e-12
-            arg = (rho - p[2]) / s2
-            c += 0.5 * math.erfc(arg)
-            gauss = math.exp(-arg * arg) * norm
-            gx, gy = gauss * dx / rho, gauss * dy / rho
-            d0 += gx
-            d1 += gy
-            d2 += gauss
-            d4 += gauss * (rho - p[2]) / p[4]
-            d5 += u * gx
-            d6 += u * gy
-            d7 += bend * gx
-            d8 += bend * gy
-        c /= samples
-        level = (p[3] - scene[k]) / samples
-        jac[k, 0], jac[k, 1], jac[k, 2], jac[k, 4] = level * d0, level * d1, level * d2, level * d4
-        jac[k, 5], jac[k, 6], jac[k, 7], jac[k, 8] = level * d5, level * d6, level * d7, level * d8
-        jac[k, 3] = c
-        resid[k] = values[k] - (scene[k] * (1.0 - c) + p[3] * c)
-        cover[k] = c
-
-
-@njit(cache=True)
-def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner, samples=1):
+def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner):
     """One Gauss-Newton pass over the fitted pixels: ``(fisher, gradient, jac, resid, weight, coverage,
     var_in)``.  With ``measure_inner`` the marker's noise ``var_in`` is measured from the residuals where the
     disc covers the pixel (at least :data:`MIN_INNER_PIXELS` of them; NaN: use the ring's); the weights are
-    ``1 / ((1 - c) var_out + c var_in)``.  Nine parameters are a streak's (:func:`_swept`)."""
+    ``1 / ((1 - c) var_out + c var_in)``."""
     n = xs.size
-    m = p.size
-    jac = np.empty((n, m))
+    jac = np.empty((n, 5))
     resid = np.empty(n)
     cover = np.empty(n)
     s2 = math.sqrt(2.0) * p[4]
     norm = 1.0 / (math.sqrt(2.0 * math.pi) * p[4])
-    if m == 9:
-        _swept(xs, ys, scene, p, samples, jac, resid, values, cover)
-    for k in range(n if m == 5 else 0):
+    for k in range(n):
         dx, dy = xs[k] - p[0], ys[k] - p[1]
         rho = math.sqrt(dx * dx + dy * dy) + 1e-12
         arg = (rho - p[2]) / s2
@@ -191,16 +206,16 @@ def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner, samples=1):
             var_in = max(np.median(inner * inner) / 0.4549, 1.0 / 12.0)
     v_in = var_out if math.isnan(var_in) else var_in
     weight = 1.0 / (var_out * (1.0 - cover) + v_in * cover)
-    fisher = np.zeros((m, m))
-    grad = np.zeros(m)
+    fisher = np.zeros((5, 5))
+    grad = np.zeros(5)
     for k in range(n):
         wk = weight[k]
-        for a in range(m):
+        for a in range(5):
             wja = wk * jac[k, a]
             grad[a] += wja * resid[k]
-            for b in range(a, m):
+            for b in range(a, 5):
                 fisher[a, b] += wja * jac[k, b]
-    for a in range(m):
+    for a in range(5):
         for b in range(a):
             fisher[a, b] = fisher[b, a]
     return fisher, grad, jac, resid, weight, cover, var_in
@@ -301,14 +316,14 @@ def _bilinear(win, x, y):
 
 
 @njit(cache=True)
-def _edge_radii(win, cx, cy, r, blur, marker_level, bins, reach=0.0):
+def _edge_radii(win, cx, cy, r, blur, marker_level, bins):
     """Where the edge lies in each angular bin: along the ray from the window's point ``(cx, cy)`` through the
     bin's centre angle, the first radius at which the image falls below half-way between the marker's level and
     that bin's ring (bilinear samples 0.25 px apart, from ``r - 4 sigma`` out to the ring's outer edge; linear
     between samples).  ``+inf`` where it never falls that far (light beyond the disc), ``-inf`` where it starts
-    below (something in front of the disc).  ``reach``: the rays go that much further (a streak's half length)."""
+    below (something in front of the disc)."""
     start = max(r - 4.0 * blur, 0.3 * r)
-    n = int(math.ceil((r + reach + RING_GAP_SIGMAS * blur + RING_WIDTH_PX - start) / 0.25))
+    n = int(math.ceil((r + RING_GAP_SIGMAS * blur + RING_WIDTH_PX - start) / 0.25))
     out = np.full(ANGLE_BINS, np.inf)
     for b in range(ANGLE_BINS):
         c, s = math.cos(_BIN_ANGLES[b]), math.sin(_BIN_ANGLES[b])
@@ -389,25 +404,7 @@ def _harmonic_power(radii):
     return float(np.mean(coef[3:] ** 2))
 
 
-@njit(cache=True)
-def _streak_image(shape, cx, cy, p, bins, samples):
-    """A streak's model over the window (``cx, cy`` its centre in window pixels): each pixel's swept coverage
-    between the marker's level and its angular bin's ring level."""
-    h, w = shape
-    xs, ys = np.empty(h * w), np.empty(h * w)
-    scene = np.empty(h * w)
-    for iy in range(h):
-        for ix in range(w):
-            xs[iy * w + ix], ys[iy * w + ix] = ix, iy
-            scene[iy * w + ix] = bins[_bin_of(ix - cx, iy - cy)]
-    q = p.copy()
-    q[0], q[1] = cx, cy
-    jac, resid, cover = np.empty((h * w, 9)), np.empty(h * w), np.empty(h * w)
-    _swept(xs, ys, scene, q, samples, jac, resid, np.zeros(h * w), cover)
-    return (scene * (1.0 - cover) + q[3] * cover).reshape(h, w)
-
-
-def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution", samples: int = 1) -> float:
+def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution") -> float:
     """The variance [px^2] per axis of the centre that the edge's own departures from a circle imply: the edge
     points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a shift of the centre and is
     therefore absorbed by the fit; its unseen power is taken as the mean power per coefficient of harmonics
@@ -416,30 +413,15 @@ def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solu
     or something in front of the disc spread over neighbouring harmonics and give what they shift the centre by.
     NaN when fewer than half the bins have an edge point."""
     x0, y0 = float(xx[0, 0]), float(yy[0, 0])
-    p = sol.p
-    if p.size == 5:
-        return _harmonic_power(_edge_radii(win, p[0] - x0, p[1] - y0, p[2], p[4], p[3], sol.bins))
-    # a streak's edge is not a circle: its departures are measured from the model's own edge, found the same way
-    reach = 0.5 * math.hypot(p[5], p[6]) + 0.25 * math.hypot(p[7], p[8])
-    # (a streak longer than the disc never covers a pixel for the whole exposure: the level is its model's peak)
-    model = _streak_image(win.shape, p[0] - x0, p[1] - y0, p, sol.bins, samples)
-    peak = _bilinear(model, p[0] - x0, p[1] - y0)
-    seen = _edge_radii(win, p[0] - x0, p[1] - y0, p[2], p[4], peak, sol.bins, reach)
-    expected = _edge_radii(model, p[0] - x0, p[1] - y0, p[2], p[4], peak, sol.bins, reach)
-    both = np.isfinite(seen) & np.isfinite(expected)
-    departure = np.full(ANGLE_BINS, np.inf)
-    departure[both] = seen[both] - expected[both]
-    return _harmonic_power(departure)
+    return _harmonic_power(_edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], sol.p[3], sol.bins))
 
 
 @njit(cache=True)
-def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations, samples=1):
+def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations):
     """:func:`_solve`'s iterations, compiled: ``(ok, p, pick, xs, ys, weight, jac, resid, fisher, bins,
-    coverage)``; nine parameters in ``p0`` fit a streak (:func:`_swept`, ``samples`` places)."""
+    coverage)``."""
     h, w = win.shape
     p = p0.copy()
-    m = p.size
-    reach = math.sqrt(p[5] ** 2 + p[6] ** 2) if m == 9 else 0.0
     converged = False
     var_in = math.nan
     var_out = 1.0 / 12.0
@@ -447,14 +429,12 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
     bins = np.zeros(ANGLE_BINS)
     scene = np.empty(0)
     xs, ys, values = np.empty(0), np.empty(0), np.empty(0)
-    fisher, grad = np.zeros((m, m)), np.zeros(m)
-    jac, resid, weight, cover = np.empty((0, m)), np.empty(0), np.empty(0), np.empty(0)
+    fisher, grad = np.zeros((5, 5)), np.zeros(5)
+    jac, resid, weight, cover = np.empty((0, 5)), np.empty(0), np.empty(0), np.empty(0)
     for it in range(iterations):
         if it < RING_PASSES:  # then the ring and the fitted pixels stay put: their edges would make the steps flip
-            vx, vy = (p[5], p[6]) if m == 9 else (0.0, 0.0)
-            bent = 0.25 * math.sqrt(p[7] ** 2 + p[8] ** 2) if m == 9 else 0.0  # how far the path leaves the chord
             ok, bins, pick, scene, spread = _ring(win, x_first, y_first, p[0], p[1],
-                                                  p[2] + RING_GAP_SIGMAS * p[4] + bent, allowed, vx, vy)
+                                                  p[2] + RING_GAP_SIGMAS * p[4], allowed)
             if not ok:
                 return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
             xs, ys, values = np.empty(pick.size), np.empty(pick.size), np.empty(pick.size)
@@ -464,15 +444,10 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
             var_out = max(spread * spread, 1.0 / 12.0)
         # the marker's noise is held with the ring (a median's jumps would make the steps cycle)
         fisher, grad, jac, resid, weight, cover, var_in = _pass(xs, ys, values, scene, p, var_out, var_in,
-                                                                 it < RING_PASSES, samples)
+                                                                 it < RING_PASSES)
         if converged:
             break
-        if m == 9 and it < RING_PASSES:  # a streak: its chord first (the bend held straight while the ring moves)
-            sub, ok = _lu_solve(fisher[:7, :7].copy(), grad[:7].copy())
-            step = np.zeros(9)
-            step[:7] = sub
-        else:
-            step, ok = _lu_solve(fisher, grad)
+        step, ok = _lu_solve(fisher, grad)
         if not ok:
             return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
         # converged when the full step is small (one more pass then evaluates the weights, residuals and Fisher
@@ -480,10 +455,8 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
         converged = abs(step[0]) < CONVERGED_PX and abs(step[1]) < CONVERGED_PX
         inside = False
         for _ in range(12):
-            swept = m == 5 or (math.sqrt((p[5] + step[5]) ** 2 + (p[6] + step[6]) ** 2) <= 1.5 * reach + r0
-                               and math.sqrt((p[7] + step[7]) ** 2 + (p[8] + step[8]) ** 2) <= reach + r0)
             if (p[2] + step[2] > 0.3 * r0 and 0.2 * sigma < p[4] + step[4] < sigma_max and abs(step[0]) <= r0
-                    and abs(step[1]) <= r0 and swept):
+                    and abs(step[1]) <= r0):
                 inside = True
                 break
             step = step / 2
@@ -494,21 +467,20 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
     return converged, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
 
 
-def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int,
-           samples: int = 1) -> _Solution | None:
+def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int) -> _Solution | None:
     """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring, the ring taken
     again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  None when
     a ring bin is empty, a step cannot be solved or kept in range, or the iterations do not converge."""
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
         win, float(xx[0, 0]), float(yy[0, 0]), np.ascontiguousarray(allowed), np.asarray(p, np.float64), float(r0),
-        float(sigma), float(sigma_max), int(iterations), int(samples))
+        float(sigma), float(sigma_max), int(iterations))
     if not ok:
         return None
     return _Solution(p, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
 
 
 def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
-                   iterations: int = 15, streaks: bool = False) -> SpotFit | None:
+                   iterations: int = 15) -> SpotFit | None:
     """Fit the opaque disc in front of the scene (module docstring) around ``(x0, y0)``, start radius ``r0``.
 
     Saturated pixels are left out, and so is the light of another spot that reaches inside the ring
@@ -517,43 +489,23 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     ``amplitude_adu`` the marker's level above it, ``chi2_red`` and ``chi2_own`` the weighted residuals' mean
     square (about 1 when the disc's region is as smooth as the scene around it).  None when the window
     leaves the image, the ring is incomplete, or the fit diverges.
-
-    With ``streaks`` (a camera whose exposure lets the marker move), a spot drawn out along a line
-    (:func:`gyrorig.tracking.streak.streak_start`) is fitted as the disc swept along a segment during the exposure (:func:`_swept`; the
-    segment fitted too, the centre its middle: the marker's place at mid-exposure), the ring following the
-    streak's outline; where the streak's fit does not converge the spot is fitted as a round one (the follower's
-    size and motion tests then judge it).
     """
-    if streaks:
-        start = streak_start(image, x0, y0, r0, cam, MAX_BLUR * cam.psf_sigma_px + 1.0)
-        if start is not None:
-            fit = _fit_disc(image, start[0], start[1], r0, cam, 2 * iterations, start[2:])
-            if fit is not None:
-                return fit
-    return _fit_disc(image, x0, y0, r0, cam, iterations)
-
-
-def _fit_disc(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, iterations: int,
-              sweep=None) -> SpotFit | None:
-    """:func:`fit_scene_spot`'s fit of a round spot, or of a streak starting from the segment ``sweep``."""
     sigma = cam.psf_sigma_px
     sigma_max = MAX_BLUR * sigma + 1.0
-    reach = 0.0 if sweep is None else math.hypot(*sweep)
-    half = int(math.ceil(1.3 * r0 + 0.75 * reach + RING_GAP_SIGMAS * sigma_max + RING_WIDTH_PX + 2))
+    half = int(math.ceil(1.3 * r0 + RING_GAP_SIGMAS * sigma_max + RING_WIDTH_PX + 2))
     window = spot_window(image, x0, y0, half, cam)
     if window is None:
         return None
     win, xx, yy, saturated, _, background, amplitude = window
     allowed = ~saturated
-    start = np.array([x0, y0, r0, background + amplitude, sigma] + ([] if sweep is None else [*sweep, 0.0, 0.0]))
-    samples = 1 if sweep is None else min(max(int(math.ceil(2.0 * reach)) + 1, 3), 64)
-    sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations, samples)
+    start = np.array([x0, y0, r0, background + amplitude, sigma])
+    sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations)
     if sol is None:
         return None
     foreign = _foreign_bins(sol.bins, sol.p[3])
     if foreign.any():  # another spot's light on the ring: its sectors (and one bin either side) are left out
         allowed = _without_sectors(allowed, float(xx[0, 0]), float(yy[0, 0]), sol.p[0], sol.p[1], foreign)
-        sol = _solve(win, xx, yy, allowed, sol.p, r0, sigma, sigma_max, iterations, samples)
+        sol = _solve(win, xx, yy, allowed, sol.p, r0, sigma, sigma_max, iterations)
         if sol is None:
             return None
     p, n_used = sol.p, sol.pick.size
@@ -568,26 +520,24 @@ def _fit_disc(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, i
         finv = np.linalg.inv(sol.fisher)
     except np.linalg.LinAlgError:
         return None
-    rough = _edge_roughness(win, xx, yy, sol, samples)
+    rough = _edge_roughness(win, xx, yy, sol)
     if not math.isfinite(rough):
         return None
     cov = (sandwich_covariance(sol.pick, win.shape, sol.jac, sol.weight, sol.resid, finv, parameters=2)
            + _scene_covariance(sol, finv)[:2, :2] + rough * np.eye(2))
-    chi2 = float(np.sum(sol.resid ** 2 * sol.weight)) / max(n_used - p.size, 1)
+    chi2 = float(np.sum(sol.resid ** 2 * sol.weight)) / max(n_used - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
-                   bool(saturated.any()), True, blended, chi2_own=chi2,
-                   streak_px=0.0 if sweep is None else float(math.hypot(p[5], p[6])),
-                   streak_bend_px=0.0 if sweep is None else float(math.hypot(p[7], p[8])))
+                   bool(saturated.any()), True, blended, chi2_own=chi2)
 
 
 def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
-                   neighbour: str = "joint", streaks: bool = False) -> SpotFit | None:
+                   neighbour: str = "joint") -> SpotFit | None:
     """A round spot's fit as the footage asks: the sensor model's (:func:`gyrorig.tracking.spot.fit_spot`,
     flat background) for a camera whose pixels it describes, else the disc in front of the scene
-    (:func:`fit_scene_spot`, which fits a streak with ``streaks``)."""
+    (:func:`fit_scene_spot`)."""
     if cam.sensor_known:
         return fit_spot(image, x0, y0, r0, cam, neighbour=neighbour)
-    return fit_scene_spot(image, x0, y0, r0, cam, streaks=streaks)
+    return fit_scene_spot(image, x0, y0, r0, cam)
 
 
 def warm_up() -> None:
@@ -599,15 +549,10 @@ def warm_up() -> None:
     win = 20.0 + 100.0 * (np.hypot(xx - 20.2, yy - 19.9) < 5.0)
     allowed = np.ones(win.shape, bool)
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
-        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15, 1)
+        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15)
     _foreign_bins(bins, float(p[3]))
     _median(bins)
     _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))
     _harmonic_power(_edge_radii(win, float(p[0]), float(p[1]), float(p[2]), float(p[4]), float(p[3]), bins))
-    sandwich_covariance(pick, win.shape, jac, weight, resid, np.eye(5), parameters=2)
+    _projected_meat(pick, win.shape, jac, weight, resid, np.eye(5)[:2].copy())
     _sector_effects(xs, ys, float(p[0]), float(p[1]), jac, weight, cover)
-    # a streak's kernels (nine parameters, its model image, edge rays reaching along it)
-    streak = np.array([20.0, 20.0, 5.0, 120.0, 1.0, 4.0, 0.0, 0.0, 0.0])
-    _solve_core(win, 0.0, 0.0, allowed, streak, 5.0, 1.0, 3.5, 2, 9)
-    model = _streak_image(win.shape, 20.0, 20.0, streak, bins, 9)
-    _edge_radii(model, 20.0, 20.0, 5.0, 1.0, 120.0, bins, 2.0)

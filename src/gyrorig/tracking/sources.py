@@ -475,10 +475,12 @@ class Clip:
     def open(self, *, colour: bool = False) -> Frames:
         inner = self.source.open(colour=colour)
         types: list[str] | None = [] if inner.frame_types is not None else None
+        damaged: list[tuple[int, int, str]] = []
 
         def items():
             t0 = math.nan
             kept = 0
+            first = -1  # the source's position of the clip's first frame
             try:
                 for k, (image, t) in enumerate(inner):
                     if not math.isfinite(t0) and math.isfinite(t):
@@ -489,16 +491,19 @@ class Clip:
                         continue
                     if types is not None:
                         types.append(inner.frame_types[k] if k < len(inner.frame_types) else "")
+                    first = k if first < 0 else first
                     kept += 1
                     yield image, t
             finally:
-                inner.close()
+                inner.close()  # its damaged stretches are complete once it is closed; here in the clip's positions
+                damaged.extend((max(a - first, 0), min(b - first, kept), why) for a, b, why in inner.damaged
+                               if kept and b > first and a < first + kept)
             if not kept:
                 raise BadInputError(f"{self}: no frame lies between the clip's ends")
 
         return Frames(inner.width_px, inner.height_px, inner.fps, 0, items(), lossy=inner.lossy,
                       bit_depth=inner.bit_depth, frame_types=types, levels=inner.levels, transfer=inner.transfer,
-                      problems=inner.problems)  # a clip's positions are not its source's: no damaged stretches
+                      problems=inner.problems, damaged=damaged)
 
 
 def as_source(video) -> VideoFile | ImageFolder | FrameArrays:

@@ -44,12 +44,6 @@ class SpotFit:
     #: reduced chi-square over the spot's own pixels (its edge + 3 PSF sigmas; for a blended spot, those
     #: nearer to it than to its neighbour): how well the spot itself is fitted
     chi2_own: float = math.nan
-    #: a streak's length (the chord of the marker's path during the exposure, :func:`gyrorig.tracking.scene_spot.
-    #: fit_scene_spot`) [px]; 0 for a spot fitted as round
-    streak_px: float = 0.0
-    #: ... and how far its path bends away from that chord (the quadratic term's size, :func:`gyrorig.tracking.
-    #: scene_spot.fit_scene_spot`) [px]
-    streak_bend_px: float = 0.0
 
 
 def spot_model(params, xx, yy, sigma):
