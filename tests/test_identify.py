@@ -146,6 +146,10 @@ def _bad_table(tmp_path: Path, case: str) -> Path:
         "tilt-200-deg": "spin_rad_s,precession_period_s,tilt_deg\n400,3.0,90\n450,2.6,200\n",
         "tilt-negative": "spin_rad_s,precession_period_s,tilt_deg\n400,3.0,-30\n",
         "times-all-equal": "t_s,spin_rad_s\n5,500\n5,490\n5,480\n5,470\n",
+        "unit-ambiguous": "spin (1/s),precession period (s)\n400,3.0\n",
+        "deviation-without-value": "sd (rpm),precession period (s)\n10,3.0\n",
+        "values-without-header": "spin (rpm),precession period (s),\n4000,3.0,\n4500,2.6,7\n",
+        "deviation-twice": "spin (rpm),spin sd (rpm),± (rpm),precession period (s)\n4000,10,10,3.0\n",
     }[case]
     name = "spin_down.csv" if case in ("too-few-rows", "times-all-equal") else "precession.csv"
     path = tmp_path / name
@@ -154,7 +158,9 @@ def _bad_table(tmp_path: Path, case: str) -> Path:
 
 
 @pytest.mark.parametrize("case", ["unknown-unit", "negative-period", "no-spin", "too-few-rows", "not-a-number",
-                                  "wrong-dimension", "tilt-200-deg", "tilt-negative", "times-all-equal"])
+                                  "wrong-dimension", "tilt-200-deg", "tilt-negative", "times-all-equal",
+                                  "unit-ambiguous", "deviation-without-value", "values-without-header",
+                                  "deviation-twice"])
 def test_bad_tables_are_refused_naming_the_file(tmp_path, case, capsys):
     path = _bad_table(tmp_path, case)
     with pytest.raises(IdentifyInputError) as err:
@@ -488,3 +494,31 @@ def test_tables_from_a_european_spreadsheet_read_as_written(tmp_path):
             np.testing.assert_array_equal(t.values[name], tables[0].values[name])
         np.testing.assert_array_equal(t.sd["nutation_frequency"], tables[0].sd["nutation_frequency"])
     assert tables[0].values["spin"].tolist() == [400.0, 300.5]
+
+
+def test_headers_as_a_spreadsheet_writes_them_read_as_the_suffix_form(tmp_path):
+    """A balanced gyro's precession table as students write it: the unit in brackets or after a slash, a degree
+    sign, a deviation in its own column or marked after the name, Windows-1252 text (Excel's "CSV (comma
+    delimited)"), a notes column, and the cleared cells Excel exports as empty columns and rows; each reads to the
+    numbers of the suffix form, and rows keep their line numbers in the file."""
+    canonical = ("spin_rev_per_min,precession_period_s,precession_period_s_sd,tilt_deg,added_mass_g\n"
+                 "4000,3.0,0.1,90,50\n4500,2.5,0.05,88,50\n")
+    written = {
+        "brackets.csv": ("Spin (rpm),Precession period (s),± (s),Tilt (°),Added mass (g),Notes,,\n"
+                         "4000,3.0,0.1,90,50,first run,,\n4500,2.5,0.05,88,50,,,\n,,,,,,,\n", "cp1252"),
+        "slash.csv": ("spin / rev/min;precession period / ms;precession period sd / ms;tilt / deg;added mass / kg\n"
+                      "4000;3000;100;90;0,05\n4500;2500;50;88;0,05\n", "utf-8-sig"),
+        "square.csv": ("# lab book p. 12\n\nSpin [RPM],Precession_period [s],Precession period σ [s],Tilt [degrees],"
+                       "Added mass [g]\n4000,3.0,0.1,90,50\n\n# refilled the air\n4500,2.5,0.05,88,50\n", "utf-8"),
+    }
+    (tmp_path / "precession.csv").write_text(canonical)
+    reference = read_table(tmp_path / "precession.csv")
+    for name, (text, encoding) in written.items():
+        path = tmp_path / f"precession_{name}"
+        path.write_bytes(text.encode(encoding))
+        table = read_table(path)
+        assert sorted(table.values) == sorted(reference.values), name
+        for q in reference.values:
+            np.testing.assert_allclose(table.values[q], reference.values[q], rtol=1e-12, err_msg=name)
+            np.testing.assert_allclose(table.sd[q], reference.sd[q], rtol=1e-12, err_msg=name)
+    assert read_table(tmp_path / "precession_square.csv").lines.tolist() == [4, 7]

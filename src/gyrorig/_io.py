@@ -43,23 +43,39 @@ def read_settings_text(path: str | Path) -> str:
     return Path(path).read_bytes().decode("utf-8-sig")
 
 
+def table_encoding(path: str | Path) -> str:
+    """The text encoding of a table file: UTF-8 (a leading byte-order mark, which Excel's "CSV UTF-8" writes,
+    dropped), or Windows-1252 where the bytes are not UTF-8 (Excel on a Western-European Windows saves "CSV (comma
+    delimited)" in that code page: a degree sign or a "±" in a header is then one byte no UTF-8 reader takes).
+    OSError as reading raises it; UnicodeDecodeError for bytes that are neither."""
+    data = Path(path).read_bytes()
+    try:
+        data.decode("utf-8")
+        return "utf-8-sig"
+    except UnicodeDecodeError:
+        data.decode("cp1252")
+        return "cp1252"
+
+
 def read_table_csv(path: str | Path, *, numbers: bool = True, **kwargs) -> pd.DataFrame:
     """A CSV table as spreadsheets write it: comma-separated with decimal points, or (a European locale's Excel
-    or OSP Tracker export) semicolon-separated with decimal commas, or tab-separated.  The separator is the
+    or OSP Tracker export) semicolon-separated with decimal commas, or tab-separated; in UTF-8 or Windows-1252
+    (:func:`table_encoding`).  The separator is the
     header's: a ``;`` or a tab in it and no comma; with ``;`` and ``numbers`` a decimal comma in any cell becomes a
     point (``numbers=False``: cells of text, e.g. file names, kept as written).  ``kwargs`` go to
     :func:`pandas.read_csv` (``comment``, ``dtype``, ...); its errors as it raises them."""
     comment = kwargs.get("comment")
+    encoding = kwargs.pop("encoding", None) or table_encoding(path)
     header = ""
-    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+    with open(path, encoding=encoding, errors="replace") as fh:
         for line in fh:
             if line.strip() and not (comment and line.lstrip().startswith(comment)):
                 header = line
                 break
     sep = ";" if ";" in header and "," not in header else "\t" if "\t" in header and "," not in header else ","
     if sep != ";" or not numbers:
-        return pd.read_csv(path, sep=sep, **kwargs)
-    table = pd.read_csv(path, sep=";", dtype=str, keep_default_na=False, **kwargs)
+        return pd.read_csv(path, sep=sep, encoding=encoding, **kwargs)
+    table = pd.read_csv(path, sep=";", dtype=str, keep_default_na=False, encoding=encoding, **kwargs)
     return table.apply(lambda column: column.str.replace(",", ".", regex=False))
 
 

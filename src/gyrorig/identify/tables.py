@@ -3,13 +3,18 @@
 One file per kind (``spin_down``, ``precession``, ``nutation``), given by a ``kind`` column or by
 the file name containing the kind.  A column is ``<name>_<unit>`` (``spin_rev_per_min``,
 ``precession_period_s`` or ``precession_rate_deg_per_s``, ``added_mass_g``, ``lever_arm_cm``, ``tilt_deg``), its
-standard deviation ``<name>_<unit>_sd`` in the same unit.  Every problem is an :class:`IdentifyInputError` naming
-the file, the row (as the line number in the file) and the column.
+standard deviation ``<name>_<unit>_sd``; or as a spreadsheet's header is written, the unit in brackets or after a
+slash (``Spin (rpm)``, ``Precession period [s]``, ``t / s``, ``Tilt (°)``), the name's words joined by ``_``
+(``time`` for ``t``), a standard deviation marked ``sd``, ``std``, ``sigma`` or ``±`` after the name
+(``spin sd (rpm)``), or a column of its own (``± (rpm)``, ``sd [s]``) right of its value's column.  Unit spellings:
+:data:`UNIT_WORDS`.  Every problem is an :class:`IdentifyInputError` naming the file, the row (as the line number
+in the file) and the column as written.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,7 +23,7 @@ import pandas as pd
 
 from .. import _io
 
-__all__ = ["IdentifyInputError", "Table", "read_table", "UNITS", "KINDS", "COLUMNS"]
+__all__ = ["IdentifyInputError", "Table", "read_table", "UNITS", "UNIT_WORDS", "KINDS", "COLUMNS"]
 
 
 class IdentifyInputError(ValueError):
@@ -26,12 +31,25 @@ class IdentifyInputError(ValueError):
 
 
 #: unit suffix -> (dimension, factor to SI); longest suffixes are matched first
-UNITS = {"_rev_per_min": ("rate", 2 * math.pi / 60), "_rad_s": ("rate", 1.0), "_hz": ("rate", 2 * math.pi),
+UNITS = {"_rev_per_min": ("rate", 2 * math.pi / 60), "_rpm": ("rate", 2 * math.pi / 60),
+         "_rev_per_s": ("rate", 2 * math.pi), "_rad_s": ("rate", 1.0), "_hz": ("rate", 2 * math.pi),
          "_deg_per_s": ("rate", math.pi / 180),
-         "_min": ("time", 60.0), "_s": ("time", 1.0), "_kg": ("mass", 1.0), "_g": ("mass", 1e-3),
+         "_min": ("time", 60.0), "_s": ("time", 1.0), "_ms": ("time", 1e-3), "_kg": ("mass", 1.0), "_g": ("mass", 1e-3),
          "_cm": ("length", 1e-2), "_mm": ("length", 1e-3), "_m": ("length", 1.0),
          "_deg": ("angle", math.pi / 180), "_rad": ("angle", 1.0),
          "_kg_m2": ("inertia", 1.0), "_g_cm2": ("inertia", 1e-7)}
+#: a unit as a header writes it in brackets or after a slash (lower case, spaces, ``*`` and ``·`` dropped, ``²`` and
+#: ``^2`` as ``2``) -> its suffix in :data:`UNITS`; ``1/s`` is not one (radians or turns per second?)
+UNIT_WORDS = {"rpm": "_rpm", "rev/min": "_rpm", "r/min": "_rpm", "u/min": "_rpm", "turns/min": "_rpm",
+              "rps": "_rev_per_s", "rev/s": "_rev_per_s", "turns/s": "_rev_per_s", "hz": "_hz",
+              "rad/s": "_rad_s", "deg/s": "_deg_per_s", "°/s": "_deg_per_s",
+              "s": "_s", "sec": "_s", "ms": "_ms", "min": "_min", "g": "_g", "kg": "_kg",
+              "cm": "_cm", "mm": "_mm", "m": "_m", "deg": "_deg", "°": "_deg", "degrees": "_deg", "rad": "_rad",
+              "kgm2": "_kg_m2", "gcm2": "_g_cm2"}
+#: other names a header may give a quantity
+NAME_WORDS = {"time": "t", "spin_rate": "spin"}
+#: words that mark a standard deviation: after a name, or alone (the column to the left's)
+SD_WORDS = ("sd", "std", "sigma", "σ", "±", "+/-", "+-", "uncertainty")
 #: what each column measures
 COLUMNS = {"t": "time", "spin": "rate", "spin_start": "rate", "spin_end": "rate", "precession_period": "time",
            "precession_rate": "rate", "tilt_min": "angle", "tilt_max": "angle",
@@ -78,22 +96,59 @@ class Table:
         return name in self.values
 
 
-def _split_unit(path: str, column: str) -> tuple[str, str, bool]:
-    """``(name, suffix, is_sd)`` of a column; IdentifyInputError for an unknown unit or name."""
+def _split_unit(path: str, column: str, left: tuple[str, str, bool] | None = None) -> tuple[str, str, bool]:
+    """``(name, suffix, is_sd)`` of a column (``left``: the column to its left's, whose deviation a column holding
+    only a unit and a deviation's mark is); IdentifyInputError for an unknown unit or name."""
+    written = _written(path, column, left)
+    if written is not None:
+        return written
     is_sd = column.endswith("_sd")
     core = column[:-3] if is_sd else column
     for suffix in sorted(UNITS, key=len, reverse=True):
         if core.endswith(suffix):
-            name = core[: -len(suffix)]
-            if name not in COLUMNS:
-                raise IdentifyInputError(f"{path}: column {column!r}: unknown quantity {name!r}; known: "
-                                         + ", ".join(COLUMNS))
-            if COLUMNS[name] != UNITS[suffix][0]:
-                raise IdentifyInputError(f"{path}: column {column!r}: {name} is a {COLUMNS[name]}, "
-                                         f"but {suffix[1:]} is a unit of {UNITS[suffix][0]}")
-            return name, suffix, is_sd
+            return _known(path, column, core[: -len(suffix)], suffix), suffix, is_sd
     raise IdentifyInputError(f"{path}: column {column!r}: no known unit suffix; allowed: "
-                             + ", ".join(s[1:] for s in UNITS))
+                             + ", ".join(s[1:] for s in UNITS) + "; or the unit in brackets, e.g. 'spin (rpm)'")
+
+
+def _known(path: str, column: str, name: str, suffix: str) -> str:
+    name = NAME_WORDS.get(name, name)
+    if name not in COLUMNS:
+        raise IdentifyInputError(f"{path}: column {column!r}: unknown quantity {name!r}; known: " + ", ".join(COLUMNS))
+    if COLUMNS[name] != UNITS[suffix][0]:
+        raise IdentifyInputError(f"{path}: column {column!r}: {name} is a {COLUMNS[name]}, "
+                                 f"but {suffix[1:]} is a unit of {UNITS[suffix][0]}")
+    return name
+
+
+_WRITTEN = re.compile(r"^(?P<name>[^(\[]*?)\s*[(\[](?P<unit>[^)\]]*)[)\]]\s*(\.\d+)?$")
+
+
+def _written(path: str, column: str, left: tuple[str, str, bool] | None) -> tuple[str, str, bool] | None:
+    """A header as a spreadsheet writes it (``Spin (rpm)``, ``t / s``, ``± [rpm]``), or None for another form."""
+    match = _WRITTEN.match(column)
+    if match is not None:
+        name, unit = match["name"], match["unit"]
+    elif "/" in column and not column.endswith("_sd"):
+        name, _, unit = column.partition(" / ") if " / " in column else column.partition("/")
+    else:
+        return None
+    key = re.sub(r"[\s*·]", "", unit.lower()).replace("²", "2").replace("^2", "2")
+    if key not in UNIT_WORDS:
+        raise IdentifyInputError(f"{path}: column {column!r}: unknown unit {unit.strip()!r}; known: "
+                                 + ", ".join(UNIT_WORDS))
+    suffix = UNIT_WORDS[key]
+    words = re.sub(r"[\s-]+", "_", name.strip().lower())
+    for mark in SD_WORDS:
+        if words == mark:
+            if left is None or left[2]:
+                raise IdentifyInputError(f"{path}: column {column!r}: a standard deviation needs its value's column "
+                                         "to its left")
+            return _known(path, column, left[0], suffix), suffix, True
+        tail = ("_" + mark) if mark.isalpha() else mark  # 'spin_sd', 'spin±'
+        if words.endswith(tail) and len(words) > len(tail):
+            return _known(path, column, words[: -len(tail)].rstrip("_"), suffix), suffix, True
+    return _known(path, column, words, suffix), suffix, False
 
 
 def _kind(path: Path, frame: pd.DataFrame) -> str:
@@ -126,6 +181,45 @@ def _check_required(path: Path, kind: str, names: set[str]) -> None:
                                  + ", ".join(sorted(allowed)))
 
 
+#: columns of notes, left out (a header of one of these words, any case)
+NOTE_COLUMNS = ("note", "notes", "comment", "comments", "remark", "remarks")
+
+
+def _cell(frame: pd.DataFrame, column: str, row: int) -> str:
+    """A cell as its file wrote it, quoted (for messages)."""
+    value = frame[column].iloc[row]
+    return "an empty cell" if pd.isna(value) or str(value).strip() == "" else repr(str(value))
+
+
+def _data_lines(path: Path) -> np.ndarray:
+    """The file's line number of each row pandas reads (the lines after the header that are neither blank nor a
+    ``#`` comment)."""
+    numbers = []
+    with open(path, encoding=_io.table_encoding(path), errors="replace") as fh:
+        for number, line in enumerate(fh, start=1):
+            if line.strip() and not line.lstrip().startswith("#"):
+                numbers.append(number)
+    return np.array(numbers[1:], int)
+
+
+def _cleaned(path: Path, frame: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray]:
+    """The table without what a spreadsheet adds around the data (columns with neither header nor values, rows
+    with every cell empty: cells once formatted, then cleared) and without notes (:data:`NOTE_COLUMNS`), with
+    each row's line number in the file.  IdentifyInputError for values in a column without a header."""
+    lines = _data_lines(path)
+    if len(lines) != len(frame):  # a cell quoted across lines: rows counted from the header
+        lines = np.arange(len(frame)) + 2
+    empty = frame.apply(lambda c: c.isna() | (c.astype(str).str.strip() == ""))
+    for i, column in enumerate(frame.columns):
+        if column.startswith("Unnamed: ") and not empty[column].all():
+            row = int(np.flatnonzero(~empty[column].to_numpy())[0])
+            raise IdentifyInputError(f"{path}, line {lines[row]}: column {i + 1} holds {_cell(frame, column, row)} "
+                                     "but has no header (give it one, e.g. 'spin (rpm)', or clear it)")
+    keep = [c for c in frame.columns if not c.startswith("Unnamed: ") and c.lower() not in NOTE_COLUMNS]
+    rows = ~empty[keep].all(axis=1).to_numpy() if keep else np.zeros(len(frame), bool)
+    return frame.loc[rows, keep].reset_index(drop=True), lines[rows]
+
+
 def read_table(path: str | Path) -> Table:
     """Read one lab table into SI units (see the module docstring)."""
     path = Path(path)
@@ -136,45 +230,51 @@ def read_table(path: str | Path) -> Table:
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise IdentifyInputError(f"{path}: not a readable CSV table ({exc})") from None
     frame.columns = [str(c).strip() for c in frame.columns]
+    frame, lines = _cleaned(path, frame)
     kind = _kind(path, frame)
     values: dict[str, np.ndarray] = {}
     sd: dict[str, np.ndarray] = {}
     units: dict[str, str] = {}
+    parsed: dict[str, tuple[str, str, bool]] = {}
+    left = None
     for column in frame.columns:
-        if column == "kind":
-            continue
-        name, suffix, is_sd = _split_unit(str(path), column)
+        if column != "kind":
+            parsed[column] = left = _split_unit(str(path), column, left)
+    for column, (name, suffix, is_sd) in parsed.items():
         raw = pd.to_numeric(frame[column], errors="coerce").to_numpy(float)
         bad = np.flatnonzero(~np.isfinite(raw))
         if len(bad) and not is_sd:
-            raise IdentifyInputError(f"{path}, line {bad[0] + 2}, column {column!r}: {frame[column].iloc[bad[0]]!r} is "
+            raise IdentifyInputError(f"{path}, line {lines[bad[0]]}, column {column!r}: {_cell(frame, column, bad[0])} is "
                                      "not a finite number")
         if is_sd:
+            if not any(n == name and not sd_ for n, _, sd_ in parsed.values()):
+                raise IdentifyInputError(f"{path}: column {column!r} is a standard deviation of {name}, and no "
+                                         f"column gives {name} itself")
+            if name in sd:
+                raise IdentifyInputError(f"{path}: column {column!r}: {name}'s standard deviation is given twice")
             raw = np.where(np.isfinite(raw), raw, 0.0)
             neg = np.flatnonzero(raw < 0)
             if len(neg):
-                raise IdentifyInputError(f"{path}, line {neg[0] + 2}, column {column!r}: a standard deviation must "
+                raise IdentifyInputError(f"{path}, line {lines[neg[0]]}, column {column!r}: a standard deviation must "
                                          f"be >= 0; got {raw[neg[0]]!r}")
             sd[name] = raw * UNITS[suffix][1]
         else:
             if name in values:
                 raise IdentifyInputError(f"{path}: {name} is given twice (column {column!r} and {units[name]!r})")
             values[name], units[name] = raw * UNITS[suffix][1], column
-        if is_sd and f"{name}{suffix}" not in frame.columns:
-            raise IdentifyInputError(f"{path}: column {column!r} has no column {name}{suffix} beside it")
     _check_required(path, kind, set(values))
     for name in POSITIVE:
         if name in values:
             neg = np.flatnonzero(values[name] <= 0)
             if len(neg):
-                raise IdentifyInputError(f"{path}, line {neg[0] + 2}, column {units[name]!r}: must be > 0; got "
-                                         f"{frame[units[name]].iloc[neg[0]]!r}")
+                raise IdentifyInputError(f"{path}, line {lines[neg[0]]}, column {units[name]!r}: must be > 0; got "
+                                         f"{_cell(frame, units[name], neg[0])}")
     for name, (lo, hi, what) in RANGES.items():
         if name in values:
             off = np.flatnonzero(~((values[name] >= lo) & (values[name] <= hi)))
             if len(off):
-                raise IdentifyInputError(f"{path}, line {off[0] + 2}, column {units[name]!r}: "
-                                         f"{frame[units[name]].iloc[off[0]]!r} is outside {what}")
+                raise IdentifyInputError(f"{path}, line {lines[off[0]]}, column {units[name]!r}: "
+                                         f"{_cell(frame, units[name], off[0])} is outside {what}")
     if len(frame) == 0:
         raise IdentifyInputError(f"{path}: no rows")
     if kind == "spin_down" and len(frame) >= 3 and np.ptp(values["t"]) <= 0:
@@ -185,4 +285,4 @@ def read_table(path: str | Path) -> Table:
                                  "initial spin, the viscous rate and the friction are fitted)")
     for name in values:
         sd.setdefault(name, np.zeros(len(frame)))
-    return Table(str(path), kind, values, sd, np.arange(len(frame)) + 2)
+    return Table(str(path), kind, values, sd, lines)
