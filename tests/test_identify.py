@@ -21,7 +21,7 @@ import pytest
 from gyrorig.bench.identify import (_rigs, identify_pulls, simulated_circling_rate, simulated_nutation_frequency,
                                     simulated_precession_period)
 from gyrorig.cli import main
-from gyrorig.identify import IdentifyInputError, read_table
+from gyrorig.identify import IdentifyInputError, read_table, read_tables
 from gyrorig.protocols import load_protocol
 
 from conftest import PROTOCOL_DIR
@@ -522,3 +522,50 @@ def test_headers_as_a_spreadsheet_writes_them_read_as_the_suffix_form(tmp_path):
             np.testing.assert_allclose(table.values[q], reference.values[q], rtol=1e-12, err_msg=name)
             np.testing.assert_allclose(table.sd[q], reference.sd[q], rtol=1e-12, err_msg=name)
     assert read_table(tmp_path / "precession_square.csv").lines.tolist() == [4, 7]
+
+
+def test_an_excel_workbook_gives_a_table_per_sheet(tmp_path):
+    """A lab book kept in Excel: a sheet per measurement (named for its kind, or not named at all and told by its
+    columns), a title row above the header, a formula's value; each sheet reads to the numbers of the same
+    table as CSV, and ``identify`` takes the workbook as an input."""
+    openpyxl = pytest.importorskip("openpyxl")
+    book = openpyxl.Workbook()
+    sheet = book.active
+    sheet.title = "Precession"
+    sheet.append(["# gyro B, 26 Nov"])
+    sheet.append(["Spin (rpm)", "Precession period (s)", "± (s)", "Tilt (°)"])
+    sheet.append([4000, 3.0, 0.1, 90])
+    sheet.append([4500, 2.5, 0.05, 88])
+    other = book.create_sheet("Sheet2")
+    other.append(["t (s)", "spin (rpm)"])
+    for t, spin in ((0, 5000), (60, 4700), (120, 4420), (180, 4150)):
+        other.append([t, spin])
+    book.create_sheet("empty")
+    path = tmp_path / "lab book.xlsx"
+    book.save(path)
+    (tmp_path / "precession.csv").write_text("spin_rpm,precession_period_s,precession_period_s_sd,tilt_deg\n"
+                                             "4000,3.0,0.1,90\n4500,2.5,0.05,88\n")
+    (tmp_path / "spin_down.csv").write_text("t_s,spin_rpm\n0,5000\n60,4700\n120,4420\n180,4150\n")
+    tables = read_tables(path)
+    assert [t.kind for t in tables] == ["precession", "spin_down"]
+    for table, csv in zip(tables, ("precession.csv", "spin_down.csv")):
+        reference = read_table(tmp_path / csv)
+        assert sorted(table.values) == sorted(reference.values)
+        for q in reference.values:
+            np.testing.assert_allclose(table.values[q], reference.values[q], rtol=1e-12)
+            np.testing.assert_allclose(table.sd[q], reference.sd[q], rtol=1e-12)
+    assert tables[0].lines.tolist() == [3, 4]  # the sheet's own row numbers
+    assert read_tables(tmp_path / "precession.csv")[0].kind == "precession"
+    out = tmp_path / "id"
+    assert main(["identify", str(path), "--protocol", str(_prior(tmp_path)), "--out", str(out)]) == 0
+    assert len(json.loads((out / "identify.json").read_text())["rows"]) == 6  # 2 precession + 4 spin-down rows
+
+
+def test_a_tables_kind_is_told_by_its_columns_when_its_name_does_not(tmp_path):
+    path = tmp_path / "gyro lab week 3.csv"
+    path.write_text("spin (rpm),nutation frequency (Hz)\n4000,3.1\n4500,3.5\n")
+    assert read_table(path).kind == "nutation"
+    both = tmp_path / "all.csv"
+    both.write_text("spin (rpm),nutation frequency (Hz),precession period (s)\n4000,3.1,3.0\n")
+    with pytest.raises(IdentifyInputError):
+        read_table(both)

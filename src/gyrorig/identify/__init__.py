@@ -14,7 +14,7 @@ Estimation only: nothing here reaches the simulator (synthetic tables for its te
 from .estimate import Identification, identify_parameters
 from .observations import Observation, observations_from_fit, observations_from_table
 from .output import identify_files, read_observations
-from .tables import IdentifyInputError, Table, read_table
+from .tables import IdentifyInputError, Table, read_table, read_tables
 
 __all__ = ["Identification", "IdentifyInputError", "Observation", "Table", "identify_files", "identify_parameters",
-           "observations_from_fit", "observations_from_table", "read_observations", "read_table"]
+           "observations_from_fit", "observations_from_table", "read_observations", "read_table", "read_tables"]

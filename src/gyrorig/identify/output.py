@@ -16,14 +16,14 @@ from ..protocols import Protocol, ProtocolError, load_protocol
 from .configurations import configuration_of, configured, configured_prior, parse_configurations
 from .estimate import Identification, extra_priors, formulas_used, identify_parameters, prior_rig_values
 from .observations import Observation, observations_from_fit, observations_from_table
-from .tables import IdentifyInputError, read_table
+from .tables import WORKBOOK_SUFFIXES, IdentifyInputError, read_tables
 
 __all__ = ["read_observations", "identify_files", "identified_toml", "identify_document", "plot_identification"]
 
 
 def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observation]:
-    """Every observation of the inputs: lab tables (``.csv``) and fit.json files, each with the configuration it was
-    measured in (:mod:`~gyrorig.identify.configurations`)."""
+    """Every observation of the inputs: lab tables (CSV files, Excel workbooks: :func:`read_tables`) and fit.json
+    files, each with the configuration it was measured in (:mod:`~gyrorig.identify.configurations`)."""
     obs: list[Observation] = []
     configurations = parse_configurations(prior)
     for path in map(Path, inputs):
@@ -42,10 +42,11 @@ def read_observations(inputs: list[str | Path], prior: Protocol) -> list[Observa
             except (json.JSONDecodeError, UnicodeDecodeError) as exc:
                 raise IdentifyInputError(f"{path}: not a fit.json ({exc})") from None
             obs += observations_from_fit(str(path), doc, prior)
-        elif path.suffix.lower() == ".csv":
-            obs += observations_from_table(read_table(path), prior)
+        elif path.suffix.lower() in (".csv", ".txt", ".tsv", *WORKBOOK_SUFFIXES):
+            for table in read_tables(path):
+                obs += observations_from_table(table, prior)
         else:
-            raise IdentifyInputError(f"{path}: an input is a fit.json or a CSV table")
+            raise IdentifyInputError(f"{path}: an input is a fit.json, a CSV table or an Excel workbook (.xlsx)")
     return obs
 
 

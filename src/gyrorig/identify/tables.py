@@ -23,7 +23,7 @@ import pandas as pd
 
 from .. import _io
 
-__all__ = ["IdentifyInputError", "Table", "read_table", "UNITS", "UNIT_WORDS", "KINDS", "COLUMNS"]
+__all__ = ["IdentifyInputError", "Table", "read_table", "read_tables", "WORKBOOK_SUFFIXES", "UNITS", "UNIT_WORDS", "KINDS", "COLUMNS"]
 
 
 class IdentifyInputError(ValueError):
@@ -151,21 +151,31 @@ def _written(path: str, column: str, left: tuple[str, str, bool] | None) -> tupl
     return _known(path, column, words, suffix), suffix, False
 
 
-def _kind(path: Path, frame: pd.DataFrame) -> str:
+#: the columns that tell a table's kind when neither a ``kind`` column nor the file name does
+KIND_SIGNS = {"nutation": ("nutation_frequency", "nutation_period"),
+              "precession": ("precession_period", "precession_rate"), "spin_down": ("t",)}
+
+
+def _kind(label: str, kind_name: str, frame: pd.DataFrame, names: set[str]) -> str:
+    """The table's kind: its ``kind`` column, else the kind its file name contains, else the only kind whose
+    measured quantity (:data:`KIND_SIGNS`) is among its columns ``names``."""
     if "kind" in frame.columns:
         kinds = set(frame["kind"].astype(str).str.strip())
         if len(kinds) != 1 or not kinds <= set(KINDS):
-            raise IdentifyInputError(f"{path}: column 'kind' must hold one of {', '.join(KINDS)} in every row; "
+            raise IdentifyInputError(f"{label}: column 'kind' must hold one of {', '.join(KINDS)} in every row; "
                                      f"found {sorted(kinds)}")
         return kinds.pop()
-    found = [k for k in KINDS if k in path.name.lower().replace("-", "_")]
+    found = [k for k in KINDS if k in kind_name.lower().replace("-", "_").replace(" ", "_")]
     if len(found) != 1:
-        raise IdentifyInputError(f"{path}: say what the table holds: a 'kind' column, or a file name containing "
-                                 f"one of {', '.join(KINDS)}")
+        found = [k for k, signs in KIND_SIGNS.items() if names & set(signs)]
+    if len(found) != 1:
+        raise IdentifyInputError(f"{label}: say what the table holds: a 'kind' column, or a file name containing "
+                                 f"one of {', '.join(KINDS)}" + (f" (its columns fit {' and '.join(found)})"
+                                                                 if found else ""))
     return found[0]
 
 
-def _check_required(path: Path, kind: str, names: set[str]) -> None:
+def _check_required(path: str, kind: str, names: set[str]) -> None:
     for req in KINDS[kind]["required"]:
         options = req if isinstance(req, tuple) else (req,)
         ok = any(all(n in names for n in (o if isinstance(o, tuple) else (o,))) for o in options)
@@ -202,18 +212,15 @@ def _data_lines(path: Path) -> np.ndarray:
     return np.array(numbers[1:], int)
 
 
-def _cleaned(path: Path, frame: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray]:
+def _cleaned(label: str, frame: pd.DataFrame, lines: np.ndarray, row_word: str) -> tuple[pd.DataFrame, np.ndarray]:
     """The table without what a spreadsheet adds around the data (columns with neither header nor values, rows
     with every cell empty: cells once formatted, then cleared) and without notes (:data:`NOTE_COLUMNS`), with
     each row's line number in the file.  IdentifyInputError for values in a column without a header."""
-    lines = _data_lines(path)
-    if len(lines) != len(frame):  # a cell quoted across lines: rows counted from the header
-        lines = np.arange(len(frame)) + 2
     empty = frame.apply(lambda c: c.isna() | (c.astype(str).str.strip() == ""))
     for i, column in enumerate(frame.columns):
         if column.startswith("Unnamed: ") and not empty[column].all():
             row = int(np.flatnonzero(~empty[column].to_numpy())[0])
-            raise IdentifyInputError(f"{path}, line {lines[row]}: column {i + 1} holds {_cell(frame, column, row)} "
+            raise IdentifyInputError(f"{label}, {row_word} {lines[row]}: column {i + 1} holds {_cell(frame, column, row)} "
                                      "but has no header (give it one, e.g. 'spin (rpm)', or clear it)")
     keep = [c for c in frame.columns if not c.startswith("Unnamed: ") and c.lower() not in NOTE_COLUMNS]
     rows = ~empty[keep].all(axis=1).to_numpy() if keep else np.zeros(len(frame), bool)
@@ -221,7 +228,7 @@ def _cleaned(path: Path, frame: pd.DataFrame) -> tuple[pd.DataFrame, np.ndarray]
 
 
 def read_table(path: str | Path) -> Table:
-    """Read one lab table into SI units (see the module docstring)."""
+    """Read one lab table (a CSV file) into SI units (see the module docstring)."""
     path = Path(path)
     try:
         frame = _io.read_table_csv(path, skipinitialspace=True, comment="#")
@@ -229,9 +236,59 @@ def read_table(path: str | Path) -> Table:
         raise IdentifyInputError(f"{path}: no such file") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise IdentifyInputError(f"{path}: not a readable CSV table ({exc})") from None
+    lines = _data_lines(path)
+    if len(lines) != len(frame):  # a cell quoted across lines: rows counted from the header
+        lines = np.arange(len(frame)) + 2
+    return _table(str(path), path.name, frame, lines, "line")
+
+
+def read_tables(path: str | Path) -> list[Table]:
+    """Every lab table in a file: a CSV file's one, or each sheet of an Excel workbook (``.xlsx``, ``.xlsm``) that
+    holds any cell, its kind from a ``kind`` column, the sheet's name, the file's name or its columns."""
+    path = Path(path)
+    if path.suffix.lower() not in WORKBOOK_SUFFIXES:
+        return [read_table(path)]
+    return [_table(f"{path}, sheet {sheet!r}", f"{sheet} {path.name}", frame, rows, "row")
+            for sheet, frame, rows in _sheets(path)]
+
+
+#: file name endings read as Excel workbooks
+WORKBOOK_SUFFIXES = (".xlsx", ".xlsm")
+
+
+def _sheets(path: Path) -> list[tuple[str, pd.DataFrame, np.ndarray]]:
+    """Each sheet of a workbook that holds a cell: its name, its table (the first row with a cell is the header;
+    rows whose first cell is a ``#`` comment left out) and each row's number in the sheet."""
+    try:
+        book = pd.read_excel(path, sheet_name=None, header=None, dtype=object, engine="openpyxl")
+    except FileNotFoundError:
+        raise IdentifyInputError(f"{path}: no such file") from None
+    except ImportError:
+        raise IdentifyInputError(f"{path}: reading an Excel workbook needs openpyxl (pip install openpyxl); or save "
+                                 "each sheet as CSV") from None
+    except Exception as exc:  # noqa: BLE001 - openpyxl raises many kinds for a file that is not a workbook
+        raise IdentifyInputError(f"{path}: not a readable Excel workbook ({type(exc).__name__}: {exc})") from None
+    out = []
+    for sheet, raw in book.items():
+        text = raw.apply(lambda c: c.map(lambda v: "" if pd.isna(v) else str(v).strip()))
+        used = ((text != "").any(axis=1) & ~text.iloc[:, 0].str.startswith("#")).to_numpy() if raw.size else []
+        rows = np.flatnonzero(used)
+        if len(rows) == 0:
+            continue
+        header = [str(v).strip() if v != "" else f"Unnamed: {i}" for i, v in enumerate(text.iloc[rows[0]])]
+        frame = raw.iloc[rows[1:]].copy()
+        frame.columns = header
+        out.append((str(sheet), frame.reset_index(drop=True), rows[1:] + 1))
+    if not out:
+        raise IdentifyInputError(f"{path}: no sheet holds a table")
+    return out
+
+
+def _table(label: str, kind_name: str, frame: pd.DataFrame, lines: np.ndarray, row_word: str) -> Table:
+    """One table in SI from its cells as read (``label`` names it in messages, ``kind_name`` is searched for its
+    kind, ``lines`` are its rows' numbers in the file, called ``row_word``)."""
     frame.columns = [str(c).strip() for c in frame.columns]
-    frame, lines = _cleaned(path, frame)
-    kind = _kind(path, frame)
+    frame, lines = _cleaned(label, frame, lines, row_word)
     values: dict[str, np.ndarray] = {}
     sd: dict[str, np.ndarray] = {}
     units: dict[str, str] = {}
@@ -239,50 +296,51 @@ def read_table(path: str | Path) -> Table:
     left = None
     for column in frame.columns:
         if column != "kind":
-            parsed[column] = left = _split_unit(str(path), column, left)
+            parsed[column] = left = _split_unit(label, column, left)
+    kind = _kind(label, kind_name, frame, {name for name, _, _ in parsed.values()})
     for column, (name, suffix, is_sd) in parsed.items():
         raw = pd.to_numeric(frame[column], errors="coerce").to_numpy(float)
         bad = np.flatnonzero(~np.isfinite(raw))
         if len(bad) and not is_sd:
-            raise IdentifyInputError(f"{path}, line {lines[bad[0]]}, column {column!r}: {_cell(frame, column, bad[0])} is "
+            raise IdentifyInputError(f"{label}, {row_word} {lines[bad[0]]}, column {column!r}: {_cell(frame, column, bad[0])} is "
                                      "not a finite number")
         if is_sd:
             if not any(n == name and not sd_ for n, _, sd_ in parsed.values()):
-                raise IdentifyInputError(f"{path}: column {column!r} is a standard deviation of {name}, and no "
+                raise IdentifyInputError(f"{label}: column {column!r} is a standard deviation of {name}, and no "
                                          f"column gives {name} itself")
             if name in sd:
-                raise IdentifyInputError(f"{path}: column {column!r}: {name}'s standard deviation is given twice")
+                raise IdentifyInputError(f"{label}: column {column!r}: {name}'s standard deviation is given twice")
             raw = np.where(np.isfinite(raw), raw, 0.0)
             neg = np.flatnonzero(raw < 0)
             if len(neg):
-                raise IdentifyInputError(f"{path}, line {lines[neg[0]]}, column {column!r}: a standard deviation must "
+                raise IdentifyInputError(f"{label}, {row_word} {lines[neg[0]]}, column {column!r}: a standard deviation must "
                                          f"be >= 0; got {raw[neg[0]]!r}")
             sd[name] = raw * UNITS[suffix][1]
         else:
             if name in values:
-                raise IdentifyInputError(f"{path}: {name} is given twice (column {column!r} and {units[name]!r})")
+                raise IdentifyInputError(f"{label}: {name} is given twice (column {column!r} and {units[name]!r})")
             values[name], units[name] = raw * UNITS[suffix][1], column
-    _check_required(path, kind, set(values))
+    _check_required(label, kind, set(values))
     for name in POSITIVE:
         if name in values:
             neg = np.flatnonzero(values[name] <= 0)
             if len(neg):
-                raise IdentifyInputError(f"{path}, line {lines[neg[0]]}, column {units[name]!r}: must be > 0; got "
+                raise IdentifyInputError(f"{label}, {row_word} {lines[neg[0]]}, column {units[name]!r}: must be > 0; got "
                                          f"{_cell(frame, units[name], neg[0])}")
     for name, (lo, hi, what) in RANGES.items():
         if name in values:
             off = np.flatnonzero(~((values[name] >= lo) & (values[name] <= hi)))
             if len(off):
-                raise IdentifyInputError(f"{path}, line {lines[off[0]]}, column {units[name]!r}: "
+                raise IdentifyInputError(f"{label}, {row_word} {lines[off[0]]}, column {units[name]!r}: "
                                          f"{_cell(frame, units[name], off[0])} is outside {what}")
     if len(frame) == 0:
-        raise IdentifyInputError(f"{path}: no rows")
+        raise IdentifyInputError(f"{label}: no rows")
     if kind == "spin_down" and len(frame) >= 3 and np.ptp(values["t"]) <= 0:
-        raise IdentifyInputError(f"{path}, column {units['t']!r}: every row has the same time: a spin-down needs "
+        raise IdentifyInputError(f"{label}, column {units['t']!r}: every row has the same time: a spin-down needs "
                                  "readings at different times")
     if kind == "spin_down" and len(frame) < 3:
-        raise IdentifyInputError(f"{path}: a spin-down table has {len(frame)} row(s); it needs at least 3 (its "
+        raise IdentifyInputError(f"{label}: a spin-down table has {len(frame)} row(s); it needs at least 3 (its "
                                  "initial spin, the viscous rate and the friction are fitted)")
     for name in values:
         sd.setdefault(name, np.zeros(len(frame)))
-    return Table(str(path), kind, values, sd, lines)
+    return Table(label, kind, values, sd, lines)
