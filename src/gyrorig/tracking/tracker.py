@@ -273,7 +273,10 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     what the scene or the codec does to several frames alike it cannot see); for a ``lossy`` codec, or a camera
     without a sensor gain (a recording, whose frames may be a lossless copy of a lossy one), an error the
     same for every frame is found beside the factors and added (the codec's displacement of the whole spot,
-    which no single frame shows).  Otherwise a
+    which no single frame shows), with the error shared by a run of B pictures; these are solved twice, with the
+    factors held at 1 or above and with them free (a codec that smooths the noise away leaves the spot fits' own
+    errors too large, and its shared errors hidden under them), and each frame takes the larger of the two
+    errors (the returned check is the solve most frames took).  Otherwise a
     class's errors are scaled only when evidently too small (by :data:`SIGMA_CHECK_Z` of the check's standard
     errors).  A class whose factor is not known well enough (:data:`MIN_CLASS_COORDINATES`,
     :data:`MAX_CLASS_RELATIVE_SE`) takes the overall factor."""
@@ -298,43 +301,66 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
                f"{_rounded(NOISE_ACF)} for noise): the errors are the spot fits' own, unchecked")
         logger.warning("%s; a higher frame rate lets the record check them", why)
         return replace(check, outliers=(), reason=why)
-    factors, reasons = {}, []
+    in_run = np.zeros(len(index), bool) if runs is None else runs >= 0
+    own = np.array([rows.tip_cov[r] for r in index]).reshape(-1, 2, 2)
+    factors, scale, added = _error_terms(check, classes, in_run, doubts, floor)
+    if floor:
+        # the same residuals solved again with the spot fits' own errors free to be too large (a codec that smooths
+        # the noise away makes them so, and then hides its shared errors under them): each frame takes the larger
+        free = check_sigmas(angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index],
+                            np.array([rows.tip_px[r] for r in index]), var, classes, floor=True, min_factor=0.0,
+                            groups=runs)
+        _, scale_free, added_free = _error_terms(free, classes, in_run, doubts, floor, own_unknown=True)
+        larger = (scale_free**2 * np.trace(own, axis1=1, axis2=2) + 2 * added_free
+                  > scale**2 * np.trace(own, axis1=1, axis2=2) + 2 * added)
+        scale, added = np.where(larger, scale_free, scale), np.where(larger, added_free, added)
+        if np.mean(larger) > 0.5:
+            check = replace(free, outliers=check.outliers)
+    reasons = [f"{label} frames' errors are smaller than their scatter" for label in factors]
+    reason = doubts or "; ".join(reasons) or "sensor and spot models hold"
+    changed = np.isin(classes, list(factors))
+    if changed.any():
+        rows_c = index[changed]
+        covs = scale[changed, None, None] ** 2 * own[changed] + added[changed, None, None] * np.eye(2)
+        c = angle_covariances(np.array([rows.tip_px[r] for r in rows_c]).reshape(-1, 2), covs, camera, length_m)[3]
+        sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
+        angles.loc[rows_c, ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]] = np.column_stack(
+            [sth, sph, c[:, 0, 1] / (sth * sph)])
+        for r, cov in zip(rows_c, covs):
+            rows.tip_cov[r] = cov
+        frames_c = angles.frame.to_numpy()[rows_c]
+        sel = (markers.marker == tip_name) & markers.frame.isin(frames_c)
+        extra = markers.loc[sel, "frame"].map(dict(zip(frames_c, added[changed]))).to_numpy(float)
+        f_row = markers.loc[sel, "frame"].map(dict(zip(frames_c, scale[changed]))).to_numpy(float)
+        for col in ("sigma_x_px", "sigma_y_px"):
+            markers.loc[sel, col] = np.sqrt(f_row * f_row * markers.loc[sel, col] ** 2 + extra)
+    bad = index[list(check.outliers)]
+    if len(bad):
+        _drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
+    return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
+
+
+def _error_terms(check: SigmaCheck, classes: np.ndarray, in_run: np.ndarray, doubts: str, floor: bool, *,
+                 own_unknown: bool = False) -> tuple[dict, np.ndarray, np.ndarray]:
+    """What the record's check makes of each frame's error: the classes' factors applied (``{class: factor}``),
+    and per frame the factor on its own error and the variance added to it (the floor's, and the shared error of
+    a run of B pictures for a frame in one) [px^2].  A class whose factor is not known well enough
+    (:data:`MIN_CLASS_COORDINATES`, :data:`MAX_CLASS_RELATIVE_SE`) takes the overall factor, or with
+    ``own_unknown`` (a solve whose floor and shared error the overall factor holds already) keeps its own errors."""
+    factors = {}
     for label in ("clear", "blended"):
         f, se, n = check.by_class.get(label, (check.factor, check.factor_se, 0))
         if n < MIN_CLASS_COORDINATES or not se < MAX_CLASS_RELATIVE_SE * f:
-            f, se = check.factor, check.factor_se
+            f, se = (1.0, 0.0) if own_unknown else (check.factor, check.factor_se)
         if doubts:
             # interleaved classes are told apart imprecisely: a class is never given narrower errors than the record
             # as a whole shows (without a floor, which the overall factor would count again), nor scaled down
             f = max(f, 1.0) if floor else max(f, check.factor, 1.0)
         if doubts or f > 1.0 + SIGMA_CHECK_Z * se:
             factors[label] = f
-            if not doubts:
-                reasons.append(f"{label} frames' errors are smaller than their scatter")
-    reason = doubts or "; ".join(reasons) or "sensor and spot models hold"
-    tau2 = check.floor_px**2
-    tip_rows = markers.marker == tip_name
-    cols = ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]
-    in_run = np.zeros(len(index), bool) if runs is None else runs >= 0
-    for label, f in factors.items():
-        rows_c = index[classes == label]
-        added = tau2 + check.shared_px**2 * in_run[classes == label]
-        covs = (f * f * np.array([rows.tip_cov[r] for r in rows_c]).reshape(-1, 2, 2)
-                + added[:, None, None] * np.eye(2))
-        c = angle_covariances(np.array([rows.tip_px[r] for r in rows_c]).reshape(-1, 2), covs, camera, length_m)[3]
-        sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
-        angles.loc[rows_c, cols] = np.column_stack([sth, sph, c[:, 0, 1] / (sth * sph)])
-        for r, cov in zip(rows_c, covs):
-            rows.tip_cov[r] = cov
-        frames_c = angles.frame.to_numpy()[rows_c]
-        sel = tip_rows & markers.frame.isin(frames_c)
-        extra = markers.loc[sel, "frame"].map(dict(zip(frames_c, added))).to_numpy(float)
-        for col in ("sigma_x_px", "sigma_y_px"):
-            markers.loc[sel, col] = np.sqrt(f * f * markers.loc[sel, col] ** 2 + extra)
-    bad = index[list(check.outliers)]
-    if len(bad):
-        _drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
-    return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
+    scale = np.array([factors.get(label, 1.0) for label in classes])
+    added = np.where(np.isin(classes, list(factors)), check.floor_px**2 + check.shared_px**2 * in_run, 0.0)
+    return factors, scale, added
 
 
 def _drop_tip(rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame, positions, quality: str, *,
