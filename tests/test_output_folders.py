@@ -148,9 +148,14 @@ def test_a_signal_while_tracking_leaves_nothing(tmp_path, long_video, signame, c
     import time
 
     out = tmp_path / "track"
-    proc = subprocess.Popen([sys.executable, "-m", "gyrorig", "track", str(long_video / "video.mkv"), "--camera",
-                             str(long_video / "camera.json"), "--protocol", AIR, "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # the child gets the default SIGINT action a terminal's foreground job has: a test run started in the
+    # background (`cmd &` in a script, nohup) ignores SIGINT, and its children inherit that
+    command = [sys.executable, "-m", "gyrorig", "track", str(long_video / "video.mkv"), "--camera",
+               str(long_video / "camera.json"), "--protocol", AIR, "--out", str(out)]
+    foreground = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+                  "os.execv(sys.argv[1], sys.argv[1:])")
+    proc = subprocess.Popen([sys.executable, "-c", foreground, *command], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     seen = []
     for line in proc.stderr:  # wait for the first progress line: frames are being decoded and tracked
         seen.append(line)
