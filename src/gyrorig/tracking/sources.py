@@ -520,21 +520,18 @@ def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
 PICTURE_TYPES = {1: "I", 2: "P", 3: "B", 4: "S", 5: "SI", 6: "SP", 7: "BI"}
 
 
-def _damaged_stretches(errors: list[tuple[int, str]], keys: list[int], count: int, lag: int
-                       ) -> list[tuple[int, int, str]]:
-    """Stretches ``(first, end, message)`` of pictures a decoder's errors reach: from three times ``lag`` pictures
-    before the one delivered when the error was reported (frame threads and reordering deliver pictures behind the
-    one being decoded, and a message from another thread reaches the log later still: 8 pictures late with a lag
-    of 6 measured) up to the next key picture (``keys``: positions of the pictures decodable on their own; the ones
-    between are predicted from the damaged one), merged where they overlap."""
+def _damaged_stretches(errors: list[tuple[int, str]], keys: list[int], count: int) -> list[tuple[int, int, str]]:
+    """Stretches ``(first, end, message)`` of pictures damaged data reach: from each picture the decoder flagged
+    corrupt (``errors``: its position and what to say) up to the next key picture (``keys``: positions of the
+    pictures decodable on their own; the ones between are predicted from the damaged one), merged where they
+    overlap."""
     out: list[tuple[int, int, str]] = []
     for at, message in errors:
-        first = max(at - 3 * lag, 0)
         end = next((k for k in keys if k > at), count)
-        if out and first <= out[-1][1]:
+        if out and at <= out[-1][1]:
             out[-1] = (out[-1][0], max(out[-1][1], end), out[-1][2])
         else:
-            out.append((first, end, message))
+            out.append((at, end, message))
     return out
 
 
@@ -548,9 +545,10 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
 
     Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
     then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there, its
-    decoder's message appended to ``problems``.  The decoder's error messages (FFmpeg's log, captured while the
-    stream is read) mark the pictures they reach in ``damaged`` (:func:`_damaged_stretches`), filled when the
-    stream has been read.
+    decoder's message appended to ``problems``.  The pictures the decoder flags corrupt (damaged data it
+    concealed) mark the stretches they reach in ``damaged`` (:func:`_damaged_stretches`), filled when the stream
+    has been read.  (FFmpeg's log is not captured: PyAV's log callback, called from the decoder's own threads,
+    can deadlock threaded decoding.)
     """
     import av
 
@@ -559,42 +557,34 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
     base = stream.time_base
 
     def reader() -> None:
-        import av.logging
-
         first = None
         keys: list[int] = []
         errors: list[tuple[int, str]] = []
-        level = av.logging.get_level()
-        av.logging.set_level(av.logging.ERROR)
         n = 0  # pictures delivered
         try:
-            with av.logging.Capture(local=False) as logs:
-                for frame in container.decode(stream):
-                    if stop.is_set():
-                        return
-                    if len(logs) > len(errors):
-                        errors += [(n, str(entry[2]).strip()) for entry in logs[len(errors):]]
-                    if frame.key_frame:
-                        keys.append(n)
-                    n += 1
-                    if frame.pts is None or base is None:
-                        t = math.nan
-                    else:
-                        first = frame.pts if first is None else first
-                        t = float((frame.pts - first) * base)
-                    image = _plane_image(frame, colour)
-                    if turns:
-                        image = np.ascontiguousarray(np.rot90(image, turns))
-                    q.put((image, t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
+            for frame in container.decode(stream):
+                if stop.is_set():
+                    return
+                if frame.is_corrupt:
+                    errors.append((n, "the decoder found damaged data (the picture concealed from others)"))
+                if frame.key_frame:
+                    keys.append(n)
+                n += 1
+                if frame.pts is None or base is None:
+                    t = math.nan
+                else:
+                    first = frame.pts if first is None else first
+                    t = float((frame.pts - first) * base)
+                image = _plane_image(frame, colour)
+                if turns:
+                    image = np.ascontiguousarray(np.rot90(image, turns))
+                q.put((image, t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
         except (av.FFmpegError, ValueError, MemoryError) as exc:  # the frames decoded so far stand
             if problems is not None:
                 problems.append(f"decoding stopped: {exc}")
         finally:
-            av.logging.set_level(level)
             if damaged is not None and errors:
-                ctx = stream.codec_context
-                lag = max(int(ctx.thread_count or 0), 1) + int(getattr(ctx, "reorder_depth", 0) or 0) + 1
-                damaged.extend(_damaged_stretches(errors, keys, n, lag))
+                damaged.extend(_damaged_stretches(errors, keys, n))
             q.put(None)
 
     thread = threading.Thread(target=reader, daemon=True)
