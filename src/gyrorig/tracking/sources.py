@@ -19,9 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-import queue
 import re
-import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +28,7 @@ import cv2
 import numpy as np
 
 from .errors import BadInputError, TrackingError
+from .decoding import _decoded_frames, _luma_levels
 from .transfer import transfer_of_video
 
 __all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "Clip", "Cut", "parse_cut", "as_source", "fingerprint",
@@ -70,7 +69,7 @@ class Frames:
     #: message); the frames before it stand
     problems: list[str] = field(default_factory=list)
     #: stretches of pictures the decoder reported damaged data in, or predicted from such (``(first, end,
-    #: message)``, positions in decoding order, ``end`` exclusive: up to the next key picture), filled when the
+    #: message)``, positions in the order delivered, ``end`` exclusive: up to the next key picture), filled when the
     #: stream has been read
     damaged: list[tuple[int, int, str]] = field(default_factory=list)
 
@@ -208,43 +207,6 @@ def _cut_hint(path: Path) -> str:
         return ""
     return ("; an MP4 or MOV file cut short (copied before the recording stopped, or truncated in transfer) has no "
             "index, which the camera writes when recording stops: a complete copy of the file is needed")
-
-
-#: FFmpeg's colour range of a frame that says it holds full-range values (AVCOL_RANGE_JPEG)
-_RANGE_FULL = 2
-
-
-def _luma_levels(frame, bits: int) -> tuple[int, int] | None:
-    """The luma values of black and white as :func:`_plane_image` gives them: a YUV picture's own luma plane,
-    unless marked full-range (a "yuvj" format or the JPEG range), holds the limited range, 16-235 scaled to its
-    bit depth, as FFmpeg and every player read it; None (0 to full scale) for grey formats, full-range YUV and
-    pictures FFmpeg converts to grey (which it stretches to the full range)."""
-    if frame is None or not _luma_plane(frame.format) or len(frame.format.components) < 3:
-        return None
-    if frame.format.name.startswith("yuvj") or int(getattr(frame, "color_range", 0) or 0) == _RANGE_FULL:
-        return None
-    scale = 1 << max(bits - 8, 0)
-    return 16 * scale, 235 * scale
-
-
-def _luma_plane(fmt) -> bool:
-    """Whether a picture of format ``fmt`` stores its luma as its own first plane (read as it is)."""
-    luma = fmt.components[0]
-    return bool(fmt.is_planar and luma.is_luma and luma.plane == 0 and not fmt.is_big_endian)
-
-
-def _plane_image(frame, colour: bool) -> np.ndarray:
-    """One decoded frame as a 2-D luma array (no conversion where the codec stores luma) or an RGB array."""
-    fmt = frame.format
-    bits = fmt.components[0].bits
-    if colour:
-        return frame.to_ndarray(format="rgb48le" if bits > 8 else "rgb24")
-    if _luma_plane(fmt):
-        plane = frame.planes[0]
-        dtype = np.uint16 if bits > 8 else np.uint8
-        row = np.frombuffer(plane, dtype=dtype).reshape(frame.height, -1)
-        return np.array(row[:, :frame.width])  # a copy: the decoder reuses its buffers
-    return frame.to_ndarray(format="gray16le" if bits > 8 else "gray")
 
 
 class FrameArrays:
@@ -514,94 +476,3 @@ def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
     if hasattr(video, "open"):
         return video
     raise TypeError(f"expected a video path or a frame source, got {type(video).__name__}")
-
-
-#: FFmpeg's picture types (``AVPictureType``), as the angle table's ``frame_type`` names them
-PICTURE_TYPES = {1: "I", 2: "P", 3: "B", 4: "S", 5: "SI", 6: "SP", 7: "BI"}
-
-
-def _damaged_stretches(errors: list[tuple[int, str]], keys: list[int], count: int) -> list[tuple[int, int, str]]:
-    """Stretches ``(first, end, message)`` of pictures damaged data reach: from each picture the decoder flagged
-    corrupt (``errors``: its position and what to say) up to the next key picture (``keys``: positions of the
-    pictures decodable on their own; the ones between are predicted from the damaged one), merged where they
-    overlap."""
-    out: list[tuple[int, int, str]] = []
-    for at, message in errors:
-        end = next((k for k in keys if k > at), count)
-        if out and at <= out[-1][1]:
-            out[-1] = (out[-1][0], max(out[-1][1], end), out[-1][2])
-        else:
-            out.append((at, end, message))
-    return out
-
-
-def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8, turns: int = 0,
-                    problems: list[str] | None = None, damaged: list | None = None
-                    ) -> Iterator[tuple[np.ndarray, float]]:
-    """Yield ``(frame, start time s)``, decoding in a background thread (decoding the next frames overlaps
-    with tracking this one: two cores give the slower of the two, not their sum); each yielded frame's
-    picture type (:data:`PICTURE_TYPES`, '' when the codec does not say) is appended to ``types`` first.
-    Each picture is turned by ``turns`` quarter turns counter-clockwise (its display orientation).
-
-    Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
-    then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there, its
-    decoder's message appended to ``problems``.  The pictures the decoder flags corrupt (damaged data it
-    concealed) mark the stretches they reach in ``damaged`` (:func:`_damaged_stretches`), filled when the stream
-    has been read.  (FFmpeg's log is not captured: PyAV's log callback, called from the decoder's own threads,
-    can deadlock threaded decoding.)
-    """
-    import av
-
-    q: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-    base = stream.time_base
-
-    def reader() -> None:
-        first = None
-        keys: list[int] = []
-        errors: list[tuple[int, str]] = []
-        n = 0  # pictures delivered
-        try:
-            for frame in container.decode(stream):
-                if stop.is_set():
-                    return
-                if frame.is_corrupt:
-                    errors.append((n, "the decoder found damaged data (the picture concealed from others)"))
-                if frame.key_frame:
-                    keys.append(n)
-                n += 1
-                if frame.pts is None or base is None:
-                    t = math.nan
-                else:
-                    first = frame.pts if first is None else first
-                    t = float((frame.pts - first) * base)
-                image = _plane_image(frame, colour)
-                if turns:
-                    image = np.ascontiguousarray(np.rot90(image, turns))
-                q.put((image, t, PICTURE_TYPES.get(int(frame.pict_type or 0), "")))
-        except (av.FFmpegError, ValueError, MemoryError) as exc:  # the frames decoded so far stand
-            if problems is not None:
-                problems.append(f"decoding stopped: {exc}")
-        finally:
-            if damaged is not None and errors:
-                damaged.extend(_damaged_stretches(errors, keys, n))
-            q.put(None)
-
-    thread = threading.Thread(target=reader, daemon=True)
-    thread.start()
-    try:
-        while True:
-            item = q.get()
-            if item is None:
-                return
-            types.append(item[2])
-            yield item[:2]
-    finally:
-        stop.set()
-        while thread.is_alive():  # unblock a reader waiting on a full queue
-            try:
-                q.get_nowait()
-            except queue.Empty:
-                pass
-            thread.join(timeout=0.05)
-        container.close()

@@ -571,12 +571,12 @@ def _source_problems(frames, decoded: int, source, rows: "_Tables", angles: pd.D
     said it would), each logged as a warning.  The pictures damaged data reaches (``frames.damaged``) lose their
     tip (quality ``damaged``): a decoder conceals damage by copying picture parts from elsewhere, which puts a
     spot where no marker was."""
-    problems = [f"{problem} after {decoded} frames (these are tracked)" for problem in frames.problems]
+    problems = [f"{problem} (the {decoded} frames decoded are tracked)" for problem in frames.problems]
     for first, end, message in frames.damaged:
         _drop_tip(rows, angles, markers, np.arange(first, min(end, len(angles))), "damaged")
         problems.append(f"the decoder reported damaged data ({message!r}); frames {angles.frame.iloc[first]}-"
                         f"{angles.frame.iloc[min(end, len(angles)) - 1]} (up to the next key picture) are left out")
-    if frames.count and decoded < CUT_SHORT * frames.count:
+    if frames.count and decoded < CUT_SHORT * frames.count and not frames.problems:  # else said why
         problems.append(f"the video ends after {decoded} of the {frames.count} frames its header states: a file cut "
                         "short (copied before the recording stopped, or truncated in transfer); the frames it has "
                         "are tracked")
