@@ -12,8 +12,8 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 #: codecs whose FFmpeg decoder flags no concealed picture corrupt but, asked to (``err_detect=explode``), returns an
-#: error for a packet whose data it cannot parse: their damage is told by those errors
-ERROR_REPORTING_CODECS = {"hevc"}
+#: error for a packet whose data it cannot parse (and drops its picture): their damage is told by those errors
+ERROR_REPORTING_CODECS = {"hevc", "mjpeg"}
 
 
 #: FFmpeg's colour range of a frame that says it holds full-range values (AVCOL_RANGE_JPEG)
@@ -74,19 +74,20 @@ def _damaged_stretches(errors: list[tuple[int, str]], keys: list[int], count: in
 
 
 def _refused_stretches(refused: list[tuple[int, str]], packets: list[tuple[float, bool]], shown: list[float],
-                       lag: int) -> tuple[list[tuple[int, int, str]], int]:
-    """The stretches ``(first, end, message)`` of delivered pictures the refused packets' damage may reach, and
-    how many refused packets were dropped whole.
+                       lag: int, drops_dependents: bool) -> tuple[list[tuple[int, int, str]], int, int]:
+    """The stretches ``(first, end, message)`` of delivered pictures the refused packets' damage may reach, how
+    many refused packets were dropped whole, and how many other packets' pictures never came (from the first
+    picture delivered on: a decoder that skipped them without a word).
 
     A decoder with frame threads returns a packet's error up to ``lag`` packets late: the damaged packet is one
-    of those from ``lag`` before the refused one.  A packet of these whose picture never came was dropped whole;
-    one refusal is put down to each such packet, and asked to refuse what it cannot parse (``err_detect=explode``)
-    the decoder refuses the pictures predicted from a dropped one too, so no delivered picture holds its damage.
-    A refusal no dropped packet accounts for came from a picture that was delivered with damage in it: every
-    picture decoded after it up to the next key packet may be predicted from it, B pictures shown before it too,
-    so its stretch holds the delivered pictures from the earliest time stamp among those packets to the key
-    packet's (``packets``: time stamp and key flag in decode order; ``shown``: the delivered pictures' time stamps
-    in order).  Without time stamps, decode positions stand for them."""
+    of those from ``lag`` before the refused one.  A packet of these whose picture never came was dropped whole,
+    and one refusal is put down to each such packet.  A decoder that ``drops_dependents`` (asked to refuse what it
+    cannot parse, ``err_detect=explode``) refuses the pictures predicted from a dropped one too, so no delivered
+    picture holds its damage; any other may predict later pictures from a stale one.  Such a picture, and a
+    refused one delivered anyway, start a stretch: every picture decoded after it up to the next key packet may be
+    predicted from it, B pictures shown before it too, so the delivered pictures from the earliest time stamp
+    among those packets to the key packet's (``packets``: time stamp and key flag in decode order; ``shown``: the
+    delivered pictures' time stamps in order).  Without time stamps, decode positions stand for them."""
     times = np.asarray(shown, float)
     stamps = np.asarray([t for t, _ in packets], float)
     if not (np.isfinite(times).all() and np.isfinite(stamps).all()):
@@ -101,14 +102,17 @@ def _refused_stretches(refused: list[tuple[int, str]], packets: list[tuple[float
         if lost is not None:
             dropped.discard(lost)
             whole += 1
-            continue
+            if drops_dependents:
+                continue
+            window = range(lost, lost + 1)
         start = min(window.start, len(packets) - 1)
         hi = next((j for j in keys if j > window.stop - 1), len(packets))
         stop = stamps[hi] if hi < len(packets) else np.inf
         inside = np.flatnonzero((times >= stamps[start:max(hi, start + 1)].min()) & (times < stop))
         if inside.size:
             out.append((int(inside[0]), int(inside[-1]) + 1, f"the decoder refused a damaged packet ({message})"))
-    return out, whole
+    skipped = sum(1 for d in dropped if times.size and stamps[d] >= times.min())
+    return out, whole, skipped
 
 
 def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8, turns: int = 0,
@@ -120,11 +124,12 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
     Each picture is turned by ``turns`` quarter turns counter-clockwise (its display orientation).
 
     Times are the presentation times from the first frame's; a frame without one gets NaN (the tracker
-    then counts it at the camera's rate).  A stream that breaks off mid-way ends the frames there, its
-    decoder's message appended to ``problems``.  Damaged data marks the stretches of pictures it reaches in
+    then counts it at the camera's rate).  A container that breaks off mid-way ends the frames there, its
+    message appended to ``problems``.  Damaged data marks the stretches of pictures it reaches in
     ``damaged`` (:func:`_damaged_stretches`), filled when the stream has been read: the pictures the decoder
-    flags corrupt (H.264's concealed ones), and for :data:`ERROR_REPORTING_CODECS` the packets it refuses
-    (:func:`_refused_stretches`; decoding goes on with the next packet).  FFmpeg's log is not captured: PyAV's log
+    flags corrupt (H.264's concealed ones) and the packets it refuses (:func:`_refused_stretches`; decoding goes on
+    with the next packet), asked to for :data:`ERROR_REPORTING_CODECS`; pictures it skipped without a word are
+    counted in ``problems``.  FFmpeg's log is not captured: PyAV's log
     callback, called from the decoder's own threads, can deadlock threaded decoding.
     """
     import av
@@ -152,8 +157,6 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
                 try:
                     pictures = stream.decode(packet)
                 except av.FFmpegError as exc:
-                    if not refusing:
-                        raise
                     refused.append((len(packets) - 1, str(exc)))
                     continue
                 for frame in pictures:
@@ -177,12 +180,13 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
                 problems.append(f"decoding stopped: {exc}")
         finally:
             lag = max(int(stream.codec_context.thread_count or 1), 1) + 1
-            known, whole = _refused_stretches(refused, packets, shown, lag)
+            known, whole, skipped = _refused_stretches(refused, packets, shown, lag, refusing)
             if damaged is not None and (errors or known):
                 damaged.extend(_damaged_stretches(errors, keys, len(shown), known))
-            if problems is not None and whole:
-                problems.append(f"damaged data: the decoder could not decode {whole} pictures ({refused[-1][1]}); "
-                                "they are missing from the record")
+            if problems is not None and whole + skipped:
+                why = refused[-1][1] if refused else "skipped without a message"
+                problems.append(f"damaged data, most likely: the decoder delivered no picture for {whole + skipped} "
+                                f"packets ({why}); those frames are missing from the record")
             q.put(None)
 
     thread = threading.Thread(target=reader, daemon=True)
