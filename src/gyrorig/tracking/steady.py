@@ -32,6 +32,11 @@ __all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "M
 CHECK_EVERY = 8
 #: the camera moved when the displacements' RMS about their median exceeds this [px] (and 4 of their errors)
 MIN_MOTION_PX = 0.3
+#: the camera is taken as held still when the picture's displacement over the record stays within this RMS [px] (or
+#: 4 of its errors): below the tip's own errors on a phone's footage (0.1-0.3 px)
+MIN_STEADY_PX = float(__import__("os").environ.get("GR_STEADY", "0.1"))
+#: checks averaged to tell whether the camera moved
+SMOOTH_CHECKS = 9
 #: a fiducial's fit counts when it lies within this many of its radii (and 3 px) of where it was expected
 REACH_RADII = 1.5
 #: ... and within this distance of the median of the others' displacements [px]
@@ -115,15 +120,31 @@ class CameraWatch:
         resid = np.concatenate([v[3] for v in samples])
         dof = sum(len(v[3]) - 1 for v in samples)
         var = float(np.sum(resid ** 2)) / (2 * dof) / float(np.mean([len(v[3]) for v in samples]))
-        dx, dy = s[:, 1] - np.median(s[:, 1]), s[:, 2] - np.median(s[:, 2])
         # ... and from the displacements' own scatter about their smooth path (a hand's tremor is smooth from frame
         # to frame): an error common to the fiducials (the codec's treatment of a moving picture) shows there
         idx, z = path_residuals(s[:, 0], s[:, 0].astype(int), s[:, 1:3], np.ones((len(s), 2)), np.ones(len(s), bool))
         sd = math.sqrt(max(var, float(np.mean(z ** 2)) if len(idx) >= 10 else 0.0))
-        rms = math.sqrt(float(np.mean(dx * dx + dy * dy)) / 2)
+        # how far the picture moved over the record, every frame counted once (_spread)
+        grid = np.arange(s[0, 0], s[-1, 0] + 1.0)
+        rms = _spread(grid, s[:, 0], s[:, 1], s[:, 2])
+        # whether it moved, from the displacements averaged over SMOOTH_CHECKS neighbouring checks (a knock's step
+        # holds over many checks; their noise averages down by the root of their number)
+        n = min(SMOOTH_CHECKS, len(s))
+        mean = np.ones(n) / n
+        moved = _spread(grid, s[:, 0], *(np.convolve(np.pad(v, (n // 2, n - 1 - n // 2), mode="edge"), mean, "valid")
+                                         for v in (s[:, 1], s[:, 2])))
+        moved_beyond = max(MIN_STEADY_PX, 4.0 * sd / math.sqrt(n))
         steps = np.diff(s[:, 0])
         speed = math.sqrt(float(np.mean((np.diff(s[:, 1]) ** 2 + np.diff(s[:, 2]) ** 2) / (2 * steps ** 2))))
-        return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(rms > max(MIN_MOTION_PX, 4.0 * sd)), speed)
+        return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(moved > moved_beyond), speed)
+
+
+def _spread(grid: np.ndarray, frames: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> float:
+    """The RMS per axis about their medians of the displacements ``dx, dy`` checked in ``frames``, interpolated to
+    every frame of ``grid``: each frame counted once (the checks are dense once the fiducials have moved and sparse
+    before, so counting checks would weigh the record's part after a knock)."""
+    gx, gy = np.interp(grid, frames, dx), np.interp(grid, frames, dy)
+    return math.sqrt(float(np.mean((gx - np.median(gx)) ** 2 + (gy - np.median(gy)) ** 2)) / 2)
 
 
 def steady_angle_rows(rows: list, tip_px: dict, tip_cov: dict, motion: CameraMotion, camera: Camera,
