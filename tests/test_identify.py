@@ -150,6 +150,9 @@ def _bad_table(tmp_path: Path, case: str) -> Path:
         "deviation-without-value": "sd (rpm),precession period (s)\n10,3.0\n",
         "values-without-header": "spin (rpm),precession period (s),\n4000,3.0,\n4500,2.6,7\n",
         "deviation-twice": "spin (rpm),spin sd (rpm),± (rpm),precession period (s)\n4000,10,10,3.0\n",
+        "deviation-in-cell-and-column": "spin (rpm),± (rpm),precession period (s)\n4000 ± 10,10,3.0\n",
+        "deviation-not-a-number": "spin (rpm),precession period (s)\n4000 ± ten,3.0\n",
+        "clock-not-a-time": "spin (rpm),precession period (s),tilt (deg)\n4000,3.0,1:30\n",
     }[case]
     name = "spin_down.csv" if case in ("too-few-rows", "times-all-equal") else "precession.csv"
     path = tmp_path / name
@@ -160,7 +163,8 @@ def _bad_table(tmp_path: Path, case: str) -> Path:
 @pytest.mark.parametrize("case", ["unknown-unit", "negative-period", "no-spin", "too-few-rows", "not-a-number",
                                   "wrong-dimension", "tilt-200-deg", "tilt-negative", "times-all-equal",
                                   "unit-ambiguous", "deviation-without-value", "values-without-header",
-                                  "deviation-twice"])
+                                  "deviation-twice", "deviation-in-cell-and-column", "deviation-not-a-number",
+                                  "clock-not-a-time"])
 def test_bad_tables_are_refused_naming_the_file(tmp_path, case, capsys):
     path = _bad_table(tmp_path, case)
     with pytest.raises(IdentifyInputError) as err:
@@ -569,3 +573,37 @@ def test_a_tables_kind_is_told_by_its_columns_when_its_name_does_not(tmp_path):
     both.write_text("spin (rpm),nutation frequency (Hz),precession period (s)\n4000,3.1,3.0\n")
     with pytest.raises(IdentifyInputError):
         read_table(both)
+
+
+def test_values_with_their_deviations_and_stopwatch_readings_read_as_the_suffix_form(tmp_path):
+    """Tables as students write them by hand: each value with its deviation in one cell (``4000 ± 10``, ``+/-``;
+    a decimal comma in a semicolon file), the rate in ``1/min`` or ``min^-1`` (DIN's rotational speed), a spin-down's
+    times as a stopwatch shows them (``1:05.5`` is 65.5 s; ``1:00:30`` is 3630 s).  Each reads to the numbers of the
+    suffix form (a cell without a deviation gives 0, as an empty cell of a deviation column does).  A spreadsheet's
+    time-of-day cell is refused (Excel reads a typed ``1:05`` as 1 h 5 min)."""
+    (tmp_path / "precession.csv").write_text("spin_rev_per_min,spin_rev_per_min_sd,precession_period_s,"
+                                             "precession_period_s_sd\n4000,10,3.0,0.1\n4500,0,2.5,0.05\n")
+    reference = read_table(tmp_path / "precession.csv")
+    written = {"pm.csv": "Spin (1/min),Precession period (s)\n4000 ± 10,3.0 +/- 0.1\n4500,2.5 ± 0.05\n",
+               "semicolon.csv": "spin [min^-1];precession period [s]\n4000 +- 10;3,0 ± 0,1\n4500;2,5 ± 0,05\n"}
+    for name, text in written.items():
+        (tmp_path / f"precession_{name}").write_text(text)
+        table = read_table(tmp_path / f"precession_{name}")
+        for q in reference.values:
+            np.testing.assert_allclose(table.values[q], reference.values[q], rtol=1e-12, err_msg=name)
+            np.testing.assert_allclose(table.sd[q], reference.sd[q], rtol=1e-12, err_msg=name)
+    (tmp_path / "spin_down.csv").write_text("t_s,spin_rpm\n0,1500\n65.5,1380\n125,1270\n3630,300\n")
+    (tmp_path / "spin_down_clock.csv").write_text("time,spin (rpm)\n0:00,1500\n1:05.5,1380\n2:05,1270\n"
+                                                  "1:00:30,300\n")
+    clock, seconds = read_table(tmp_path / "spin_down_clock.csv"), read_table(tmp_path / "spin_down.csv")
+    np.testing.assert_allclose(clock.values["t"], seconds.values["t"], rtol=1e-12)
+    openpyxl = pytest.importorskip("openpyxl")
+    import datetime
+    book = openpyxl.Workbook()
+    book.active.title = "spin_down"
+    for row in (["time", "spin (rpm)"], [datetime.time(0, 0), 1500], [datetime.time(1, 5), 1380],
+                [datetime.time(2, 5), 1270]):
+        book.active.append(row)
+    book.save(tmp_path / "clock.xlsx")
+    with pytest.raises(IdentifyInputError):
+        read_tables(tmp_path / "clock.xlsx")

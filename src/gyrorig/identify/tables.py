@@ -6,13 +6,14 @@ the file name containing the kind.  A column is ``<name>_<unit>`` (``spin_rev_pe
 standard deviation ``<name>_<unit>_sd``; or as a spreadsheet's header is written, the unit in brackets or after a
 slash (``Spin (rpm)``, ``Precession period [s]``, ``t / s``, ``Tilt (°)``), the name's words joined by ``_``
 (``time`` for ``t``), a standard deviation marked ``sd``, ``std``, ``sigma`` or ``±`` after the name
-(``spin sd (rpm)``), or a column of its own (``± (rpm)``, ``sd [s]``) right of its value's column.  Unit spellings:
-:data:`UNIT_WORDS`.  Every problem is an :class:`IdentifyInputError` naming the file, the row (as the line number
+(``spin sd (rpm)``), or a column of its own (``± (rpm)``, ``sd [s]``) right of its value's column, or in each cell after
+its value (``4000 ± 10``).  A time may be a stopwatch's reading (``1:05.5``).  Unit spellings: :data:`UNIT_WORDS`.  Every problem is an :class:`IdentifyInputError` naming the file, the row (as the line number
 in the file) and the column as written.
 """
 
 from __future__ import annotations
 
+import datetime
 import math
 import re
 from dataclasses import dataclass
@@ -41,6 +42,7 @@ UNITS = {"_rev_per_min": ("rate", 2 * math.pi / 60), "_rpm": ("rate", 2 * math.p
 #: a unit as a header writes it in brackets or after a slash (lower case, spaces, ``*`` and ``·`` dropped, ``²`` and
 #: ``^2`` as ``2``) -> its suffix in :data:`UNITS`; ``1/s`` is not one (radians or turns per second?)
 UNIT_WORDS = {"rpm": "_rpm", "rev/min": "_rpm", "r/min": "_rpm", "u/min": "_rpm", "turns/min": "_rpm",
+              "1/min": "_rpm", "min^-1": "_rpm", "min-1": "_rpm", "min⁻¹": "_rpm",
               "rps": "_rev_per_s", "rev/s": "_rev_per_s", "turns/s": "_rev_per_s", "hz": "_hz",
               "rad/s": "_rad_s", "deg/s": "_deg_per_s", "°/s": "_deg_per_s",
               "s": "_s", "sec": "_s", "ms": "_ms", "min": "_min", "g": "_g", "kg": "_kg",
@@ -175,6 +177,69 @@ def _kind(label: str, kind_name: str, frame: pd.DataFrame, names: set[str]) -> s
     return found[0]
 
 
+#: a cell holding a value and its standard deviation (``1200 ± 20``, ``12.5 +/- 0.3``)
+_PLUS_MINUS = re.compile(r"^\s*(?P<value>[^±]+?)\s*(?:±|\+/-|\+-)\s*(?P<sd>[^±]+?)\s*$")
+#: a stopwatch's reading: ``m:ss`` or ``h:mm:ss``, seconds with decimals
+_CLOCK = re.compile(r"^\s*(?:(?P<h>\d+):)?(?P<m>\d+):(?P<s>[0-5]?\d(?:\.\d*)?)\s*$")
+
+
+def _clock_header(column: str, cells: pd.Series) -> tuple[str, str, bool] | None:
+    """A time column headed by its name alone (``time``, ``t``) whose cells are stopwatch readings (``1:05.3``):
+    ``(name, '_s', False)``; None for any other column."""
+    words = NAME_WORDS.get(w := re.sub(r"[\s-]+", "_", column.strip().lower()), w)
+    text = cells.dropna().astype(str).str.strip()
+    text = text[text != ""]
+    if COLUMNS.get(words) != "time" or text.empty or not text.map(lambda v: bool(_CLOCK.match(v))).all():
+        return None
+    return words, "_s", False
+
+
+def _numbers(label: str, frame: pd.DataFrame, column: str, name: str, suffix: str, lines: np.ndarray,
+             row_word: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """A column's values in SI (NaN where a cell holds no number), and the standard deviations written after them
+    in its cells (``1200 ± 20``; None when no cell has one; 0 where a cell gives none).  A time's cells may be
+    stopwatch readings (``m:ss``, ``h:mm:ss``: seconds whatever the header's unit)."""
+    factor = UNITS[suffix][1]
+    cells = frame[column]
+    dated = np.flatnonzero(cells.map(lambda v: isinstance(v, (datetime.time, datetime.date, datetime.timedelta))))
+    if len(dated):  # a spreadsheet reads '1:05' as 1 h 5 min, a stopwatch means 1 min 5 s
+        raise IdentifyInputError(f"{label}, {row_word} {lines[dated[0]]}, column {column!r}: {_cell(frame, column, dated[0])}"
+                                 " is a time of day or a date (a spreadsheet reads '1:05' as 1 h 5 min): write seconds, "
+                                 "or the stopwatch's reading as text ('1:05' is then 1 min 5 s)")
+    if pd.api.types.is_numeric_dtype(cells):
+        return cells.to_numpy(float) * factor, None
+    text = cells.astype(str).str.strip().where(cells.notna(), "")
+    parts = text.str.extract(_PLUS_MINUS)
+    signed = parts["value"].notna().to_numpy()
+    value_text = parts["value"].where(signed, text)
+    values = pd.to_numeric(value_text, errors="coerce").to_numpy(float) * factor
+    clock = value_text.str.extract(_CLOCK)
+    timed = clock["m"].notna().to_numpy()
+    if timed.any():
+        if COLUMNS.get(name) != "time":
+            row = int(np.flatnonzero(timed)[0])
+            raise IdentifyInputError(f"{label}, {row_word} {lines[row]}, column {column!r}: {_cell(frame, column, row)} "
+                                     f"is a clock reading, but {name} is not a time")
+        seconds = (clock["h"].astype(float).fillna(0.0) * 3600 + clock["m"].astype(float) * 60
+                   + clock["s"].astype(float)).to_numpy()
+        values = np.where(timed, seconds, values)
+    if not signed.any():
+        return values, None
+    given = pd.to_numeric(parts["sd"], errors="coerce").to_numpy(float) * factor
+    bad = np.flatnonzero(signed & ~np.isfinite(given))
+    if len(bad):
+        raise IdentifyInputError(f"{label}, {row_word} {lines[bad[0]]}, column {column!r}: "
+                                 f"{_cell(frame, column, bad[0])}: the standard deviation after '±' is not a number")
+    return values, np.where(signed, given, 0.0)
+
+
+def _check_sd(label: str, column: str, sd: np.ndarray, lines: np.ndarray, row_word: str) -> None:
+    neg = np.flatnonzero(sd < 0)
+    if len(neg):
+        raise IdentifyInputError(f"{label}, {row_word} {lines[neg[0]]}, column {column!r}: a standard deviation must "
+                                 f"be >= 0; got {sd[neg[0]]!r}")
+
+
 def _check_required(path: str, kind: str, names: set[str]) -> None:
     for req in KINDS[kind]["required"]:
         options = req if isinstance(req, tuple) else (req,)
@@ -294,12 +359,15 @@ def _table(label: str, kind_name: str, frame: pd.DataFrame, lines: np.ndarray, r
     units: dict[str, str] = {}
     parsed: dict[str, tuple[str, str, bool]] = {}
     left = None
+    inline: dict[str, tuple[str, np.ndarray]] = {}
     for column in frame.columns:
         if column != "kind":
-            parsed[column] = left = _split_unit(label, column, left)
+            parsed[column] = left = _clock_header(column, frame[column]) or _split_unit(label, column, left)
     kind = _kind(label, kind_name, frame, {name for name, _, _ in parsed.values()})
     for column, (name, suffix, is_sd) in parsed.items():
-        raw = pd.to_numeric(frame[column], errors="coerce").to_numpy(float)
+        raw, given = _numbers(label, frame, column, name, suffix, lines, row_word)
+        if given is not None:
+            inline[name] = (column, given)
         bad = np.flatnonzero(~np.isfinite(raw))
         if len(bad) and not is_sd:
             raise IdentifyInputError(f"{label}, {row_word} {lines[bad[0]]}, column {column!r}: {_cell(frame, column, bad[0])} is "
@@ -311,15 +379,18 @@ def _table(label: str, kind_name: str, frame: pd.DataFrame, lines: np.ndarray, r
             if name in sd:
                 raise IdentifyInputError(f"{label}: column {column!r}: {name}'s standard deviation is given twice")
             raw = np.where(np.isfinite(raw), raw, 0.0)
-            neg = np.flatnonzero(raw < 0)
-            if len(neg):
-                raise IdentifyInputError(f"{label}, {row_word} {lines[neg[0]]}, column {column!r}: a standard deviation must "
-                                         f"be >= 0; got {raw[neg[0]]!r}")
-            sd[name] = raw * UNITS[suffix][1]
+            _check_sd(label, column, raw, lines, row_word)
+            sd[name] = raw
         else:
             if name in values:
                 raise IdentifyInputError(f"{label}: {name} is given twice (column {column!r} and {units[name]!r})")
-            values[name], units[name] = raw * UNITS[suffix][1], column
+            values[name], units[name] = raw, column
+    for name, (column, given) in inline.items():  # 'value ± sd' in the cells
+        if name in sd:
+            raise IdentifyInputError(f"{label}: column {column!r}: {name}'s standard deviation is given twice (after "
+                                     "its values and in a column of its own)")
+        _check_sd(label, column, given, lines, row_word)
+        sd[name] = given
     _check_required(label, kind, set(values))
     for name in POSITIVE:
         if name in values:
