@@ -529,7 +529,8 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
             if progress and (k % 50 == 0):
                 progress(k, frames.count)
     if k == 0:
-        raise TrackingError(f"{source}: no frame could be decoded (unreadable or truncated video)")
+        said = "; ".join(frames.problems) or "unreadable or truncated video"
+        raise TrackingError(f"{source}: no frame could be decoded ({said})")
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
     motion = _steadied(rows, watch, camera, tip.position_m[2], source)
     angles, markers = rows.tables(camera, dots is not None)
