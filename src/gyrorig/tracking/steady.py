@@ -8,8 +8,9 @@ once they have moved) each fiducial in view is fitted near where the pose puts i
 and the frame's displacement is the mean of theirs (one far from the others' median left out), its error the
 larger of their scatter about it and the displacements' scatter about their own smooth path.  A small turn of the
 camera moves the whole picture alike (a rotation about the camera's centre maps the image by a homography that is
-a shift to first order, whatever the depth), so where the displacements scatter about their median by more than
-:data:`MIN_MOTION_PX` and 4 of their own errors, the camera moved: each tip pixel is taken back by its frame's
+a shift to first order, whatever the depth), so where the displacements, averaged over :data:`SMOOTH_CHECKS`
+neighbouring checks and counted once per frame, scatter about their median by more than :data:`MIN_STEADY_PX` and 4
+of that average's errors, the camera moved (a hand's tremor, or a tripod knocked once): each tip pixel is taken back by its frame's
 displacement (interpolated between checks) before its direction is found, and the displacement's error joins the
 tip's (between checks, the interpolation's too).
 """
@@ -26,15 +27,16 @@ from .rays import angles_with_covariance
 from .scatter import path_residuals
 from .scene_spot import fit_round_spot
 
-__all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "MIN_MOTION_PX"]
+__all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "MIN_MOTION_PX", "MIN_STEADY_PX"]
 
 #: the fiducials are fitted in every this many frames (until they move; five fits cost about as much as the tip's)
 CHECK_EVERY = 8
-#: the camera moved when the displacements' RMS about their median exceeds this [px] (and 4 of their errors)
+#: once the fiducials have moved this far [px] from where they were first seen, they are fitted in every frame
 MIN_MOTION_PX = 0.3
-#: the camera is taken as held still when the picture's displacement over the record stays within this RMS [px] (or
-#: 4 of its errors): below the tip's own errors on a phone's footage (0.1-0.3 px)
-MIN_STEADY_PX = float(__import__("os").environ.get("GR_STEADY", "0.1"))
+#: the camera is taken as held still when the picture's displacement, averaged over :data:`SMOOTH_CHECKS` checks, stays
+#: within this RMS over the record [px] (or 4 of that average's errors): below the tip's own errors on a phone's
+#: footage (0.1-0.3 px)
+MIN_STEADY_PX = 0.1
 #: checks averaged to tell whether the camera moved
 SMOOTH_CHECKS = 9
 #: a fiducial's fit counts when it lies within this many of its radii (and 3 px) of where it was expected
@@ -47,8 +49,8 @@ OUTLIER_PX = 1.0
 class CameraMotion:
     """The camera's motion over a record, from its fiducials: the ``frame`` numbers of the checks and the picture's
     displacement there from where the pose puts the fiducials, ``dx_px, dy_px``, its standard error per axis
-    ``sd_px``; ``rms_px`` the displacements' RMS about their median (how much the camera moved), ``moved`` whether that is
-    beyond :data:`MIN_MOTION_PX` and 4 of ``sd_px``."""
+    ``sd_px``; ``rms_px`` the displacements' RMS per axis about their median, every frame counted once (how much the
+    camera moved), ``moved`` whether it moved (module docstring)."""
 
     frame: np.ndarray
     dx_px: np.ndarray
