@@ -316,6 +316,36 @@ def test_a_phone_video_stored_turned_is_tracked_as_displayed(tmp_path, phone_cli
         pd.testing.assert_frame_equal(expected, got)
 
 
+def test_a_cover_picture_stored_before_the_recording_is_not_taken_for_it(tmp_path, phone_clip):
+    """A file whose first video stream is a still picture (a cover or thumbnail an app stored with the video; in
+    Matroska it keeps its place and loses its 'attached picture' mark): the recording's stream is tracked, exactly as
+    the same packets stored alone.  Before, the first video stream was read: the 160 x 120 picture was compared with
+    the camera file and the file refused."""
+    scene, user, rendered = phone_clip
+    paths = {True: tmp_path / "covered.mkv", False: tmp_path / "plain.mkv"}
+    for covered, path in paths.items():
+        with av.open(rendered["video"]) as src, av.open(str(path), "w", format="matroska") as out:
+            if covered:
+                cover = out.add_stream("mjpeg", rate=1)
+                cover.width, cover.height, cover.pix_fmt = 160, 120, "yuvj420p"
+                cover.disposition = av.stream.Disposition.attached_pic
+            video = out.add_stream_from_template(src.streams.video[0])
+            if covered:
+                still = av.VideoFrame.from_ndarray(np.full((120, 160, 3), 90, np.uint8), format="rgb24")
+                for packet in [*cover.encode(still.reformat(format="yuvj420p")), *cover.encode()]:
+                    out.mux(packet)
+            for packet in src.demux(src.streams.video[0]):
+                if packet.dts is not None:
+                    packet.stream = video
+                    out.mux(packet)
+    with av.open(str(paths[True])) as check:  # the cover is the file's first video stream
+        assert check.streams.video[0].codec_context.name == "mjpeg"
+    cam = load_camera(rendered["camera"])
+    plain = track(paths[False], cam, parse_protocol(user), frame_dots=False).angles
+    covered = track(paths[True], cam, parse_protocol(user), frame_dots=False).angles
+    pd.testing.assert_frame_equal(plain, covered)
+
+
 def test_a_file_cut_short_is_tracked_as_far_as_it_goes_and_said_to_be(tmp_path, phone_clip):
     """A Matroska file cut in transfer still opens (its header states the whole length): the frames it holds are
     tracked as in the whole file and the result says it was cut short; an MP4 cut short (no index) is refused

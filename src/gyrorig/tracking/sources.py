@@ -32,7 +32,7 @@ from .decoding import _decoded_frames, _luma_levels
 from .transfer import transfer_of_video
 
 __all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "Clip", "Cut", "parse_cut", "as_source", "fingerprint",
-           "IMAGE_SUFFIXES"]
+           "IMAGE_SUFFIXES", "video_stream"]
 
 
 #: FFmpeg decoders of codecs that keep every pixel value (anything else changes them: H.264, HEVC, mp4v, MJPEG)
@@ -126,7 +126,7 @@ class VideoFile:
 
         try:
             with av.open(str(self.path), "r") as container:
-                stream = container.streams.video[0]
+                stream = video_stream(container)
                 pts = [p.pts for p in container.demux(stream) if p.pts is not None]
                 base = stream.time_base
         except (av.FFmpegError, IndexError, ValueError, OSError) as exc:
@@ -142,7 +142,7 @@ class VideoFile:
             raise BadInputError(f"cannot open video {self.path}: empty file")
         try:
             container = av.open(str(self.path), "r")
-            stream = container.streams.video[0]
+            stream = video_stream(container)
         except (av.FFmpegError, IndexError, ValueError) as exc:
             raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})"
                                 f"{_cut_hint(self.path)}") from exc
@@ -182,7 +182,7 @@ class VideoFile:
 
         try:
             with av.open(str(self.path), "r") as container:
-                return next(container.decode(video=0), None)
+                return next(container.decode(video_stream(container)), None)
         except (av.FFmpegError, IndexError, ValueError) as exc:
             raise BadInputError(f"cannot open video {self.path}: not a video FFmpeg can decode ({exc})") from exc
 
@@ -199,6 +199,26 @@ class VideoFile:
             raise BadInputError(f"video {self.path}: its display matrix turns the picture by {degrees} degrees; only "
                                 "quarter turns are supported (re-encode it upright)")
         return (degrees // 90) % 4
+
+
+def video_stream(container):
+    """The recording's video stream in an opened container: of its video streams, one that is not a picture
+    attached to the file (a cover image, which FFmpeg shows as a video stream of one frame), the one with the most
+    frames, else the longest, else the largest pictures (a Matroska file states neither count nor length per
+    stream).  IndexError when the file has no video stream."""
+    import av
+
+    streams = list(container.streams.video)
+    if not streams:
+        raise IndexError("the file holds no video stream")
+
+    def rank(stream):
+        attached = bool(stream.disposition & av.stream.Disposition.attached_pic)
+        length = float(stream.duration * stream.time_base) if stream.duration and stream.time_base else 0.0
+        ctx = stream.codec_context
+        return not attached, int(stream.frames or 0), length, int(ctx.width or 0) * int(ctx.height or 0)
+
+    return max(streams, key=rank)
 
 
 def _cut_hint(path: Path) -> str:
