@@ -88,6 +88,8 @@ def _refused_stretches(refused: list[tuple[int, str]], packets: list[tuple[float
     predicted from it, B pictures shown before it too, so the delivered pictures from the earliest time stamp
     among those packets to the key packet's (``packets``: time stamp and key flag in decode order; ``shown``: the
     delivered pictures' time stamps in order).  Without time stamps, decode positions stand for them."""
+    if not packets:
+        return [], 0, 0
     times = np.asarray(shown, float)
     stamps = np.asarray([t for t, _ in packets], float)
     if not (np.isfinite(times).all() and np.isfinite(stamps).all()):
@@ -111,8 +113,8 @@ def _refused_stretches(refused: list[tuple[int, str]], packets: list[tuple[float
         inside = np.flatnonzero((times >= stamps[start:max(hi, start + 1)].min()) & (times < stop))
         if inside.size:
             out.append((int(inside[0]), int(inside[-1]) + 1, f"the decoder refused a damaged packet ({message})"))
-    skipped = sum(1 for d in dropped if times.size and stamps[d] >= times.min())
-    return out, whole, skipped
+    first_shown = times.min() if times.size else np.inf
+    return out, whole, sum(1 for d in dropped if stamps[d] >= first_shown)
 
 
 def _decoded_frames(container, stream, colour: bool, types: list[str], depth: int = 8, turns: int = 0,
@@ -179,15 +181,17 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
             if problems is not None:
                 problems.append(f"decoding stopped: {exc}")
         finally:
-            lag = max(int(stream.codec_context.thread_count or 1), 1) + 1
-            known, whole, skipped = _refused_stretches(refused, packets, shown, lag, refusing)
-            if damaged is not None and (errors or known):
-                damaged.extend(_damaged_stretches(errors, keys, len(shown), known))
-            if problems is not None and whole + skipped:
-                why = refused[-1][1] if refused else "skipped without a message"
-                problems.append(f"damaged data, most likely: the decoder delivered no picture for {whole + skipped} "
-                                f"packets ({why}); those frames are missing from the record")
-            q.put(None)
+            try:
+                lag = max(int(stream.codec_context.thread_count or 1), 1) + 1
+                known, whole, skipped = _refused_stretches(refused, packets, shown, lag, refusing)
+                if damaged is not None and (errors or known):
+                    damaged.extend(_damaged_stretches(errors, keys, len(shown), known))
+                if problems is not None and whole + skipped:
+                    why = refused[-1][1] if refused else "skipped without a message"
+                    problems.append(f"damaged data, most likely: the decoder delivered no picture for "
+                                    f"{whole + skipped} packets ({why}); those frames are missing from the record")
+            finally:
+                q.put(None)  # the consumer waits for it whatever happened here
 
     thread = threading.Thread(target=reader, daemon=True)
     thread.start()
