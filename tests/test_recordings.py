@@ -598,6 +598,49 @@ def test_ten_bit_video_is_read_at_its_depth(tmp_path):
     np.testing.assert_array_equal(image, ramp)
 
 
+@pytest.mark.parametrize("codec,pix_fmt", [("ffv1", "gbrp10le"), ("libx265", "yuv444p10le")])
+def test_ten_bit_colour_video_is_read_at_its_depth(tmp_path, codec, pix_fmt):
+    """A 10-bit colour file read in colour (a coloured sticker's protocol) or as luma from a format that stores no
+    luma plane: values at the file's depth, 0-1023, as camera.json's and the file's bit depth say (FFmpeg's 16-bit
+    conversions span 0-65535; read as they come, every value above 1023 was clipped at the top and a red
+    sticker on a 10-bit phone file was never found).  The red patch is the colour image's brightest place.
+    Tolerance: lossless RGB exact; through YUV 4:4:4 (lossless in YUV) the conversions' rounding, 4 steps; grey
+    converted from RGB 1 %."""
+    rgb = np.zeros((32, 48, 3), np.uint16)
+    rgb[:, :] = np.linspace(100, 900, 48).astype(np.uint16)[None, :, None]
+    rgb[10:20, 20:30] = (900, 60, 50)
+    path = tmp_path / "ten.mkv"
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream(codec, rate=Fraction(25))
+        stream.width, stream.height, stream.pix_fmt = 48, 32, pix_fmt
+        if codec == "libx265":
+            stream.options = {"x265-params": "log-level=error:lossless=1"}
+        for _ in range(2):
+            for packet in stream.encode(av.VideoFrame.from_ndarray(rgb << 6, format="rgb48le")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    tolerance = 0 if codec == "ffv1" else 4
+    with VideoFile(path).open(colour=True) as frames:
+        assert frames.bit_depth == 10
+        image, _ = next(iter(frames))
+    assert image.max() <= 1023
+    np.testing.assert_allclose(image.astype(float), rgb, atol=tolerance)
+    with VideoFile(path).open() as frames:
+        grey, _ = next(iter(frames))
+        black, white = frames.levels or (0, 1023)  # YUV's luma plane as stored: the limited range
+    assert grey.max() <= 1023
+    # a grey ramp: luma = level, to the grey conversion's fixed-point weights (0.5 % measured)
+    level = (grey[0].astype(float) - black) * 1023 / (white - black)
+    np.testing.assert_allclose(level, rgb[0, :, 1], rtol=0.01, atol=tolerance)
+    tip = parse_markers({"tip": {"body": "frame", "position_m": [0, 0, 0.1], "radius_m": 0.003,
+                                 "colour": "red"}}).tip()
+    camera = _camera(size=(48, 32)).with_sensor(bit_depth=10)
+    marked = MarkerImage(tip, camera)(image)
+    assert np.unravel_index(np.argmax(marked), marked.shape)[0] in range(10, 20)
+    assert marked[10:20, 20:30].min() > 0.5 * camera.max_adu > marked[:, :18].max()
+
+
 def _encode(path, codec: str, pix_fmt: str, rgb: np.ndarray, options=None, trc: int | None = None) -> None:
     with av.open(str(path), "w") as container:
         stream = container.add_stream(codec, rate=Fraction(25))

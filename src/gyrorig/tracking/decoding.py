@@ -40,17 +40,23 @@ def _luma_plane(fmt) -> bool:
 
 
 def _plane_image(frame, colour: bool) -> np.ndarray:
-    """One decoded frame as a 2-D luma array (no conversion where the codec stores luma) or an RGB array."""
+    """One decoded frame as a 2-D luma array (no conversion where the codec stores luma) or an RGB array, at the
+    stream's bit depth (FFmpeg's 16-bit conversions of a 10- or 12-bit picture span the full 16 bits: shifted back)."""
     fmt = frame.format
     bits = fmt.components[0].bits
     if colour:
-        return frame.to_ndarray(format="rgb48le" if bits > 8 else "rgb24")
+        return _at_depth(frame.to_ndarray(format="rgb48le" if bits > 8 else "rgb24"), bits)
     if _luma_plane(fmt):
         plane = frame.planes[0]
         dtype = np.uint16 if bits > 8 else np.uint8
         row = np.frombuffer(plane, dtype=dtype).reshape(frame.height, -1)
         return np.array(row[:, :frame.width])  # a copy: the decoder reuses its buffers
-    return frame.to_ndarray(format="gray16le" if bits > 8 else "gray")
+    return _at_depth(frame.to_ndarray(format="gray16le" if bits > 8 else "gray"), bits)
+
+
+def _at_depth(image: np.ndarray, bits: int) -> np.ndarray:
+    """A 16-bit conversion of a picture of ``bits`` per value (9-15) brought back to that depth."""
+    return image >> (16 - bits) if image.dtype == np.uint16 and 8 < bits < 16 else image
 
 
 #: FFmpeg's picture types (``AVPictureType``), as the angle table's ``frame_type`` names them
