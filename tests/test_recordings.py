@@ -184,7 +184,7 @@ def test_a_phone_recording_on_a_real_background_is_tracked_honestly(phone_clip):
     scene, user, rendered = phone_clip
     res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user))
     m, found, e_th, e_ph = _pulls(res, pd.read_csv(rendered["truth"]))
-    assert len(found) >= 0.9 * m.visible.sum()
+    assert len(found) >= 0.9 * m.visible.sum() and not res.source_problems
     wrong = (e_th.abs() > 5) | (e_ph.abs() > 5)
     assert not (wrong & (found.quality == "ok")).any()
     lo, hi = sd_ratio_band(len(found))
@@ -736,7 +736,10 @@ def test_colour_frames_are_read_as_luma_not_one_channel(tmp_path):
 
 def test_a_red_sticker_is_tracked_by_its_colour(tmp_path):
     """A red sticker for a tip in front of the coffee photograph, the protocol saying ``colour = "red"``:
-    tracked, with no frame beyond 5 sigma flagged ok."""
+    tracked, with no frame beyond 5 sigma flagged ok.  The result says (one source problem) that a coloured
+    marker's errors in a file of predicted pictures drift where the record's check cannot see them (measured on
+    rendered phone files at CRF 28-30: 4-68 of 230-235 frames beyond 5 sigma flagged ok); a lossless copy of the
+    same frames says nothing of it."""
     scene, user, _ = variant_protocols("sphere", 0.4)
     user["markers"]["tip"]["colour"] = "red"
     rendered = render_phone_video(scene, tmp_path, seed=4, style=PhoneStyle(
@@ -745,6 +748,11 @@ def test_a_red_sticker_is_tracked_by_its_colour(tmp_path):
     m, found, e_th, e_ph = _pulls(res, pd.read_csv(rendered["truth"]))
     assert len(found) >= 0.8 * m.visible.sum()
     assert not (((e_th.abs() > 5) | (e_ph.abs() > 5)) & (found.quality == "ok")).any()
+    assert len(res.source_problems) == 1
+    lossless = render_phone_video(scene, tmp_path / "ffv1", seed=4, style=PhoneStyle(
+        photo="coffee", codec="ffv1", marker_rgb=(0.75, 0.06, 0.05)))
+    res = track(lossless["video"], load_camera(lossless["camera"]), parse_protocol(user), frame_dots=False)
+    assert res.angles.theta_rad.notna().mean() >= 0.8 and not res.source_problems
 
 
 @pytest.mark.parametrize("key,value", [("colour", "purple"), ("polarity", "grey")])

@@ -46,6 +46,16 @@ class MarkerImage:
             ["a dark marker (the image turned over)"] if self.dark else [])
         return "; ".join(parts)
 
+    def drift_caveat(self, marker: Marker, frame_types) -> str:
+        """What a coloured marker's errors cannot show in a file of predicted pictures (``frame_types`` holds a P
+        or B): '' otherwise."""
+        if not self.colour or not {"P", "B"} & set(frame_types):
+            return ""
+        return (f"the {marker.colour} marker's place comes from the video's colour planes, which the codec stores at "
+                "half resolution and carries from picture to picture: their errors drift over many frames, which "
+                "the record's check cannot see, and the error bars may be too small (most at a low bit rate); a "
+                "white or retroreflective tip is tracked from the full-resolution brightness")
+
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         image = frame if self._linear is None else self._linear(frame)
         if self.colour:

@@ -537,6 +537,9 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     source_problems = _source_problems(frames, k, source, rows, angles, markers)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
+    if caveat := (appearance.drift_caveat(tip, frame_types.values()) if lossy else ""):
+        logger.warning("%s: %s", source, caveat)
+        source_problems += (caveat,)
     if not angles.theta_rad.notna().any():
         look = follower.first_look
         why = "" if look is None else "; in the first frame searched " + (", ".join(
