@@ -11,7 +11,8 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   reduced chi-square must stay near their running medians (a different marker, or a neighbour's light
   under the tip's own, changes them);
 - **motion**: the spot must lie within a gate around the position predicted from the last frames
-  (the gate grows with the tip's observed speed and acceleration in pixels);
+  (the gate grows with the tip's observed speed and acceleration in pixels; once the tip has been seen to move
+  more than its radius in a frame, it holds any step up to the fastest speed seen, :data:`SPEED_MEMORY`);
 - **lab markers**: a spot where one of the protocol's lab-fixed markers appears, and nearer its size than the
   tip's, is never the tip;
 - **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
@@ -65,6 +66,13 @@ CHI2_CHANGE = 2.0
 CHI2_SPREADS = 4.0
 #: the smallest motion gate around the prediction [px]
 MIN_GATE_PX = 3.0
+#: the tip's speed [px/frame] is remembered over this many accepted steps; once it has moved more than its own
+#: radius in a frame (a frame rate low for the motion: a heavy top's nod at 30 frames/s turns by 2 rad between
+#: frames, so the last steps do not predict the next), the gate holds any step up to that speed (a constant-velocity
+#: prediction is then off by up to twice the speed per frame) and a candidate confirms one of the last frame's
+#: within that speed times :data:`FAST_REACH`
+SPEED_MEMORY = 60
+FAST_REACH = 1.5
 #: the tip is fitted straight from its prediction only when no other spot lies within this many of its radii (plus
 #: that spot's radius and the motion gate)
 CLEAR_RADII = 3.0
@@ -216,6 +224,7 @@ class TipFollower:
         depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, self.length_m])))
         self.r_expected = camera.camera_matrix[0, 0] * tip.radius_m / depth  # tip upright [px]
         self.last: deque[tuple[float, float]] = deque(maxlen=4)  # accepted positions, latest last
+        self.speeds: deque[float] = deque(maxlen=SPEED_MEMORY)  # the tip's speed over each accepted step [px/frame]
         self.last_r = self.r_expected
         self.radii: deque[float] = deque(maxlen=15)
         self.amplitudes: deque[float] = deque(maxlen=15)
@@ -301,7 +310,14 @@ class TipFollower:
         acc = max((float(np.linalg.norm(p[k + 1] - 2 * p[k] + p[k - 1])) for k in range(1, len(p) - 1)), default=0.0)
         steps = 1 + self.misses
         gate = MIN_GATE_PX + 0.5 * float(np.linalg.norm(v)) * steps + 2.0 * acc * steps * steps
-        return p[-1] + v * steps, gate
+        fast = self._fast_speed()
+        return p[-1] + v * steps, max(gate, MIN_GATE_PX + 2.0 * fast * steps)
+
+    def _fast_speed(self) -> float:
+        """The tip's largest remembered speed [px/frame] when it exceeds the tip's radius per frame (see
+        :data:`SPEED_MEMORY`), else 0."""
+        fast = max(self.speeds, default=0.0)
+        return fast if fast > self.r_expected else 0.0
 
     def _acceptable(self, fit: SpotFit | None, predicted: np.ndarray | None, gate: float) -> bool:
         if fit is None or not self._looks_like_tip(fit) or not self._appearance_ok(fit):
@@ -415,7 +431,7 @@ class TipFollower:
             elif record is not None:
                 why = Verdict.NO_FIT if fit is None else Verdict.NOT_ALIKE if self.had_lock else Verdict.SHAPE
                 record.append(Candidate(x0, y0, r0, why))
-        reach = ACQUIRE_REACH * self.r_expected + 5.0
+        reach = max(ACQUIRE_REACH * self.r_expected + 5.0, FAST_REACH * self._fast_speed())
         pairs = [(abs(math.log(f.radius_px / self.r_expected)), math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
                  for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
                  if AMPLITUDE_CHANGE[0] <= self._level(f) / self._level(g) <= AMPLITUDE_CHANGE[1]]
@@ -458,7 +474,7 @@ class TipFollower:
         acquiring frame confirmed, each earlier frame's candidate nearest the one after it (within
         :data:`ACQUIRE_REACH`), as far back as the chain holds."""
         chain = [confirmed]
-        reach = ACQUIRE_REACH * self.r_expected + 5.0
+        reach = max(ACQUIRE_REACH * self.r_expected + 5.0, FAST_REACH * self._fast_speed())
         for fits in reversed(self.history[:-1]):
             last = chain[-1]
             near = [f for f in fits if math.hypot(f.x_px - last.x_px, f.y_px - last.y_px) <= reach]
@@ -544,6 +560,10 @@ class TipFollower:
             return Located(None, "missing")
         earlier, self.pending, self.confirmed, self.earlier = self.earlier, [], None, ()
         quality = "reacquired" if self.had_lock else "ok"
+        if self.lost_at is not None and self.since_lost > len(earlier):  # the mean speed over the gap
+            first = earlier[-1] if earlier else fit
+            gap = self.since_lost - len(earlier)
+            self.speeds.append(math.hypot(first.x_px - self.lost_at[0], first.y_px - self.lost_at[1]) / gap)
         for f in reversed(earlier):
             self._accept(f)
         self._accept(fit)
@@ -559,6 +579,8 @@ class TipFollower:
         self.last.clear()
 
     def _accept(self, fit: SpotFit) -> None:
+        if self.last:
+            self.speeds.append(math.hypot(fit.x_px - self.last[-1][0], fit.y_px - self.last[-1][1]) / (1 + self.misses))
         self.last.append((fit.x_px, fit.y_px))
         self.last_r = fit.radius_px
         self.radii.append(fit.radius_px)
