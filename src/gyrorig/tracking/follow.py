@@ -224,7 +224,8 @@ class TipFollower:
         depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, self.length_m])))
         self.r_expected = camera.camera_matrix[0, 0] * tip.radius_m / depth  # tip upright [px]
         self.last: deque[tuple[float, float]] = deque(maxlen=4)  # accepted positions, latest last
-        self.speeds: deque[float] = deque(maxlen=SPEED_MEMORY)  # the tip's speed over each accepted step [px/frame]
+        #: the tip's speed over each step between frames it was followed in [px/frame]
+        self.speeds: deque[float] = deque(maxlen=SPEED_MEMORY)
         self.last_r = self.r_expected
         self.radii: deque[float] = deque(maxlen=15)
         self.amplitudes: deque[float] = deque(maxlen=15)
@@ -560,10 +561,6 @@ class TipFollower:
             return Located(None, "missing")
         earlier, self.pending, self.confirmed, self.earlier = self.earlier, [], None, ()
         quality = "reacquired" if self.had_lock else "ok"
-        if self.lost_at is not None and self.since_lost > len(earlier):  # the mean speed over the gap
-            first = earlier[-1] if earlier else fit
-            gap = self.since_lost - len(earlier)
-            self.speeds.append(math.hypot(first.x_px - self.lost_at[0], first.y_px - self.lost_at[1]) / gap)
         for f in reversed(earlier):
             self._accept(f)
         self._accept(fit)
