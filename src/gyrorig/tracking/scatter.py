@@ -27,9 +27,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import lsq_linear
+from scipy.signal import lombscargle
 from scipy.stats import chi2
 
-__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN",
+__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "motion_frequency", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN",
            "NOISE_ACF"]
 
 #: neighbours on each side that predict a frame
@@ -97,6 +98,9 @@ class SigmaCheck:
     #: (per axis) [px], and its standard error; 0 when not looked for
     shared_px: float = 0.0
     shared_px_se: float = 0.0
+    #: the angular frequency of the sinusoid in the path's basis (:func:`motion_frequency`) [rad/s]; NaN: the
+    #: polynomial path
+    omega_rad_s: float = math.nan
 
     def as_dict(self) -> dict:
         return {"factor": self.factor, "factor_se": self.factor_se, "coordinates": self.coordinates,
@@ -106,12 +110,16 @@ class SigmaCheck:
                 "applied": self.applied, "applied_factors": self.applied_factors, "reason": self.reason,
                 "floor_px": self.floor_px, "floor_px_se": self.floor_px_se,
                 "residual_acf": list(self.residual_acf), "smooth_path": self.smooth_path,
-                "shared_px": self.shared_px, "shared_px_se": self.shared_px_se}
+                "shared_px": self.shared_px, "shared_px_se": self.shared_px_se,
+                "omega_rad_s": None if math.isnan(self.omega_rad_s) else self.omega_rad_s}
 
 
-def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray, omega_rad_s: float = math.nan
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The frames that can be checked, their six neighbours (m, 6) and the neighbours' interpolation
-    weights (m, 6): three active frames before and three after, spanning at most :data:`MAX_SPAN` frames."""
+    weights (m, 6): three active frames before and three after, spanning at most :data:`MAX_SPAN` frames.  The
+    path through them is a polynomial of degree 5, or with ``omega_rad_s`` one of degree 3 and a sinusoid of that
+    angular frequency (:func:`motion_frequency`)."""
     h = HALF_WINDOW
     act = np.flatnonzero(active)
     if len(act) < 2 * h + 1:
@@ -122,6 +130,8 @@ def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray) -> tuple[
     nb = np.column_stack([act[pos + j] for j in offsets]) if len(pos) else np.empty((0, 2 * h), int)
     idx = act[pos]
     t0 = t_s[idx]
+    if math.isfinite(omega_rad_s):
+        return idx, nb, _sinusoid_weights(t_s[nb] - t0[:, None], omega_rad_s)
     weights = np.ones(nb.shape)
     for a in range(nb.shape[1]):
         for b in range(nb.shape[1]):
@@ -133,9 +143,50 @@ def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray) -> tuple[
 #: :func:`_noise_acf`
 NOISE_ACF = _noise_acf()
 
+#: a sinusoid in the path's basis is looked for between these turns per frame (below, the polynomial follows it;
+#: above, the frames no longer sample it), among this many of the track's strongest periodogram peaks
+SINUSOID_TURN_RANGE = (0.3, 2.5)
+SINUSOID_PEAKS = 5
 
-def path_residuals(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray, var: np.ndarray, active: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
+
+def _sinusoid_weights(tau: np.ndarray, omega_rad_s: float) -> np.ndarray:
+    """Interpolation weights (m, 6) at 0 from six neighbours at ``tau`` (m, 6) [s] through a cubic and a sinusoid
+    of ``omega_rad_s``: the weights reproduce each of the six basis functions at 0 exactly."""
+    scale = np.abs(tau).max(axis=1, keepdims=True)
+    basis = np.stack([(tau / scale) ** d for d in range(4)] + [np.cos(omega_rad_s * tau), np.sin(omega_rad_s * tau)],
+                     axis=1)  # (m, basis, neighbour)
+    at_zero = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    return np.linalg.solve(basis, np.broadcast_to(at_zero, (len(tau), 6))[..., None])[..., 0]
+
+
+def motion_frequency(t_s, frames, xy) -> float:
+    """The angular frequency [rad/s] of a sinusoid that, put in the path's basis (a cubic and that sinusoid
+    through six neighbours), leaves the least scatter about the path: of the strongest peaks of the track's
+    Lomb-Scargle periodogram (both axes, a quadratic taken off) between :data:`SINUSOID_TURN_RANGE` per frame.
+    A nod the polynomial path cannot follow at a low frame rate (60 frames/s: 1 rad per frame) is then followed.
+    NaN with too few frames."""
+    t_s, frames, xy = np.asarray(t_s, float), np.asarray(frames, int), np.asarray(xy, float)
+    if len(t_s) < 4 * (2 * HALF_WINDOW + 1):
+        return math.nan
+    dt = float(np.median(np.diff(t_s)))
+    omegas = np.linspace(*SINUSOID_TURN_RANGE, 400) / dt
+    tau = t_s - t_s.mean()
+    power = sum(lombscargle(tau, xy[:, j] - np.polyval(np.polyfit(tau, xy[:, j], 2), tau), omegas) for j in (0, 1))
+    peaks = [k for k in range(1, len(omegas) - 1) if power[k] >= power[k - 1] and power[k] >= power[k + 1]]
+    best, best_ms = math.nan, math.inf
+    for k in sorted(peaks, key=lambda k: -power[k])[:SINUSOID_PEAKS]:
+        idx, nb, w = _stencils(t_s, frames, np.ones(len(t_s), bool), float(omegas[k]))
+        if len(idx) == 0:
+            continue
+        r = xy[idx] - np.einsum("mj,mjk->mk", w, xy[nb])
+        ms = float(np.mean(r * r) / np.mean(1.0 + np.sum(w * w, axis=1)))
+        if ms < best_ms:
+            best, best_ms = float(omegas[k]), ms
+    return best
+
+
+def path_residuals(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray, var: np.ndarray, active: np.ndarray,
+                   omega_rad_s: float = math.nan) -> tuple[np.ndarray, np.ndarray]:
     """Leave-one-out residuals about the degree-5 path through each frame's six nearest active neighbours
     (three before, three after, spanning at most :data:`MAX_SPAN` frames: a gap or a removed frame
     does not stop its neighbours from being checked).
@@ -144,7 +195,7 @@ def path_residuals(t_s: np.ndarray, frames: np.ndarray, xy: np.ndarray, var: np.
     Returns ``(centres, z)``: the indices of the frames checked and their residuals over their
     predicted standard deviations (m, 2).
     """
-    idx, nb, w = _stencils(t_s, frames, active)
+    idx, nb, w = _stencils(t_s, frames, active, omega_rad_s)
     if len(idx) == 0:
         return idx, np.empty((0, 2))
     pred = np.einsum("mj,mjk->mk", w, xy[nb])
@@ -187,8 +238,8 @@ def _shared_coefficients(idx: np.ndarray, nb: np.ndarray, w: np.ndarray, groups:
     return coef
 
 
-def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_factor: float, groups=None
-                    ) -> tuple[dict, float, float, float, float]:
+def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_factor: float, groups=None,
+                    omega_rad_s: float = math.nan) -> tuple[dict, float, float, float, float]:
     """Each class's factor and, with ``floor``, an error added to every frame, solved jointly: a residual's expected
     square is linear in the classes' squared factors and the floor's variance (``E r^2 = sum_c f_c^2 A_c + tau^2 B``,
     ``A_c`` the reported variances of the stencil's frames of class ``c`` times their squared weights, ``B`` the
@@ -198,7 +249,7 @@ def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_facto
     each group, independent from group to group, is solved beside them (its variance ``kappa^2`` enters with
     :func:`_shared_coefficients`).  Returns ``({class: (factor, se, coordinates)}, tau^2, its se, kappa^2, its se)``;
     ``({}, nan, nan, nan, nan)`` when the check has too few frames."""
-    idx, nb, w = _stencils(t_s, frames, active)
+    idx, nb, w = _stencils(t_s, frames, active, omega_rad_s)
     if len(idx) == 0:
         return {}, math.nan, math.nan, math.nan, math.nan
     shared = groups is not None and bool(np.any(np.asarray(groups)[idx] >= 0))
@@ -239,7 +290,7 @@ def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_facto
 
 
 def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min_factor: float = 0.0,
-                 groups=None) -> SigmaCheck:
+                 groups=None, omega_rad_s: float = math.nan, follow_motion: bool = False) -> SigmaCheck:
     """Compare the reported errors with the scatter about the path (module docstring); outliers removed
     one at a time (the worst first, since its residual also reaches its neighbours' predictions).
 
@@ -249,13 +300,16 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     (:attr:`SigmaCheck.floor_px`), and the factors are held at ``min_factor`` or above.  ``groups`` (n,),
     optional: an integer per frame (-1: none); an error common to the frames of each group and independent
     from group to group (a codec's run of B pictures between two reference pictures, predicted from the same
-    two) is found beside them (:attr:`SigmaCheck.shared_px`)."""
+    two) is found beside them (:attr:`SigmaCheck.shared_px`).  ``omega_rad_s``: the path holds a sinusoid of
+    that angular frequency (:func:`_stencils`); with ``follow_motion``, when the polynomial path cannot follow the
+    motion (:attr:`SigmaCheck.smooth_path` false) the check is made again through the sinusoid of
+    :func:`motion_frequency` and that one is returned if its path follows the motion."""
     t_s, frames = np.asarray(t_s, float), np.asarray(frames, int)
     xy, var = np.asarray(xy, float), np.asarray(var, float)
     active = np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(var) & (var > 0), axis=1)
     outliers: list[int] = []
     while True:
-        centres, z = path_residuals(t_s, frames, xy, var, active)
+        centres, z = path_residuals(t_s, frames, xy, var, active, omega_rad_s)
         if len(centres) < 5:
             return SigmaCheck(math.nan, math.nan, 2 * len(centres), tuple(outliers))
         # robust scale while outliers may remain: the median of z^2 is 0.4549 for a unit normal
@@ -270,14 +324,21 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     if classes is not None or floor or groups is not None:
         labels = np.asarray(classes).astype(str) if classes is not None else np.full(len(t_s), "all")
         by_class, tau2, tau2_se, kappa2, kappa2_se = _variance_model(t_s, frames, xy, var, active, labels, floor,
-                                                                     min_factor, groups)
+                                                                     min_factor, groups, omega_rad_s)
     factor = math.sqrt(float(np.mean(z * z)))
     floor_px, floor_se = _root(tau2, tau2_se)
     shared_px, shared_se = _root(kappa2, kappa2_se)
     acf, smooth = _path_follows(centres, z)
+    if follow_motion and not smooth and math.isnan(omega_rad_s):
+        omega = motion_frequency(t_s[active], frames[active], xy[active])
+        if math.isfinite(omega):
+            retried = check_sigmas(t_s, frames, xy, var, classes, floor=floor, min_factor=min_factor, groups=groups,
+                                   omega_rad_s=omega)
+            if retried.smooth_path:
+                return retried
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
                       floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se,
-                      residual_acf=acf, smooth_path=smooth)
+                      residual_acf=acf, smooth_path=smooth, omega_rad_s=omega_rad_s)
 
 
 def _path_follows(centres: np.ndarray, z: np.ndarray) -> tuple[tuple, bool]:

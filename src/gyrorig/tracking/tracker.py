@@ -291,7 +291,8 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     # (frames exported losslessly from a phone's video keep its codec's errors but not its codec's name)
     floor = lossy or not math.isfinite(camera.gain_e_per_adu)
     path = (angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index], np.array([rows.tip_px[r] for r in index]))
-    check = check_sigmas(*path, var, classes, floor=floor, min_factor=1.0 if doubts else 0.0, groups=runs)
+    check = check_sigmas(*path, var, classes, floor=floor, min_factor=1.0 if doubts else 0.0, groups=runs,
+                         follow_motion=True)
     if not math.isfinite(check.factor):
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
     if not check.smooth_path:
@@ -306,7 +307,7 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     if floor:
         # the same residuals solved again with the spot fits' own errors free to be too large (a codec that smooths
         # the noise away makes them so, and then hides its shared errors under them): each frame takes the larger
-        free = check_sigmas(*path, var, classes, floor=True, min_factor=0.0, groups=runs)
+        free = check_sigmas(*path, var, classes, floor=True, min_factor=0.0, groups=runs, omega_rad_s=check.omega_rad_s)
         factors_free, scale_free, added_free = _error_terms(free, classes, in_run, doubts, floor, own_unknown=True)
         larger = (scale_free**2 * np.trace(own, axis1=1, axis2=2) + 2 * added_free
                   > scale**2 * np.trace(own, axis1=1, axis2=2) + 2 * added)
