@@ -191,7 +191,7 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
     stated = track.sigma_px.to_numpy(float)
     given = np.isfinite(stated)
     var = np.where(given, stated**2, 1.0)[:, None] * np.ones((1, 2))
-    check = check_sigmas(t, frames, xy, var)
+    check = check_sigmas(t, frames, xy, var, follow_motion=True)
     if not math.isfinite(check.factor):
         raise BadInputError("the pixel track has too few runs of 7 nearby frames to find its errors from its scatter "
                             "(give sigma_px)")
