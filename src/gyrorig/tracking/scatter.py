@@ -30,8 +30,8 @@ from scipy.optimize import lsq_linear
 from scipy.signal import lombscargle
 from scipy.stats import chi2
 
-__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "motion_frequency", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN",
-           "NOISE_ACF"]
+__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "motion_frequency", "OUTLIER_Z",
+           "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF"]
 
 #: neighbours on each side that predict a frame
 HALF_WINDOW = 3
@@ -175,7 +175,10 @@ def motion_frequency(t_s, frames, xy) -> float:
     peaks = [k for k in range(1, len(omegas) - 1) if power[k] >= power[k - 1] and power[k] >= power[k + 1]]
     best, best_ms = math.nan, math.inf
     for k in sorted(peaks, key=lambda k: -power[k])[:SINUSOID_PEAKS]:
-        idx, nb, w = _stencils(t_s, frames, np.ones(len(t_s), bool), float(omegas[k]))
+        try:
+            idx, nb, w = _stencils(t_s, frames, np.ones(len(t_s), bool), float(omegas[k]))
+        except np.linalg.LinAlgError:  # six neighbours on which the cubic and the sinusoid are not independent
+            continue
         if len(idx) == 0:
             continue
         r = xy[idx] - np.einsum("mj,mjk->mk", w, xy[nb])
@@ -331,11 +334,13 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     acf, smooth = _path_follows(centres, z)
     if follow_motion and not smooth and math.isnan(omega_rad_s):
         omega = motion_frequency(t_s[active], frames[active], xy[active])
-        if math.isfinite(omega):
+        try:
             retried = check_sigmas(t_s, frames, xy, var, classes, floor=floor, min_factor=min_factor, groups=groups,
-                                   omega_rad_s=omega)
-            if retried.smooth_path:
-                return retried
+                                   omega_rad_s=omega) if math.isfinite(omega) else None
+        except np.linalg.LinAlgError:  # a stencil of the frames left after the outliers on which the basis is singular
+            retried = None
+        if retried is not None and retried.smooth_path:
+            return retried
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
                       floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se,
                       residual_acf=acf, smooth_path=smooth, omega_rad_s=omega_rad_s)
