@@ -101,7 +101,7 @@ def test_scatter_check_finds_an_error_common_to_each_run_of_b_pictures():
     0.01-0.02 px that are right and a floor of 0.02 px.  The record check finds the shared error within 4 of its
     standard errors; with it added to the B pictures' errors (and the floor and the factor to all) the SD of the
     B pictures' pulls is 1 within 4 of its standard errors (below), where without it it is 3-4."""
-    from gyrorig.tracking.tracker import b_picture_runs
+    from gyrorig.tracking.scatter import b_picture_runs
 
     rng = np.random.default_rng(8)
     t, frames, xy = _path(2000)

@@ -40,9 +40,11 @@ MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma
 #: by a full-frame search after a loss); ``missing`` (no position: a gap); ``off-sphere`` (the ray
 #: misses the tip's sphere); ``duplicate`` (a repeated frame); ``outlier`` (off the tip's smooth path by more
 #: than 5 of its errors: angles removed, see :mod:`gyrorig.tracking.scatter`); ``damaged`` (the decoder reported
-#: damaged data in this picture or one it is predicted from: angles removed, see :mod:`gyrorig.tracking.sources`)
+#: damaged data in this picture or one it is predicted from: angles removed, see :mod:`gyrorig.tracking.sources`);
+#: ``off-pace`` (in an end of a slow-motion record that runs at another pace, a gallery copy's normal-speed end:
+#: its time unknown, angles removed, see :mod:`gyrorig.tracking.pace`)
 QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate", "outlier",
-                 "damaged")
+                 "damaged", "off-pace")
 
 
 def camera_mode_columns(k: int) -> tuple[str, str]:

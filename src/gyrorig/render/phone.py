@@ -82,6 +82,11 @@ class PhoneStyle:
     drop_fraction: float = 0.02
     #: the container's frame rate when it differs from the capture rate (slow motion); None: the capture rate
     container_fps: float | None = None
+    #: a slow-motion file as a phone's gallery app shares it: the first and last this many seconds of the capture
+    #: play at normal speed (every ``fps / container_fps``-th captured frame kept), the speed ramping down to and up
+    #: from the slowed middle over a few frames, all stored at the one container rate (nothing in the file says
+    #: where the speed changes); (0, 0): the original file, every captured frame kept
+    normal_speed_ends_s: tuple[float, float] = (0.0, 0.0)
     #: a hand-held phone: the whole picture (rig and scene) moves by this RMS per axis [px] (a small rotation of the
     #: camera), smoothly at about ``shake_hz``; 0: on a tripod
     shake_px: float = 0.0
@@ -104,6 +109,10 @@ class PhoneStyle:
             raise ValueError(f"jitter_fraction = {self.jitter_fraction}: allowed [0, 0.25)")
         if not 0.0 <= self.photo_shift_px <= 1000.0:
             raise ValueError(f"photo_shift_px = {self.photo_shift_px}: allowed [0, 1000] px")
+        if any(not 0.0 <= e < 1e3 for e in self.normal_speed_ends_s) or (
+                any(self.normal_speed_ends_s) and not self.container_fps):
+            raise ValueError(f"normal_speed_ends_s = {self.normal_speed_ends_s}: allowed [0, 1000) s each, and only "
+                             "with container_fps (a slow-motion file)")
         if not 0.0 <= self.shake_px < 50.0 or not self.shake_hz > 0.0:
             raise ValueError(f"shake_px = {self.shake_px}, shake_hz = {self.shake_hz}: allowed [0, 50) px, > 0 Hz")
 
@@ -178,6 +187,8 @@ def _coverage_protocol(scene: Mapping[str, Any] | Protocol) -> Protocol:
 
 def _frame_times(n: int, fps: float, style: PhoneStyle, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Which capture frames are kept, and their stored times [s] (container clock)."""
+    if any(style.normal_speed_ends_s):
+        return _gallery_frames(n, fps, style)
     keep = np.ones(n, bool)
     if style.drop_fraction > 0 and n > 2:
         drop = rng.random(n) < style.drop_fraction
@@ -189,6 +200,30 @@ def _frame_times(n: int, fps: float, style: PhoneStyle, rng: np.random.Generator
     t[0] = 0.0
     t = np.maximum.accumulate(t + 1e-9 * np.arange(len(k)))  # times keep their order
     return k, t
+
+
+def _gallery_frames(n: int, fps: float, style: PhoneStyle) -> tuple[np.ndarray, np.ndarray]:
+    """A gallery copy's frames (:attr:`PhoneStyle.normal_speed_ends_s`): every ``r``-th captured frame in the
+    normal-speed ends, steps of ``r - 1 .. 2`` frames in the ramps, every frame in the middle; stored one container
+    interval apart."""
+    r = max(int(round(fps / style.container_fps)), 1)
+    head, tail = (int(round(e * fps)) for e in style.normal_speed_ends_s)
+    ramp = list(range(r - 1, 1, -1))
+    steps = [r] * (head // r) + ramp if head else []
+    k, frames = 0, [0]
+    for step in steps:
+        k += step
+        frames.append(k)
+    last_slow = n - 1 - (tail + sum(ramp) if tail else 0)
+    frames += list(range(k + 1, max(last_slow, k) + 1))
+    k = frames[-1]
+    for step in (ramp[::-1] + [r] * (tail // r) if tail else []):
+        k += step
+        if k >= n:
+            break
+        frames.append(k)
+    keep = np.asarray(frames, int)
+    return keep, np.arange(len(keep)) / float(style.container_fps)
 
 
 def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path, *, style: PhoneStyle = PhoneStyle(),

@@ -30,8 +30,8 @@ from scipy.optimize import lsq_linear
 from scipy.signal import lombscargle
 from scipy.stats import chi2
 
-__all__ = ["SigmaCheck", "check_sigmas", "path_residuals", "neighbour_positions", "motion_frequency", "OUTLIER_Z",
-           "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF"]
+__all__ = ["SigmaCheck", "check_sigmas", "b_picture_runs", "path_residuals", "neighbour_positions", "motion_frequency",
+           "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF"]
 
 #: neighbours on each side that predict a frame
 HALF_WINDOW = 3
@@ -371,6 +371,18 @@ def _path_follows(centres: np.ndarray, z: np.ndarray) -> tuple[tuple, bool]:
     bartlett = 1.0 + 2.0 * float(np.sum(NOISE_ACF**2))  # the variance of a sample correlation, times its count
     stat = float(np.sum(excess**2 * np.array(counts) / bartlett))
     return tuple(round(v, 4) for v in acf), bool(stat <= chi2.isf(ACF_TAIL, ACF_LAGS))
+
+
+def b_picture_runs(angles) -> np.ndarray:
+    """Each angle table row's run of B pictures (its ``frame_type`` column): the B pictures between two others (I
+    or P, which they are predicted from) share a number, counted from 0; -1 for any other row, and for every row
+    when the table has no picture types or no B picture.  A codec renders such a run from the same two pictures,
+    so an error it makes in one of them it makes in its neighbours too."""
+    types = angles["frame_type"].to_numpy().astype(str) if "frame_type" in angles else np.array([], str)
+    if not np.any(types == "B"):
+        return np.full(len(angles), -1)
+    b = types == "B"
+    return np.where(b, np.cumsum(~b), -1)
 
 
 def _root(value: float, se: float) -> tuple[float, float]:

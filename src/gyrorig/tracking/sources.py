@@ -389,6 +389,17 @@ def _as_wanted(image: np.ndarray, colour: bool, order: str) -> np.ndarray:
 _FINGERPRINT_BYTES = 1 << 20
 
 
+def prepended(first, items):
+    """``first``, then ``items``; closing it closes ``items`` (a video's decoding thread)."""
+    try:
+        yield first
+        yield from items
+    finally:
+        close = getattr(items, "close", None)
+        if close is not None:
+            close()
+
+
 def fingerprint(video) -> str | None:
     """A digest that recognises a recording again (a copy of it too); None for frames in memory."""
     source = as_source(video)

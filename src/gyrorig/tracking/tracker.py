@@ -47,10 +47,11 @@ from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .pose import add_camera_modes, estimate_pose
 from .rays import angle_covariances, angles_with_covariance
-from .scatter import NOISE_ACF, SigmaCheck, check_sigmas
+from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
 from .timing import FrameClock, check_frame_rate, frame_interval_stats, settle_timing
-from .sources import as_source, fingerprint
+from .sources import as_source, fingerprint, prepended
+from .pace import off_pace_rows
 from .spot import SpotFit
 
 __all__ = ["TrackResult", "track", "track_video", "tip_marker", "frame_interval_stats", "check_frame_rate"]
@@ -377,21 +378,27 @@ def _drop_tip(rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame, posi
         rows.tip_cov.pop(int(r), None)
 
 
+def _off_pace_left_out(rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame, tip_name: str, ratio: float,
+                       source) -> tuple[str, ...]:
+    """A slow-motion record's ends at another pace (a gallery's copy: normal-speed ends, their times unknown) lose
+    their tip (:mod:`gyrorig.tracking.pace`); what to tell the user, as a source problem."""
+    positions, note = off_pace_rows(angles, ratio)
+    if len(positions):
+        _drop_tip(rows, angles, markers, positions, "off-pace", tip_name=tip_name)
+    return _said(source, note)
+
+
+def _said(source, problem: str) -> tuple[str, ...]:
+    """A problem with the source, warned about and returned as a source problem (none when empty)."""
+    if not problem:
+        return ()
+    logger.warning("%s: %s", source, problem)
+    return (problem,)
+
+
 def _rounded(values) -> str:
     """Numbers as ``(a, b, ...)`` to two decimals, for a message."""
     return "(" + ", ".join(f"{v:.2f}" for v in values) + ")"
-
-
-def b_picture_runs(angles: pd.DataFrame) -> np.ndarray:
-    """Each row's run of B pictures: the B pictures between two others (I or P, which they are predicted from)
-    share a number, counted from 0; -1 for any other row, and for every row when the table has no picture types
-    or no B picture.  A codec renders such a run from the same two pictures, so an error it makes in one of them
-    it makes in its neighbours too."""
-    types = angles["frame_type"].to_numpy().astype(str) if "frame_type" in angles else np.array([], str)
-    if not np.any(types == "B"):
-        return np.full(len(angles), -1)
-    b = types == "B"
-    return np.where(b, np.cumsum(~b), -1)
 
 
 def _follower(camera: Camera, tip: Marker, markers: MarkerSet, source) -> TipFollower:
@@ -415,7 +422,7 @@ def _matched(camera: Camera, frames, source) -> Camera:
         # a 16-bit file may hold fewer significant bits (camera.json's); values above them say it holds all 16
         first = next(frames.items, None)
         if first is not None:
-            frames.items = _prepended(first, frames.items)
+            frames.items = prepended(first, frames.items)
             if float(np.max(first[0])) > camera.max_adu:
                 logger.warning("%s: 16-bit values up to %.0f, above camera.json's sensor.bit_depth = %d (largest %d): "
                                "taken as 16-bit (state sensor.bit_depth = 16 in camera.json)", source,
@@ -432,17 +439,6 @@ def _matched(camera: Camera, frames, source) -> Camera:
         raise BadInputError(f"{source}: the camera file says {camera.width_px} x {camera.height_px}, the video is "
                             f"{frames.width_px} x {frames.height_px}{hint}")
     return camera
-
-
-def _prepended(first, items):
-    """``first``, then ``items``; closing it closes ``items`` (a video's decoding thread)."""
-    try:
-        yield first
-        yield from items
-    finally:
-        close = getattr(items, "close", None)
-        if close is not None:
-            close()
 
 
 def _steadied(rows: _Tables, watch: CameraWatch, camera: Camera, length_m: float,
@@ -538,9 +534,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     source_problems = _source_problems(frames, k, source, rows, angles, markers)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
-    if caveat := (appearance.drift_caveat(tip, frame_types.values()) if lossy else ""):
-        logger.warning("%s: %s", source, caveat)
-        source_problems += (caveat,)
+    source_problems += _said(source, appearance.drift_caveat(tip, frame_types.values()) if lossy else "")
     if not angles.theta_rad.notna().any():
         look = follower.first_look
         why = "" if look is None else "; in the first frame searched " + (", ".join(
@@ -548,6 +542,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         raise TrackingError(f"{source}: the tip marker was never found in {k} frames{why}", first_look=look)
     doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
     check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2])
+    source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source)
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
                                      pose_info or camera.pose_points, own_pose)
