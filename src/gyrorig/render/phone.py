@@ -91,6 +91,8 @@ class PhoneStyle:
     #: camera), smoothly at about ``shake_hz``; 0: on a tripod
     shake_px: float = 0.0
     shake_hz: float = 3.0
+    #: ... and turns about its optical axis by this RMS [deg] (the picture rotates about its centre), alike in time
+    shake_roll_deg: float = 0.0
 
     def check(self) -> None:
         if self.photo is not None and self.photo not in PHOTOS:
@@ -115,6 +117,8 @@ class PhoneStyle:
                              "with container_fps (a slow-motion file)")
         if not 0.0 <= self.shake_px < 50.0 or not self.shake_hz > 0.0:
             raise ValueError(f"shake_px = {self.shake_px}, shake_hz = {self.shake_hz}: allowed [0, 50) px, > 0 Hz")
+        if not 0.0 <= self.shake_roll_deg < 5.0:
+            raise ValueError(f"shake_roll_deg = {self.shake_roll_deg}: allowed [0, 5) deg")
 
 
 #: FFmpeg's code of the BT.709 transfer characteristic (AVCOL_TRC_BT709)
@@ -140,16 +144,19 @@ def _encoded(linear: np.ndarray, style: PhoneStyle) -> np.ndarray:
 
 
 def _shake(style: PhoneStyle, rng: np.random.Generator):
-    """The picture's displacement ``(dx, dy)`` [px] at a time: per axis two sines (``shake_hz`` and 2.3 times it,
-    the second at half the amplitude) with random phases, ``shake_px`` RMS.  None without shake (no draws)."""
-    if style.shake_px == 0.0:
+    """The picture's displacement ``(dx, dy)`` [px] and turn about its centre [rad] at a time: per axis two sines
+    (``shake_hz`` and 2.3 times it, the second at half the amplitude) with random phases, ``shake_px`` and
+    ``shake_roll_deg`` RMS.  None without shake (no draws)."""
+    if style.shake_px == 0.0 and style.shake_roll_deg == 0.0:
         return None
-    phases = rng.uniform(0.0, 2 * math.pi, (2, 2))
-    amp = style.shake_px / math.sqrt(0.5 * (1.0 + 0.25))
+    phases = rng.uniform(0.0, 2 * math.pi, (2, 2)) if style.shake_px else np.zeros((2, 2))
+    roll = rng.uniform(0.0, 2 * math.pi, 2) if style.shake_roll_deg else np.zeros(2)
+    unit = 1.0 / math.sqrt(0.5 * (1.0 + 0.25))
+    amps = (style.shake_px * unit, style.shake_px * unit, math.radians(style.shake_roll_deg) * unit)
 
-    def at(t: float) -> tuple[float, float]:
+    def at(t: float) -> tuple[float, float, float]:
         w = 2 * math.pi * style.shake_hz * t
-        return tuple(amp * (math.sin(w + p[0]) + 0.5 * math.sin(2.3 * w + p[1])) for p in phases)
+        return tuple(a * (math.sin(w + p[0]) + 0.5 * math.sin(2.3 * w + p[1])) for a, p in zip(amps, (*phases, roll)))
     return at
 
 
@@ -285,10 +292,13 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
             alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
             linear = (bg * (1.0 - alpha) + alpha * rgb) * light
             if shake is not None:  # the camera turned a little: the whole picture moves (the truth's pixels with it)
-                dx, dy = shake(t + cam.exposure_s / 2)
-                linear = cv2.warpAffine(linear, np.float32([[1, 0, dx], [0, 1, dy]]), (cam.width_px, cam.height_px),
-                                        flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-                truth = truth.assign(x_px=truth.x_px + dx, y_px=truth.y_px + dy)
+                dx, dy, turn = shake(t + cam.exposure_s / 2)
+                move = cv2.getRotationMatrix2D(((cam.width_px - 1) / 2, (cam.height_px - 1) / 2), math.degrees(turn),
+                                               1.0) + np.array([[0.0, 0.0, dx], [0.0, 0.0, dy]])
+                linear = cv2.warpAffine(linear, move, (cam.width_px, cam.height_px), flags=cv2.INTER_LINEAR,
+                                        borderMode=cv2.BORDER_REPLICATE)
+                moved = move @ np.vstack([truth.x_px, truth.y_px, np.ones(len(truth))])
+                truth = truth.assign(x_px=moved[0], y_px=moved[1])
                 truths[-1] = truth
             electrons = rng.poisson(np.clip(linear, 0.0, 1.0) * style.full_well_e).astype(np.float32)
             electrons += rng.normal(0.0, style.read_noise_e, electrons.shape).astype(np.float32)

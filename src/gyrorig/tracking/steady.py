@@ -4,15 +4,20 @@ The tip's direction comes from its pixel through the camera's pose; a camera tha
 degree moves every pixel by several (``f`` times the angle) and the tip's direction with them, in every frame, by
 far more than its error bars: each such frame would be wrong and flagged ``ok``.  The protocol's lab-fixed markers
 (fiducials) do not move, so their images show the camera's motion: every :data:`CHECK_EVERY` frames (every frame
-once they have moved) each fiducial in view is fitted near where the pose puts it (plus the motion found so far)
-and the frame's displacement is the mean of theirs (one far from the others' median left out), its error the
-larger of their scatter about it and the displacements' scatter about their own smooth path.  A small turn of the
-camera moves the whole picture alike (a rotation about the camera's centre maps the image by a homography that is
-a shift to first order, whatever the depth), so where the displacements, averaged over :data:`SMOOTH_CHECKS`
-neighbouring checks and counted once per frame, scatter about their median by more than :data:`MIN_STEADY_PX` and 4
-of that average's errors, the camera moved (a hand's tremor, or a tripod knocked once): each tip pixel is taken back by its frame's
-displacement (interpolated between checks) before its direction is found, and the displacement's error joins the
-tip's (between checks, the interpolation's too).
+once they have moved) each fiducial in view is fitted near where the pose puts it (plus the motion found so far), and
+the picture's move is fitted to their displacements, each weighted by its fit's own error: a shift, and with three or
+more fiducials a turn about the camera's axis and a scale (``d = t + (a I + b J) r``, ``r`` the place about the
+fiducials' centre; with four or more each is checked against the others' fit and one they miss left out, as is a fit
+much less sure than the fiducials' usual: a spot partly covered).  A small turn of the camera about a horizontal axis
+moves the whole picture alike (a rotation about the camera's centre maps the image by a homography that is a shift to
+first order, whatever the depth); a turn about its own axis rotates the picture, which moves the tip, far from the
+fiducials' centre, unlike any one shift (a hand-held phone turns by a tenth of a degree or so every way).  Where the
+displacements, averaged over :data:`SMOOTH_CHECKS` neighbouring checks and counted once per frame, scatter about their
+median by more than :data:`MIN_STEADY_PX` and 4 of that average's errors (the turn and scale counted as the
+displacement they give at the fiducials' distance from their centre), the camera moved (a hand's tremor, or a tripod
+knocked once): each tip pixel is taken back by its frame's displacement at that pixel (interpolated between checks)
+before its direction is found, and the displacement's error joins the tip's (between checks, the interpolation's
+too).
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ from .rays import angles_with_covariance
 from .scatter import path_residuals
 from .scene_spot import fit_round_spot
 
-__all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "MIN_MOTION_PX", "MIN_STEADY_PX"]
+__all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "MIN_MOTION_PX", "MIN_STEADY_PX",
+           "MIN_TURN_FIDUCIALS"]
 
 #: the fiducials are fitted in every this many frames (until they move; five fits cost about as much as the tip's)
 CHECK_EVERY = 8
@@ -60,17 +66,43 @@ class CameraMotion:
     moved: bool
     #: the displacement's RMS change per frame between checks [px] (what a frame between checks may differ by)
     speed_px: float = 0.0
+    #: where the camera also turned about its axis (the picture rotating, ``roll_rad``) or moved along it (the picture
+    #: scaled by ``1 + scale``) [per check], about ``centre_px``, the fiducials' centre (``dx_px, dy_px`` are the
+    #: displacement there), whose RMS distance from it is ``lever_px``; None when the camera did not (module docstring)
+    roll_rad: np.ndarray | None = None
+    scale: np.ndarray | None = None
+    centre_px: tuple[float, float] = (0.0, 0.0)
+    lever_px: float = math.inf
+    #: the turn's and scale's error per check, as the displacement they give at ``lever_px`` [px]
+    turn_sd_px: float = 0.0
 
-    def at(self, frame: float) -> tuple[float, float]:
-        """The displacement in a frame [px] (its own check's; linear between checks, held beyond them)."""
-        return float(np.interp(frame, self.frame, self.dx_px)), float(np.interp(frame, self.frame, self.dy_px))
+    @property
+    def roll_rms_deg(self) -> float:
+        """How far the camera turned about its axis: the turn's RMS about its median over the checks [deg] (0 when it
+        was not seen to turn)."""
+        return 0.0 if self.roll_rad is None else math.degrees(float(np.std(self.roll_rad - np.median(self.roll_rad))))
 
-    def sd_at(self, frame: float) -> float:
+    def at(self, frame: float, x_px: float | None = None, y_px: float | None = None) -> tuple[float, float]:
+        """The displacement in a frame [px] (its own check's; linear between checks, held beyond them), at the pixel
+        ``(x_px, y_px)`` (where the picture also turned or scaled; else the same everywhere)."""
+        dx, dy = float(np.interp(frame, self.frame, self.dx_px)), float(np.interp(frame, self.frame, self.dy_px))
+        if self.roll_rad is None or x_px is None:
+            return dx, dy
+        a, b = float(np.interp(frame, self.frame, self.scale)), float(np.interp(frame, self.frame, self.roll_rad))
+        rx, ry = x_px - self.centre_px[0], y_px - self.centre_px[1]
+        return dx + a * rx - b * ry, dy + b * rx + a * ry
+
+    def sd_at(self, frame: float, x_px: float | None = None, y_px: float | None = None) -> float:
         """The displacement's error per axis in a frame [px]: ``sd_px`` where the frame was checked; between or
         beyond checks the interpolation's too, taken as half the RMS change per frame times the frames to the
-        nearest check (the checks are sparse until the camera is seen to move)."""
+        nearest check (the checks are sparse until the camera is seen to move); where the picture turned, the turn's
+        and scale's errors times the pixel's distance from the fiducials' centre over theirs."""
         gap = float(np.min(np.abs(self.frame - frame)))
-        return math.hypot(self.sd_px, 0.5 * self.speed_px * gap)
+        sd = math.hypot(self.sd_px, 0.5 * self.speed_px * gap)
+        if self.roll_rad is None or x_px is None:
+            return sd
+        lever = math.hypot(x_px - self.centre_px[0], y_px - self.centre_px[1]) / self.lever_px
+        return math.hypot(sd, self.turn_sd_px * lever)
 
 
 class CameraWatch:
@@ -82,9 +114,22 @@ class CameraWatch:
         self.spots = [(x, y, r) for x, y, r in fiducials_px
                       if margin + 3 * r < x < camera.width_px - margin - 3 * r
                       and margin + 3 * r < y < camera.height_px - margin - 3 * r]
-        self.samples: list[tuple] = []  # (frame, dx, dy, each fiducial's displacement about theirs)
+        xy = np.array([(x, y) for x, y, _ in self.spots]).reshape(-1, 2)
+        self.centre = tuple(xy.mean(axis=0)) if len(xy) else (0.0, 0.0)
+        self.lever = math.sqrt(float(np.mean(np.sum((xy - self.centre) ** 2, axis=1)))) if len(xy) else 0.0
+        self.samples: list[tuple] = []  # (frame, dx, dy, scale, roll, residuals, weights, covariance): _similarity
         self.last = (0.0, 0.0)
+        self.turn = (0.0, 0.0)
+        self.misses: list[float] = []  # how far each fiducial kept was from the others' fit [px]
+        self.variances: list[float] = []  # each fiducial fit's own variance per axis [px^2]
         self.every = CHECK_EVERY
+
+    def _miss_limit(self) -> float:
+        """How far a fiducial may be from the others' fit (:data:`TURN_OUTLIER_SIGMAS`): the misses' scale from their
+        median (a miss in two dimensions with sd ``s`` per axis has the median ``1.1774 s``)."""
+        if len(self.misses) < TURN_OUTLIER_SAMPLES:
+            return TURN_OUTLIER_PX
+        return max(TURN_OUTLIER_MIN_PX, TURN_OUTLIER_SIGMAS * float(np.median(self.misses)) / 1.1774)
 
     def observe(self, frame: np.ndarray, count: int, index: int) -> None:
         """Fit the fiducials in every :data:`CHECK_EVERY`-th frame (``count`` the frames seen before this one), and
@@ -94,21 +139,29 @@ class CameraWatch:
             return
         moves = []
         for x, y, r in self.spots:
-            x0, y0 = x + self.last[0], y + self.last[1]
+            rx, ry = x - self.centre[0], y - self.centre[1]
+            a, b = self.turn
+            x0, y0 = x + self.last[0] + a * rx - b * ry, y + self.last[1] + b * rx + a * ry
             fit = fit_round_spot(frame, x0, y0, r, self.camera)
             if (fit is None or not 0.6 * r <= fit.radius_px <= 1.6 * r
                     or math.hypot(fit.x_px - x0, fit.y_px - y0) > max(3.0, REACH_RADII * r)):
                 continue
-            moves.append((fit.x_px - x, fit.y_px - y, 0.0))
-        m = np.array(moves).reshape(-1, 3)
-        if len(m):  # a fiducial far from the others' median (another spot taken for it) is left out
-            m = m[np.hypot(m[:, 0] - np.median(m[:, 0]), m[:, 1] - np.median(m[:, 1])) <= OUTLIER_PX]
-        if len(m) < 2:
+            moves.append((rx, ry, fit.x_px - x, fit.y_px - y, max(float(np.trace(fit.cov_xy)) / 2, 1e-8)))
+        m = np.array(moves).reshape(-1, 5)
+        if len(self.variances) >= TURN_OUTLIER_SAMPLES:  # a fit far less sure than the fiducials' usual is not clean
+            m = m[m[:, 4] <= MAX_SIGMA_RATIO ** 2 * float(np.median(self.variances))]
+        self.variances.extend(m[:, 4].tolist())
+        fitted = _similarity(m, self.turn, self._miss_limit(), self.misses)
+        if fitted is None:
             return
-        dx, dy = float(np.mean(m[:, 0])), float(np.mean(m[:, 1]))
-        self.samples.append((index, dx, dy, m[:, :2] - [dx, dy]))
+        (dx, dy, a, b), resid, weights, cov = fitted
+        self.samples.append((index, dx, dy, a, b, resid, weights, cov))
         self.last = (dx, dy)
-        if math.hypot(dx - self.samples[0][1], dy - self.samples[0][2]) > MIN_MOTION_PX:
+        if math.isfinite(a):
+            self.turn = (a, b)
+        first = self.samples[0]
+        turned = self.lever * math.hypot(self.turn[0] - first[3], self.turn[1] - first[4])
+        if math.hypot(dx - first[1], dy - first[2]) + (turned if math.isfinite(turned) else 0.0) > MIN_MOTION_PX:
             self.every = 1
 
     def motion(self) -> CameraMotion | None:
@@ -116,12 +169,16 @@ class CameraWatch:
         if len(self.samples) < 3:
             return None
         samples = sorted(self.samples, key=lambda v: v[0])
-        s = np.array([v[:3] for v in samples], float)
-        # each check's displacement is the mean of its fiducials': its error from their scatter about it, pooled
-        # over the record (their own fits' covariances leave out the scene under their edges)
-        resid = np.concatenate([v[3] for v in samples])
-        dof = sum(len(v[3]) - 1 for v in samples)
-        var = float(np.sum(resid ** 2)) / (2 * dof) / float(np.mean([len(v[3]) for v in samples]))
+        s = np.array([v[:5] for v in samples], float)
+        # each check's displacement is fitted to its fiducials', weighted by their fits' own errors: its error from
+        # those, scaled by the fiducials' scatter about the fits pooled over the record (their own fits' covariances
+        # leave out the scene under their edges)
+        chi2 = sum(float(np.sum(v[6][:, None] * v[5] ** 2)) for v in samples)
+        dof = sum(max(2 * len(v[5]) - (2 if math.isnan(v[3]) else 4), 0) for v in samples)
+        scale = chi2 / dof if dof > 0 else 1.0
+        var = scale * float(np.median([(v[7][0, 0] + v[7][1, 1]) / 2 for v in samples]))
+        turn_var = [(v[7][2, 2] + v[7][3, 3]) / 2 for v in samples if math.isfinite(v[3])]
+        turn_var = scale * self.lever ** 2 * float(np.median(turn_var)) if turn_var else var
         # ... and from the displacements' own scatter about their smooth path (a hand's tremor is smooth from frame
         # to frame): an error common to the fiducials (the codec's treatment of a moving picture) shows there
         idx, z = path_residuals(s[:, 0], s[:, 0].astype(int), s[:, 1:3], np.ones((len(s), 2)), np.ones(len(s), bool))
@@ -129,16 +186,101 @@ class CameraWatch:
         # how far the picture moved over the record, every frame counted once (_spread)
         grid = np.arange(s[0, 0], s[-1, 0] + 1.0)
         rms = _spread(grid, s[:, 0], s[:, 1], s[:, 2])
-        # whether it moved, from the displacements averaged over SMOOTH_CHECKS neighbouring checks (a knock's step
-        # holds over many checks; their noise averages down by the root of their number)
         n = min(SMOOTH_CHECKS, len(s))
-        mean = np.ones(n) / n
-        moved = _spread(grid, s[:, 0], *(np.convolve(np.pad(v, (n // 2, n - 1 - n // 2), mode="edge"), mean, "valid")
-                                         for v in (s[:, 1], s[:, 2])))
-        moved_beyond = max(MIN_STEADY_PX, 4.0 * sd / math.sqrt(n))
+        beyond = max(MIN_STEADY_PX, 4.0 * sd / math.sqrt(n))
+        # a turn about the axis (or a scale), as the displacement it gives at the fiducials' distance from their centre
+        # (checks with too few fiducials for it take their neighbours')
+        fitted = np.isfinite(s[:, 3])
+        turned = bool(np.sum(fitted) >= 3)
+        if turned:
+            for c in (3, 4):
+                s[:, c] = np.interp(s[:, 0], s[fitted, 0], s[fitted, c])
+            turned = _moved(grid, s[:, 0], self.lever * s[:, 3], self.lever * s[:, 4], n) > beyond
+            # its error from the fits' scatter as the shift's, or from its own scatter about its smooth path
+            idx, z = path_residuals(s[:, 0], s[:, 0].astype(int), self.lever * s[:, 3:5], np.ones((len(s), 2)),
+                                    np.ones(len(s), bool))
+            turn_sd = math.sqrt(max(turn_var, float(np.mean(z ** 2)) if len(idx) >= 10 else 0.0))
+        moved = turned or _moved(grid, s[:, 0], s[:, 1], s[:, 2], n) > beyond
         steps = np.diff(s[:, 0])
         speed = math.sqrt(float(np.mean((np.diff(s[:, 1]) ** 2 + np.diff(s[:, 2]) ** 2) / (2 * steps ** 2))))
-        return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(moved > moved_beyond), speed)
+        turn = dict(roll_rad=s[:, 4], scale=s[:, 3], centre_px=self.centre, lever_px=self.lever,
+                    turn_sd_px=turn_sd) if turned else {}
+        return CameraMotion(s[:, 0], s[:, 1], s[:, 2], sd, rms, bool(moved), speed, **turn)
+
+
+#: the fewest fiducials in a check from which a turn about the camera's axis and a scale are fitted (with fewer, the
+#: shift alone); with one more, each of them is checked against the others' fit
+MIN_TURN_FIDUCIALS = 3
+#: a fiducial whose displacement the others' turn and shift miss by more than :data:`TURN_OUTLIER_SIGMAS` times the
+#: misses' scale (from their median over the record so far; at least :data:`TURN_OUTLIER_MIN_PX`, and
+#: :data:`TURN_OUTLIER_PX` until :data:`TURN_OUTLIER_SAMPLES` misses are known) and by more than that many of its own
+#: fit's errors is left out: a spot passing over it, or the rotor's can covering part of it, moves it by tenths of a
+#: pixel, which a fit of four parameters to four or five fiducials would take in for the most part (a fiducial
+#: partly covered whose fit says so weighs little anyway: the fits are weighted by their own errors)
+TURN_OUTLIER_SIGMAS = 4.0
+#: a fiducial whose fit's own error exceeds this many times the median of the fiducials' fits so far is left out (a
+#: spot partly covered, or with another spot on it: its fit says it is unsure, and a biased one drags the turn)
+MAX_SIGMA_RATIO = 4.0
+TURN_OUTLIER_MIN_PX = 0.02
+TURN_OUTLIER_PX = 0.5
+TURN_OUTLIER_SAMPLES = 20
+
+
+def _similarity_fit(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(tx, ty, a, b)`` of ``d = t + (a I + b J) r`` by least squares weighted by the fiducials' own errors, and its
+    covariance from those errors; ``m`` (k, 5): ``rx, ry, dx, dy`` and the fit's variance per axis."""
+    r, w = m[:, :2], 1.0 / m[:, 4]
+    ones, zeros = np.ones(len(r)), np.zeros(len(r))
+    design = np.vstack([np.column_stack([ones, zeros, r[:, 0], -r[:, 1]]),
+                        np.column_stack([zeros, ones, r[:, 1], r[:, 0]])])
+    sw = np.sqrt(np.r_[w, w])
+    x, *_ = np.linalg.lstsq(design * sw[:, None], np.r_[m[:, 2], m[:, 3]] * sw, rcond=None)
+    return x, np.linalg.pinv((design * sw[:, None]).T @ (design * sw[:, None]))
+
+
+def _moved_by(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The displacements ``(tx, ty, a, b)`` gives at the places ``r`` (k, 2)."""
+    return x[:2] + np.column_stack([x[2] * r[:, 0] - x[3] * r[:, 1], x[3] * r[:, 0] + x[2] * r[:, 1]])
+
+
+def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misses: list) -> tuple | None:
+    """The picture's move from the fiducials' ``m`` (k, 5): each one's place about their centre, its displacement and
+    its fit's variance per axis.  With :data:`MIN_TURN_FIDUCIALS` or more, a shift, scale and turn
+    ``d = t + (a I + b J) r`` (:func:`_similarity_fit`); with more, the fiducial the others' fit misses most (in its
+    own errors) left out first while it misses by more than ``limit_px`` and :data:`TURN_OUTLIER_SIGMAS` of its errors
+    (the misses of those kept appended to ``misses``); with fewer, the shift alone under the turn ``(a, b)`` found
+    before, a and b returned NaN, a fiducial far from the others' median (:data:`OUTLIER_PX`) left out.  Returns
+    ``((tx, ty, a, b), residuals (k', 2), weights (k',), covariance of (tx, ty, a, b))``; None with fewer than two
+    fiducials."""
+    while len(m) > MIN_TURN_FIDUCIALS:
+        miss = np.array([math.hypot(*(m[j, 2:4] - _moved_by(_similarity_fit(np.delete(m, j, 0))[0], m[[j], :2])[0]))
+                         for j in range(len(m))])
+        off = (miss > limit_px) & (miss > TURN_OUTLIER_SIGMAS * np.sqrt(m[:, 4]))
+        if not off.any():
+            misses.extend(miss.tolist())
+            break
+        m = np.delete(m, int(np.argmax(np.where(off, miss / np.sqrt(m[:, 4]), -1.0))), axis=0)
+    if len(m) >= MIN_TURN_FIDUCIALS:
+        x, cov = _similarity_fit(m)
+        return x, m[:, 2:4] - _moved_by(x, m[:, :2]), 1.0 / m[:, 4], cov
+    if len(m) < 2:
+        return None
+    d = m[:, 2:4] - _moved_by(np.r_[0.0, 0.0, turn], m[:, :2])  # the shift under the turn held
+    m = m[np.hypot(d[:, 0] - np.median(d[:, 0]), d[:, 1] - np.median(d[:, 1])) <= OUTLIER_PX]
+    d = d[np.hypot(d[:, 0] - np.median(d[:, 0]), d[:, 1] - np.median(d[:, 1])) <= OUTLIER_PX]
+    if len(d) < 2:
+        return None
+    w = 1.0 / m[:, 4]
+    t = (w[:, None] * d).sum(axis=0) / w.sum()
+    return np.r_[t, math.nan, math.nan], d - t, w, np.diag([1.0 / w.sum()] * 2 + [math.nan] * 2)
+
+
+def _moved(grid: np.ndarray, frames: np.ndarray, dx: np.ndarray, dy: np.ndarray, n: int) -> float:
+    """How far the picture moved, from the displacements averaged over ``n`` neighbouring checks (a knock's step holds
+    over many checks; their noise averages down by the root of their number): :func:`_spread` of the averages."""
+    mean = np.ones(n) / n
+    return _spread(grid, frames, *(np.convolve(np.pad(v, (n // 2, n - 1 - n // 2), mode="edge"), mean, "valid")
+                                   for v in (dx, dy)))
 
 
 def _spread(grid: np.ndarray, frames: np.ndarray, dx: np.ndarray, dy: np.ndarray) -> float:
@@ -158,8 +300,8 @@ def steady_angle_rows(rows: list, tip_px: dict, tip_cov: dict, motion: CameraMot
     loses its angles (quality ``off-sphere``)."""
     for r in sorted(tip_px):
         row = rows[r]
-        dx, dy = motion.at(row[0])
-        cov = np.asarray(tip_cov[r], float) + motion.sd_at(row[0]) ** 2 * np.eye(2)
+        dx, dy = motion.at(row[0], *tip_px[r])
+        cov = np.asarray(tip_cov[r], float) + motion.sd_at(row[0], *tip_px[r]) ** 2 * np.eye(2)
         geo = angles_with_covariance(tip_px[r][0] - dx, tip_px[r][1] - dy, cov, camera, length_m)
         if geo is None:
             rows[r] = (row[0], row[1], *([math.nan] * 8), "off-sphere")

@@ -446,8 +446,9 @@ def _steadied(rows: _Tables, watch: CameraWatch, camera: Camera, length_m: float
     """The camera's motion seen on the fiducials; where it moved, the tip's rows steadied (and a warning)."""
     motion = watch.motion()
     if motion is not None and motion.moved:
-        logger.warning("%s: the camera moved during the recording (its fiducials by %.2g px RMS): each tip pixel is "
-                       "taken back by their displacement in its frame", source, motion.rms_px)
+        logger.warning("%s: the camera moved during the recording (its fiducials by %.2g px RMS, turned about its axis "
+                       "by %.2g deg RMS): each tip pixel is taken back by their displacement in its frame", source,
+                       motion.rms_px, motion.roll_rms_deg)
         steady_angle_rows(rows.angles, rows.tip_px, rows.tip_cov, motion, camera, length_m)
     return motion
 
