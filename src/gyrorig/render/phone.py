@@ -59,6 +59,12 @@ class PhoneStyle:
     #: light flicker: relative amplitude and frequency [Hz]
     flicker_fraction: float = 0.03
     flicker_hz: float = 7.0
+    #: lamps on the mains (an LED lamp's light rippling at twice the mains frequency, by up to its whole level):
+    #: relative amplitude and frequency [Hz], and the time the phone's rolling shutter takes from the top row to
+    #: the bottom one [s] (the ripple then lies across the picture as bands); 0: no ripple
+    mains_fraction: float = 0.0
+    mains_hz: float = 100.0
+    mains_readout_s: float = 0.004
     #: the markers' linear RGB (a white retroreflective dot near full scale; a red sticker (0.7, 0.05, 0.05))
     marker_rgb: tuple[float, float, float] = (0.97, 0.97, 0.97)
     #: "libx264" or "libx265"; "ffv1" keeps every value
@@ -117,6 +123,9 @@ class PhoneStyle:
                              "with container_fps (a slow-motion file)")
         if not 0.0 <= self.shake_px < 50.0 or not self.shake_hz > 0.0:
             raise ValueError(f"shake_px = {self.shake_px}, shake_hz = {self.shake_hz}: allowed [0, 50) px, > 0 Hz")
+        if not 0.0 <= self.mains_fraction <= 1.0 or not self.mains_hz > 0.0 or not self.mains_readout_s >= 0.0:
+            raise ValueError(f"mains_fraction = {self.mains_fraction}, mains_hz = {self.mains_hz}, mains_readout_s = "
+                             f"{self.mains_readout_s}: allowed [0, 1], > 0 Hz, >= 0 s")
         if not 0.0 <= self.shake_roll_deg < 5.0:
             raise ValueError(f"shake_roll_deg = {self.shake_roll_deg}: allowed [0, 5) deg")
 
@@ -158,6 +167,30 @@ def _shake(style: PhoneStyle, rng: np.random.Generator):
         w = 2 * math.pi * style.shake_hz * t
         return tuple(a * (math.sin(w + p[0]) + 0.5 * math.sin(2.3 * w + p[1])) for a, p in zip(amps, (*phases, roll)))
     return at
+
+
+def _light(style: PhoneStyle, t_s: float, exposure_s: float, height_px: int):
+    """The light on the scene in the frame starting at ``t_s``: the slow flicker, times the mains ripple at each row's
+    mid-exposure (each row exposed a little later than the one above it) as an (h, 1, 1) array when there is one."""
+    light = 1.0 + style.flicker_fraction * math.sin(2 * math.pi * style.flicker_hz * t_s)
+    if not style.mains_fraction:
+        return light
+    rows = t_s + exposure_s / 2 + style.mains_readout_s * np.arange(height_px) / height_px
+    return (light * (1.0 + style.mains_fraction * np.sin(2 * np.pi * style.mains_hz * rows))).astype(
+        np.float32)[:, None, None]
+
+
+def _shaken(linear: np.ndarray, truth: pd.DataFrame, move: tuple[float, float, float]
+            ) -> tuple[np.ndarray, pd.DataFrame]:
+    """The picture moved by ``(dx, dy, turn)`` (a turn about its centre [rad], then the shift [px]), and the truth's
+    pixels with it."""
+    h, w = linear.shape[:2]
+    dx, dy, turn = move
+    m = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), math.degrees(turn), 1.0) + np.array([[0, 0, dx],
+                                                                                                 [0, 0, dy]])
+    linear = cv2.warpAffine(linear, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    moved = m @ np.vstack([truth.x_px, truth.y_px, np.ones(len(truth))])
+    return linear, truth.assign(x_px=moved[0], y_px=moved[1])
 
 
 def photo_background(name: str | None, width_px: int, height_px: int, margin_px: int) -> np.ndarray:
@@ -288,18 +321,10 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
             centre = (margin + placed[0] + 0.8 * shift + (cam.width_px - 1) / 2,
                       margin + placed[1] + 0.6 * shift + (cam.height_px - 1) / 2)
             bg = cv2.getRectSubPix(photo, (cam.width_px, cam.height_px), centre) * style.background_level
-            light = 1.0 + style.flicker_fraction * math.sin(2 * math.pi * style.flicker_hz * t)
             alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
-            linear = (bg * (1.0 - alpha) + alpha * rgb) * light
+            linear = (bg * (1.0 - alpha) + alpha * rgb) * _light(style, t, cam.exposure_s, cam.height_px)
             if shake is not None:  # the camera turned a little: the whole picture moves (the truth's pixels with it)
-                dx, dy, turn = shake(t + cam.exposure_s / 2)
-                move = cv2.getRotationMatrix2D(((cam.width_px - 1) / 2, (cam.height_px - 1) / 2), math.degrees(turn),
-                                               1.0) + np.array([[0.0, 0.0, dx], [0.0, 0.0, dy]])
-                linear = cv2.warpAffine(linear, move, (cam.width_px, cam.height_px), flags=cv2.INTER_LINEAR,
-                                        borderMode=cv2.BORDER_REPLICATE)
-                moved = move @ np.vstack([truth.x_px, truth.y_px, np.ones(len(truth))])
-                truth = truth.assign(x_px=moved[0], y_px=moved[1])
-                truths[-1] = truth
+                linear, truths[-1] = _shaken(linear, truth, shake(t + cam.exposure_s / 2))
             electrons = rng.poisson(np.clip(linear, 0.0, 1.0) * style.full_well_e).astype(np.float32)
             electrons += rng.normal(0.0, style.read_noise_e, electrons.shape).astype(np.float32)
             value = _encoded(np.clip(electrons / style.full_well_e, 0.0, 1.0), style)
