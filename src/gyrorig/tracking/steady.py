@@ -23,6 +23,7 @@ too).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,8 +121,9 @@ class CameraWatch:
         self.samples: list[tuple] = []  # (frame, dx, dy, scale, roll, residuals, weights, covariance): _similarity
         self.last = (0.0, 0.0)
         self.turn = (0.0, 0.0)
-        self.misses: list[float] = []  # how far each fiducial kept was from the others' fit [px]
-        self.variances: list[float] = []  # each fiducial fit's own variance per axis [px^2]
+        #: how far each fiducial kept lately was from the others' fit [px], and each fit's own variance [px^2]
+        self.misses: deque[float] = deque(maxlen=FIT_MEMORY)
+        self.variances: deque[float] = deque(maxlen=FIT_MEMORY)
         self.every = CHECK_EVERY
 
     def _miss_limit(self) -> float:
@@ -224,6 +226,8 @@ MAX_SIGMA_RATIO = 4.0
 TURN_OUTLIER_MIN_PX = 0.02
 TURN_OUTLIER_PX = 0.5
 TURN_OUTLIER_SAMPLES = 20
+#: the fiducials' latest misses and fit variances kept for those scales
+FIT_MEMORY = 500
 
 
 def _similarity_fit(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -243,7 +247,7 @@ def _moved_by(x: np.ndarray, r: np.ndarray) -> np.ndarray:
     return x[:2] + np.column_stack([x[2] * r[:, 0] - x[3] * r[:, 1], x[3] * r[:, 0] + x[2] * r[:, 1]])
 
 
-def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misses: list) -> tuple | None:
+def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misses) -> tuple | None:
     """The picture's move from the fiducials' ``m`` (k, 5): each one's place about their centre, its displacement and
     its fit's variance per axis.  With :data:`MIN_TURN_FIDUCIALS` or more, a shift, scale and turn
     ``d = t + (a I + b J) r`` (:func:`_similarity_fit`); with more, the fiducial the others' fit misses most (in its
@@ -266,8 +270,8 @@ def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misse
     if len(m) < 2:
         return None
     d = m[:, 2:4] - _moved_by(np.r_[0.0, 0.0, turn], m[:, :2])  # the shift under the turn held
-    m = m[np.hypot(d[:, 0] - np.median(d[:, 0]), d[:, 1] - np.median(d[:, 1])) <= OUTLIER_PX]
-    d = d[np.hypot(d[:, 0] - np.median(d[:, 0]), d[:, 1] - np.median(d[:, 1])) <= OUTLIER_PX]
+    near = np.hypot(d[:, 0] - np.median(d[:, 0]), d[:, 1] - np.median(d[:, 1])) <= OUTLIER_PX
+    m, d = m[near], d[near]
     if len(d) < 2:
         return None
     w = 1.0 / m[:, 4]
