@@ -59,12 +59,16 @@ def test_normal_speed_ends_of_a_steadily_precessing_top_are_found():
 def test_a_nodding_or_damped_top_in_the_original_file_has_no_end_off_pace(name):
     """Released from rest (cusps: the tip stops and starts every nod) or damped by eddy currents: in the original
     slow-motion file (every captured frame, 240 frames/s) the tip's pace varies, but no end is taken for one at
-    another pace (8x, or 4x for 120 frames/s)."""
+    another pace (8x, or 4x for 120 frames/s); nor where the tip leaves the view for the record's last 60 frames
+    (the top fallen: a run of lost frames, no pace at all)."""
     xyz = _tip(name, 240.0, 4.0)
     for ratio, every in ((8.0, 1), (4.0, 2)):
         sampled = xyz[::every]
         found = off_pace_ends(np.arange(len(sampled)), sampled, np.zeros(len(sampled), bool), ratio)
         assert not found.found, (ratio, found)
+    gone = np.arange(len(xyz)) >= len(xyz) - 60
+    found = off_pace_ends(np.arange(len(xyz)), np.where(gone[:, None], np.nan, xyz), gone, 8.0)
+    assert not found.found, found
 
 
 def test_a_gallery_copy_of_a_slow_motion_video_keeps_only_frames_at_their_times(tmp_path):

@@ -11,7 +11,7 @@ the middle, or (a motion too fast for the ends' pace to sample) is lost or off i
 one or two frames apart) are *fast* when the tip's direction turns more than ``sqrt(r)`` times the middle half's
 median step per frame; a prefix (or suffix) of the record in which fast steps and frames without a position
 (``missing``, ``outlier``) together outnumber the steps that are not fast, by :data:`MIN_EXCESS` or more and with at
-least :data:`MIN_FAST_STEPS` fast steps, is off pace.  Within the slowed middle a step is fast only where the
+least :data:`MIN_PLACED` frames with a position, is off pace.  Within the slowed middle a step is fast only where the
 tip's speed exceeds ``sqrt(r)`` times its median (a nutation's peak speed is about 1.4-1.6 times its median), so the
 check runs from ``r`` = :data:`MIN_RATIO` on.
 """
@@ -23,12 +23,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["OffPace", "off_pace_ends", "off_pace_rows", "MIN_RATIO", "MIN_EXCESS"]
+__all__ = ["OffPace", "off_pace_ends", "off_pace_rows", "MIN_RATIO", "MIN_EXCESS", "MIN_PLACED"]
 
 #: the least ratio of capture rate to container rate the check runs at
 MIN_RATIO = 3.0
-#: an end is off pace when its fast steps and lost frames outnumber its other steps by this many
+#: an end is off pace when its fast steps and lost frames outnumber its other steps by this many, and it holds this
+#: many frames with a position
 MIN_EXCESS = 3
+MIN_PLACED = 2
 #: steps between frames farther apart than this are not used (a chord across a gap understates the speed)
 MAX_STEP_FRAMES = 2
 
@@ -64,14 +66,18 @@ def _steps(frames: np.ndarray, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return b, 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0)) / gap
 
 
-def _end_rows(score: np.ndarray, margin: int) -> int:
+def _end_rows(score: np.ndarray, placed: np.ndarray, margin: int) -> int:
     """How many rows from the start form an off-pace end: the prefix of the largest summed ``score`` (+1 per fast
-    step or lost frame, -1 per other step) and ``margin`` rows more, if that sum reaches :data:`MIN_EXCESS`; else 0."""
+    step or lost frame, -1 per other step) and ``margin`` rows more, if that sum reaches :data:`MIN_EXCESS` and the
+    prefix holds :data:`MIN_PLACED` rows with a position (``placed``: a tip lost for a run of frames, as one leaving
+    the view, is no pace at all); else 0."""
     if not len(score):
         return 0
     total = np.cumsum(score)
     end = int(np.argmax(total))
-    return min(end + 1 + margin, len(score)) if total[end] >= MIN_EXCESS else 0
+    if total[end] < MIN_EXCESS or int(np.sum(placed[:end + 1])) < MIN_PLACED:
+        return 0
+    return min(end + 1 + margin, len(score))
 
 
 def off_pace_ends(frames, xyz, lost, ratio: float) -> OffPace:
@@ -96,8 +102,9 @@ def off_pace_ends(frames, xyz, lost, ratio: float) -> OffPace:
     score = lost.astype(float)
     score[at] = np.where(speed > math.sqrt(ratio) * pace, 1.0, -1.0)
     margin = math.ceil(math.sqrt(ratio))  # the ramp's last steps, shorter than sqrt(ratio) frames
-    head = _end_rows(score[: n // 2], margin)
-    tail = _end_rows(score[::-1][: n // 2], margin)
+    placed = np.all(np.isfinite(xyz), axis=1)
+    head = _end_rows(score[: n // 2], placed[: n // 2], margin)
+    tail = _end_rows(score[::-1][: n // 2], placed[::-1][: n // 2], margin)
 
     def ratio_of(rows: np.ndarray) -> float:
         inside = np.isin(at, rows)
