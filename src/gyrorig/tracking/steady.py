@@ -220,12 +220,12 @@ MIN_TURN_FIDUCIALS = 3
 #: pixel, which a fit of four parameters to four or five fiducials would take in for the most part (a fiducial
 #: partly covered whose fit says so weighs little anyway: the fits are weighted by their own errors)
 TURN_OUTLIER_SIGMAS = 4.0
-#: a fiducial whose fit's own error exceeds this many times the median of the fiducials' fits so far is left out (a
-#: spot partly covered, or with another spot on it: its fit says it is unsure, and a biased one drags the turn)
-MAX_SIGMA_RATIO = 4.0
 TURN_OUTLIER_MIN_PX = 0.02
 TURN_OUTLIER_PX = 0.5
 TURN_OUTLIER_SAMPLES = 20
+#: a fiducial whose fit's own error exceeds this many times the median of the fiducials' fits so far is left out (a
+#: spot partly covered, or with another spot on it: its fit says it is unsure, and a biased one drags the turn)
+MAX_SIGMA_RATIO = 4.0
 #: the fiducials' latest misses and fit variances kept for those scales
 FIT_MEMORY = 500
 
