@@ -115,6 +115,9 @@ class Camera:
     #: the rate the frames were captured at when the file stores them at another (slow motion: captured at 240,
     #: stored at 30); NaN: the file's own times are real times [frames/s]
     capture_fps: float = math.nan
+    #: how the pictures were scanned: "auto" (as the video file says), "progressive", or an interlaced camera's field
+    #: order, "top-field-first" or "bottom-field-first" (:mod:`gyrorig.tracking.fields`)
+    interlace: str = "auto"
 
     @property
     def gain_e_per_adu(self) -> float:
@@ -196,6 +199,7 @@ class Camera:
             "readout_time_s": self.readout_time_s,
             "psf_sigma_px": self.psf_sigma_px,
             "motion_blur_samples": self.motion_blur_samples,
+            **({"interlace": self.interlace} if self.interlace != "auto" else {}),
             "sensor": {"bit_depth": s.bit_depth, "full_well_e": s.full_well_e, "read_noise_e": s.read_noise_e,
                        "gain_e_per_adu": s.gain_e_per_adu, "background_e_per_s": s.background_e_per_s,
                        "gamma": s.gamma, **({"transfer": s.transfer} if s.transfer not in (None, "video") else {})},

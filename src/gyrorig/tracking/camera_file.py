@@ -17,6 +17,7 @@ import numpy as np
 from .. import _io
 from ..camera import INTRINSIC_PARAMETERS, Camera, Sensor
 from .errors import CameraFileError
+from .fields import INTERLACE_MODES
 from .transfer import TRANSFERS
 
 __all__ = ["load_camera"]
@@ -80,6 +81,9 @@ def _check_camera_values(path: Path, d: dict) -> None:
         raise CameraFileError(f"{path}: shutter = {d['shutter']!r}: allowed 'global', 'rolling'")
     if "readout_time_s" in d:
         _scalar(path, "readout_time_s", d["readout_time_s"], 0.0, hi=10.0)
+    if d.get("interlace", "auto") not in INTERLACE_MODES:
+        raise CameraFileError(f"{path}: interlace = {d['interlace']!r}: allowed "
+                              f"{', '.join(map(repr, INTERLACE_MODES))}")
     if "psf_sigma_px" in d:
         _scalar(path, "psf_sigma_px", d["psf_sigma_px"], 0.05, hi=100.0)
     sensor = d.get("sensor", {})
@@ -230,7 +234,8 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> Camera:
         psf_sigma_px=float(d.get("psf_sigma_px", 1.0)), sensor=known,
         motion_blur_samples=int(d.get("motion_blur_samples", 1)), intrinsics_covariance=cov_i,
         intrinsics_parameters=names or (), pose_covariance=cov_p, pose_points=points,
-        pose_recording=_pose_recording(path, d), capture_fps=float(d.get("capture_fps", np.nan)))
+        pose_recording=_pose_recording(path, d), capture_fps=float(d.get("capture_fps", np.nan)),
+        interlace=d.get("interlace", "auto"))
 
 
 def _pose_recording(path: Path, d: dict) -> str | None:

@@ -27,8 +27,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .errors import BadInputError, TrackingError
 from .decoding import _decoded_frames, _luma_levels
+from .errors import BadInputError, TrackingError
+from .fields import field_order_of
 from .transfer import transfer_of_video
 
 __all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "Clip", "Cut", "parse_cut", "as_source", "fingerprint",
@@ -72,6 +73,11 @@ class Frames:
     #: message)``, positions in the order delivered, ``end`` exclusive: up to the next key picture), filled when the
     #: stream has been read
     damaged: list[tuple[int, int, str]] = field(default_factory=list)
+    #: the field order (:data:`~gyrorig.tracking.fields.FIELD_ORDERS`) of a video whose decoder flags its pictures
+    #: interlaced; None: progressive, or not said
+    interlaced: str | None = None
+    #: the field order when these are the fields of interlaced pictures (:func:`~gyrorig.tracking.fields.field_frames`)
+    fields: str | None = None
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
         return self.items
@@ -174,7 +180,7 @@ class VideoFile:
                       _decoded_frames(container, stream, colour, types, turns=turns, problems=problems,
                                       damaged=damaged),
                       lossy=lossy, bit_depth=bits, frame_types=types, levels=levels, transfer=transfer,
-                      problems=problems, damaged=damaged)
+                      problems=problems, damaged=damaged, interlaced=field_order_of(first, stream))
 
     def _first_frame(self):
         """The stream's first decoded frame (None when it has none): what its display matrix and colour range say."""

@@ -12,7 +12,7 @@ import numpy as np
 from ..camera import Camera
 from .errors import BadInputError
 
-__all__ = ["FrameClock", "settle_timing", "check_frame_rate", "frame_interval_stats", "TIME_SNAP_FRAMES",
+__all__ = ["FrameClock", "settle_timing", "check_frame_rate", "frame_interval_stats", "checked_frame_times", "TIME_SNAP_FRAMES",
            "MIN_PLAUSIBLE_FPS", "RATE_CHECK_FRAMES", "RATE_MISMATCH_SHARE", "FPS_TOLERANCE", "VARIABLE_RATE_JITTER"]
 
 logger = logging.getLogger(__name__)
@@ -155,3 +155,17 @@ def frame_interval_stats(t_s: np.ndarray, fps: float) -> dict:
     if problems:
         out["warning"] = "; ".join(problems)
     return out
+
+
+def checked_frame_times(clock: FrameClock, camera: Camera, time_scale: float, source, fields: str | None = None
+                        ) -> dict:
+    """The frame intervals measured against the camera's rate (:func:`frame_interval_stats`, with the time scale,
+    the renumbering and, for an interlaced video read field by field, its field order); a warning when they
+    disagree."""
+    times = frame_interval_stats(np.asarray(clock.times), camera.fps)
+    if times:
+        times.update(time_scale=time_scale, renumbered_frames=clock.renumbered,
+                     capture_fps=camera.capture_fps if math.isfinite(camera.capture_fps) else None, fields=fields)
+    if not times.get("agrees_with_camera", True):
+        logger.warning("%s: %s", source, times["warning"])
+    return times

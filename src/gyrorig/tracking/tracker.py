@@ -45,11 +45,12 @@ from .transfer import settle_transfer
 from .follow import ANCHOR_FRAMES, SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
+from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
 from .rays import angle_covariances, angles_with_covariance
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
-from .timing import FrameClock, check_frame_rate, frame_interval_stats, settle_timing
+from .timing import FrameClock, check_frame_rate, checked_frame_times, frame_interval_stats, settle_timing
 from .sources import as_source, fingerprint, prepended
 from .pace import off_pace_rows
 from .spot import SpotFit
@@ -457,27 +458,26 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
           frame_dots: bool = True, watch_camera: bool = True) -> TrackResult:
     """Track the tip marker through a video (a path, or a frame source of :mod:`gyrorig.tracking.sources`).
 
-    With ``frame_dots`` (and frame-fixed dots off the axis in the protocol, like the crossbar)
-    these are tracked too: their detections go to ``markers`` and the frame's angle about the
-    axis to ``angles`` (``psi_rad, psi_sigma_rad``; modulo pi for a symmetric pair).  Frame
-    numbers come from the container's timestamps on camera.json's frame rate (frames a camera dropped
-    are gaps; a variable rate's frames keep their order and own times; a slow-motion file's times are
-    scaled by its rate over ``camera.capture_fps``); a frame identical to the one before is marked
-    ``duplicate``.  Frames are read at the video's own bit depth.  Reads only the video, the camera and
-    the protocol's markers.  With ``watch_camera`` (and lab fiducials in the protocol) the camera's own motion is
-    followed on the fiducials and taken off the tip (:mod:`gyrorig.tracking.steady`); without it (a rough pose, which
-    puts the fiducials where they are not) it is not looked for.
-
-    Raises :class:`TrackingError` for an unreadable video, a camera that does not match the
-    video, or a tip that is never found.
+    With ``frame_dots`` (and frame-fixed dots off the axis in the protocol, like the crossbar) these are tracked
+    too: their detections go to ``markers`` and the frame's angle about the axis to ``angles`` (``psi_rad,
+    psi_sigma_rad``; modulo pi for a symmetric pair).  Frame numbers come from the container's timestamps on
+    camera.json's frame rate (frames a camera dropped
+    are gaps; a variable rate's frames keep their order and own times; a slow-motion file's times are scaled by its
+    rate over ``camera.capture_fps``; an interlaced video's fields are frames, :mod:`~gyrorig.tracking.fields`); a
+    frame identical to the one before is marked ``duplicate``.  Frames are read at the video's own bit depth.  With
+    ``watch_camera`` (and lab fiducials in the protocol) the camera's own motion is followed on the fiducials and
+    taken off the tip (:mod:`gyrorig.tracking.steady`); not with a rough pose (it puts the fiducials where they are
+    not).  Raises :class:`TrackingError` for an unreadable video, a camera that does not match the video, or a tip
+    that is never found.
     """
     markers, tip = _markers_and_tip(protocol)  # parsed once per call
-    source = as_source(video)
+    source, given = as_source(video), camera
     pose_info = None
     if not camera.has_pose:
         camera, pose_info = estimate_pose(source, camera, protocol, markers=markers)
     camera = _protocol_exposure(camera, protocol)
     with source.open(colour=tip.colour != "any") as frames:
+        frames, camera = read_as_fields(frames, camera, source)
         camera, time_scale = settle_timing(camera, frames, source)
         camera = _matched(camera, frames, source)
         lossy = frames.lossy
@@ -537,33 +537,31 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
     source_problems += _said(source, appearance.drift_caveat(tip, frame_types.values()) if lossy else "")
     if not angles.theta_rad.notna().any():
-        look = follower.first_look
-        why = "" if look is None else "; in the first frame searched " + (", ".join(
-            f"{n} {reason}" for reason, n in look.reasons().items()) or "no spot stood out from its surroundings")
-        raise TrackingError(f"{source}: the tip marker was never found in {k} frames{why}", first_look=look)
+        raise _never_found(follower, source, k)
+    again, said = judged_fields(frames, camera, angles.frame.to_numpy(), rows.tip_px, rows.tip_cov, source)
+    if again:
+        return track(video, replace(given, interlace=again), protocol, progress=progress, frame_dots=frame_dots,
+                     watch_camera=watch_camera)
     doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
     check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2])
-    source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source)
+    source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source) + said
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
                                      pose_info or camera.pose_points, own_pose)
     if progress:
         progress(k, k)
-    times = _frame_times(clock, camera, time_scale, source)
+    times = checked_frame_times(clock, camera, time_scale, source, frames.fields)
     return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
                        pose_info, camera_sigma, check, times, motion, source_problems)
 
 
-def _frame_times(clock, camera: Camera, time_scale: float, source) -> dict:
-    """The frame intervals measured against the camera's rate (:func:`frame_interval_stats`, with the time scale
-    and renumbering applied); a warning when they disagree."""
-    times = frame_interval_stats(np.asarray(clock.times), camera.fps)
-    if times:
-        times.update(time_scale=time_scale, renumbered_frames=clock.renumbered,
-                     capture_fps=camera.capture_fps if math.isfinite(camera.capture_fps) else None)
-    if not times.get("agrees_with_camera", True):
-        logger.warning("%s: %s", source, times["warning"])
-    return times
+def _never_found(follower: TipFollower, source, decoded: int) -> TrackingError:
+    """The error for a record in which the tip was never found, with why each candidate of the first frame searched
+    was refused."""
+    look = follower.first_look
+    why = "" if look is None else "; in the first frame searched " + (", ".join(
+        f"{n} {reason}" for reason, n in look.reasons().items()) or "no spot stood out from its surroundings")
+    return TrackingError(f"{source}: the tip marker was never found in {decoded} frames{why}", first_look=look)
 
 
 def _source_problems(frames, decoded: int, source, rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame
