@@ -110,21 +110,33 @@ def _errors(res, truth_csv, picture_rate: bool = False):
 
 @pytest.mark.parametrize("order", ["top-field-first", "bottom-field-first"])
 def test_an_interlaced_video_is_tracked_field_by_field(tmp_path, field_rate_render, order):
-    """A 25-picture/s interlaced file of a 50-field/s camera: every field an image at its own time.  At least 80 %
+    """A 25-picture/s interlaced file of a 50-field/s camera: every field an image at its own time.  At least 95 %
     of the fields with the tip visible tracked (read as pictures, the tip's two half-images a few pixels apart were
-    no spot: 2 of 50 pictures; the progressive 50/s render itself: 41 of 50, the tip released from rest outrunning
-    the follower in its first nods), each at its field's time, none beyond 5 sigma flagged ok, the record says it
-    read fields in the file's order."""
+    no spot: 2 of 50 pictures), each at its field's time, none beyond 5 sigma flagged ok, the record says it read
+    fields in the file's order."""
     user, rendered, pictures = field_rate_render
     video = _interlaced(tmp_path / "interlaced.mp4", pictures, order)
     camera = replace(load_camera(rendered["camera"]), fps=FIELD_FPS / 2)  # the camera's picture rate, as its menu says
     res = track(video, camera, parse_protocol(user))
     visible, found, e_th, e_ph = _errors(res, rendered["truth"])
     assert res.frame_times["fields"] == order and res.frames == len(pictures)
-    assert len(found) >= 0.8 * len(visible)
+    assert len(found) >= 0.95 * len(visible)
     np.testing.assert_allclose(found.t_s, found.t_marker_s_true, atol=1e-3)
     wrong = (e_th.abs() > 5) | (e_ph.abs() > 5)
     assert not (wrong & (found.quality == "ok")).any()
+
+
+def test_a_fast_nod_at_50_frames_per_second_keeps_its_frames(field_rate_render):
+    """The field-rate render itself, progressive at 50 frames/s: the tip released from rest gathers speed before the
+    follower has seen it accelerate, then nods by up to 12 px per frame, crossing a bright patch of the photograph;
+    the path through six neighbours cannot follow it.  Before: 41 of 50 frames tracked (the first steps outran the
+    gate, the tip joined to the patch was no candidate) and the frames at the nod's turns left out as outliers (31
+    of 100 on a 1280x720 render).  Now at least 48 of 50, none left out as an outlier, none beyond 5 sigma."""
+    user, rendered, pictures = field_rate_render
+    res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user))
+    visible, found, e_th, e_ph = _errors(res, rendered["truth"])
+    assert len(found) >= 0.95 * len(visible) and not (res.angles.quality == "outlier").any()
+    assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 
 def test_progressive_pictures_stored_as_interlaced_are_found_and_tracked_as_pictures(tmp_path, field_rate_render):

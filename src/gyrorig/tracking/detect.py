@@ -24,6 +24,8 @@ __all__ = ["Detection", "Blob", "find_blobs", "stands_out", "detection_threshold
 THRESHOLD_SIGMAS = 5.0
 #: ... but at most this fraction of the frame's highest local contrast
 PEAK_FRACTION = 0.5
+#: a blob wider than the widest spot looked for, after its cut at half its peak, is cut again at this fraction of it
+SECOND_CUT = 0.75
 
 
 @dataclass(frozen=True)
@@ -60,10 +62,12 @@ def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
 
 
 def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_px: float, out: list,
-                split_above: float | None) -> None:
+                split_above: float | None, max_radius_px: float = math.inf, cut: float = 0.5) -> None:
     """The blobs of ``mask`` (in window coordinates offset by ``x0, y0``), appended to ``out``.  A large blob
     whose peak contrast exceeds ``split_above`` is cut again at half its peak (a bright spot joined to a
-    texture's faint network, a mortar line or a rim, by a low threshold stands apart at half its height)."""
+    texture's faint network, a mortar line or a rim, by a low threshold stands apart at half its height); a blob
+    still wider than ``max_radius_px`` (its inscribed circle) is cut once more at :data:`SECOND_CUT` of its peak (a
+    spot joined to a bright patch of the scene that stands out half as much)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     min_area = max(3.0, math.pi * min_radius_px * min_radius_px)
     for i in range(1, n):
@@ -75,12 +79,18 @@ def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_
         values = sub[by:by + bh, bx:bx + bw]
         peak = float(values[own].max())
         if split_above is not None and peak > split_above and stats[i, cv2.CC_STAT_AREA] > 4 * min_area + 50:
-            _components(values, own & (values > 0.5 * peak), x0 + bx, y0 + by, min_radius_px, out, None)
+            _components(values, own & (values > cut * peak), x0 + bx, y0 + by, min_radius_px, out, None,
+                        max_radius_px, cut)
             continue
         blob = np.pad(own.astype(np.uint8), 1)
         dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
         iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
-        out.append(Blob(float(bx + ix - 1 + x0), float(by + iy - 1 + y0), float(dist[iy, ix]) + 0.5, peak))
+        radius = float(dist[iy, ix]) + 0.5
+        if radius > max_radius_px and cut < SECOND_CUT:
+            _components(values, own & (values > SECOND_CUT * peak), x0 + bx, y0 + by, min_radius_px, out, None,
+                        max_radius_px, SECOND_CUT)
+            continue
+        out.append(Blob(float(bx + ix - 1 + x0), float(by + iy - 1 + y0), radius, peak))
 
 
 def detection_threshold(image: np.ndarray, scale_px: int, *, floor: float = 4.0) -> Detection:
@@ -96,7 +106,7 @@ def detection_threshold(image: np.ndarray, scale_px: int, *, floor: float = 4.0)
 
 
 def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold: Detection | float, *,
-               min_radius_px: float = 0.0) -> list[Blob]:
+               min_radius_px: float = 0.0, max_radius_px: float = math.inf) -> list[Blob]:
     """Spots in the window ``[x0, x1) x [y0, y1)``, brightest first: each blob's largest inscribed circle and
     its peak contrast.
 
@@ -106,7 +116,8 @@ def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold:
     of the largest disc in a blob, so a spot merged with a smaller neighbour still starts the fit at the
     right place.  Blobs of fewer than 3 pixels are ignored, and those too small to hold a disc of
     ``min_radius_px`` (by area or by extent: a texture's specks and lines).  A large contrast blob whose peak
-    is more than twice the threshold is cut again at half its peak (:func:`_components`).
+    is more than twice the threshold is cut again at half its peak, and one still wider than ``max_radius_px`` once
+    more higher up (:func:`_components`).
     """
     h, w = image.shape
     if isinstance(threshold, Detection):
@@ -123,7 +134,8 @@ def find_blobs(image: np.ndarray, x0: int, y0: int, x1: int, y1: int, threshold:
         return []
     out: list[Blob] = []
     # contrast blobs twice the threshold are split at half their peak; raw levels are not (a background under them)
-    _components(sub, sub > level, x0, y0, min_radius_px, out, 2.0 * level if isinstance(threshold, Detection) else None)
+    _components(sub, sub > level, x0, y0, min_radius_px, out, 2.0 * level if isinstance(threshold, Detection) else None,
+                max_radius_px)
     out.sort(key=lambda b: -b.peak)
     return out
 

@@ -330,12 +330,14 @@ class TipFollower:
         return None if centre is None else replace(fit, x_px=centre[0], y_px=centre[1])
 
     def _prediction(self) -> tuple[np.ndarray, float]:
-        """The predicted position (constant velocity, coasting over missed frames) and the motion gate [px]."""
+        """The predicted position (constant velocity, coasting over missed frames) and the motion gate [px]: at least
+        the tip's radius per frame while no acceleration has been seen (a top released from rest gathers speed)."""
         p = np.array(self.last)
         v = p[-1] - p[-2] if len(p) >= 2 else np.zeros(2)
         acc = max((float(np.linalg.norm(p[k + 1] - 2 * p[k] + p[k - 1])) for k in range(1, len(p) - 1)), default=0.0)
         steps = 1 + self.misses
         gate = MIN_GATE_PX + 0.5 * float(np.linalg.norm(v)) * steps + 2.0 * acc * steps * steps
+        gate = max(gate, MIN_GATE_PX + self.r_expected * steps) if len(p) < 3 else gate  # no acceleration seen
         fast = self._fast_speed()
         return p[-1] + v * steps, max(gate, MIN_GATE_PX + 2.0 * fast * steps)
 
@@ -368,15 +370,14 @@ class TipFollower:
         # a tilted disc's inscribed circle is its minor semi-axis: accept down to a steep view of it
         lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
         smallest = 0.0 if refused is not None else max(lo - 1.0, 0.0)  # a first look records the small ones too
-        if centre is None:
-            blobs = find_blobs(frame, 0, 0, w, h, threshold, min_radius_px=smallest)
-        else:
-            x0, y0 = max(int(centre[0]) - reach, 0), max(int(centre[1]) - reach, 0)
-            blobs = find_blobs(frame, x0, y0, min(int(centre[0]) + reach, w), min(int(centre[1]) + reach, h),
-                               threshold, min_radius_px=smallest)
+        widest = 1.6 * self.r_expected
+        x0, y0, x1, y1 = (0, 0, w, h) if centre is None else (
+            max(int(centre[0]) - reach, 0), max(int(centre[1]) - reach, 0), min(int(centre[0]) + reach, w),
+            min(int(centre[1]) + reach, h))
+        blobs = find_blobs(frame, x0, y0, x1, y1, threshold, min_radius_px=smallest, max_radius_px=widest)
         out = []
         for c in blobs:
-            why = Verdict.SIZE if not lo <= c.r <= 1.6 * self.r_expected else self._verdict(c.x, c.y, c.r)
+            why = Verdict.SIZE if not lo <= c.r <= widest else self._verdict(c.x, c.y, c.r)
             if why is None:
                 out.append(c)
             elif refused is not None and len(refused) < MAX_RECORDED:

@@ -39,6 +39,9 @@ HALF_WINDOW = 3
 MAX_SPAN = 2 * HALF_WINDOW + 4
 #: a frame whose residual exceeds this many of its (scaled) standard deviations is an outlier
 OUTLIER_Z = 5.0
+#: a path that leaves more than this share of the checked frames off it does not follow the motion (a frame rate
+#: too low for it: the frames near each turn of the path off it together), whatever its residuals' correlations say
+MAX_OUTLIER_SHARE = 0.1
 
 
 #: the residuals' correlations from frame to frame are compared at lags 1 to this
@@ -332,6 +335,7 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     floor_px, floor_se = _root(tau2, tau2_se)
     shared_px, shared_se = _root(kappa2, kappa2_se)
     acf, smooth = _path_follows(centres, z)
+    smooth = smooth and len(outliers) <= MAX_OUTLIER_SHARE * (len(centres) + len(outliers))
     if follow_motion and not smooth and math.isnan(omega_rad_s):
         omega = motion_frequency(t_s[active], frames[active], xy[active])
         try:
