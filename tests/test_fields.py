@@ -141,7 +141,9 @@ def test_a_fast_nod_at_50_frames_per_second_keeps_its_frames(field_rate_render):
 
 def test_progressive_pictures_stored_as_interlaced_are_found_and_tracked_as_pictures(tmp_path, field_rate_render):
     """A 25p camera storing its pictures in a 50i stream (PsF): the file flags them interlaced, but the tip does not
-    move between a picture's fields; the record is tracked again as pictures, at the pictures' times."""
+    move between a picture's fields; the record is tracked again as pictures, at the pictures' times.  At 25
+    pictures/s no path through six neighbours follows the nod: the errors stay the spot fits' own (before, the
+    residuals, 4 px, were taken for the codec's floor and every error scaled by 68: pull SDs 0.01-0.02)."""
     user, rendered, pictures = field_rate_render
     video = _interlaced(tmp_path / "psf.mp4", pictures, "top-field-first", progressive=True)
     camera = replace(load_camera(rendered["camera"]), fps=FIELD_FPS / 2)
@@ -152,6 +154,7 @@ def test_progressive_pictures_stored_as_interlaced_are_found_and_tracked_as_pict
     np.testing.assert_allclose(found.t_s, found.t_marker_s_true, atol=1e-3)
     wrong = (e_th.abs() > 5) | (e_ph.abs() > 5)
     assert not (wrong & (found.quality == "ok")).any()
+    assert not res.sigma_check.smooth_path and min(e_th[~wrong].std(), e_ph[~wrong].std()) > 0.5
 
 
 def test_a_field_order_stated_against_the_tips_path_is_said(tmp_path, field_rate_render):

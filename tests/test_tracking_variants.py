@@ -20,12 +20,14 @@ import pytest
 from _stats import sd_ratio_band
 from test_tracking import gray_frames
 from gyrorig.bench.variants import track_variant, variant_protocols
+from gyrorig.montecarlo import scene_protocol
+from gyrorig.physics import exact_solution, simulate
 from gyrorig.protocols import parse_protocol
 from gyrorig.render import render_video
 from gyrorig.camera import Camera, Sensor
 from gyrorig.tracking import FrameArrays, load_camera, track
 from gyrorig.tracking.ellipse import DiscGeometry, disc_image, fit_ellipse_spot
-from gyrorig.tracking.scatter import NOISE_ACF, check_sigmas
+from gyrorig.tracking.scatter import NOISE_ACF, check_sigmas, motion_frequency
 
 
 @pytest.mark.parametrize("name", ["disc", "disc-mp4", "plain-top", "dim-tip"])
@@ -294,15 +296,30 @@ def test_track_overlay_shows_the_chosen_frames(tmp_path):
 def test_a_path_that_leaves_many_frames_off_it_does_not_follow_the_motion():
     """The tip's pixel track as the tracker checked it on a 1280x720 render at 50 frames/s (the air-cushion top
     nodding with cusps, up to 12 px per frame; stored losslessly; ``tests/data/heavy_top_50fps_1280x720_tip_track.csv``
-    holds what the check was given, and the renderer's truth).  The path through six neighbours misses the frames at
-    every turn of the nod, and taking them out one by one left too few neighbours for its residuals' correlations to
-    show it: 35 of 98 frames were called outliers, every one within 2.7 of its own sigmas of the truth.  A path that
-    leaves more than a tenth of the frames off it is a path that does not follow the motion."""
+    holds what the check was given, and the renderer's truth).  The polynomial path through six neighbours misses
+    the frames at every turn of the nod, and taking them out one by one left too few neighbours for its residuals'
+    correlations to show it: 35 of 98 frames were called outliers, every one within 2.7 of its own sigmas of the
+    truth.  A path that leaves more than a tenth of the frames off it is a path that does not follow the motion (the
+    tracker then tries the nod's own frequency: :func:`motion_frequency`)."""
     track = pd.read_csv(Path(__file__).parent / "data" / "heavy_top_50fps_1280x720_tip_track.csv")
     xy = track[["x_px", "y_px"]].to_numpy()
     var = track[["var_x_px2", "var_y_px2"]].to_numpy()
-    check = check_sigmas(track.t_s, track.frame, xy, var, track["class"].to_numpy(), floor=True, min_factor=1.0,
-                         follow_motion=True)
+    check = check_sigmas(track.t_s, track.frame, xy, var, track["class"].to_numpy(), floor=True, min_factor=1.0)
     truth_z = np.abs(xy - track[["x_true_px", "y_true_px"]].to_numpy()) / np.sqrt(var)
-    off = truth_z.max(axis=1) > 5.0
-    assert not check.smooth_path or all(off[i] for i in check.outliers)
+    assert truth_z.max() < 5.0 and len(check.outliers) > 0.1 * len(track) and not check.smooth_path
+
+
+def test_the_nods_frequency_is_found_beyond_the_periodograms_first_peaks():
+    """4 s of the simulator's nodding top seen at 50 frames/s (its precession circle, 35 px of radius, on the track;
+    0.03 px of noise): a quadratic does not take the precession off over 4 s, and its leakage makes the
+    periodogram's strongest peaks below the nod's (the nod's was the sixth).  The sinusoid that leaves the least
+    scatter about the path is the nod's: within 4 % of the exact solution's nutation frequency (the periodogram's
+    grid is 0.28 rad/s apart and the projection's harmonics pull it)."""
+    protocol = scene_protocol("air-cushion-heavy-top")
+    t_s = np.arange(200) / 50.0
+    traj = simulate(protocol, t_eval_s=t_s)
+    th, ph = traj.theta_rad.to_numpy(), traj.phi_rad.to_numpy()
+    xy = 640 + 250 * np.column_stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph)])
+    xy += np.random.default_rng(0).normal(0.0, 0.03, xy.shape)
+    nod = exact_solution(protocol).nutation_frequency_rad_s
+    assert motion_frequency(t_s, np.arange(200), xy) == pytest.approx(nod, rel=0.04)

@@ -147,9 +147,10 @@ def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray, omega_rad
 NOISE_ACF = _noise_acf()
 
 #: a sinusoid in the path's basis is looked for between these turns per frame (below, the polynomial follows it;
-#: above, the frames no longer sample it), among this many of the track's strongest periodogram peaks
+#: above, the frames no longer sample it), among this many of the track's strongest periodogram peaks (over a few
+#: seconds the precession's arc leaks past the quadratic taken off, and the nod's peak can be the sixth)
 SINUSOID_TURN_RANGE = (0.3, 2.5)
-SINUSOID_PEAKS = 5
+SINUSOID_PEAKS = 12
 
 
 def _sinusoid_weights(tau: np.ndarray, omega_rad_s: float) -> np.ndarray:
@@ -296,7 +297,8 @@ def _variance_model(t_s, frames, xy, var, active, labels, floor: bool, min_facto
 
 
 def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min_factor: float = 0.0,
-                 groups=None, omega_rad_s: float = math.nan, follow_motion: bool = False) -> SigmaCheck:
+                 groups=None, omega_rad_s: float = math.nan, follow_motion: bool = False,
+                 largest_error_px: float = math.inf) -> SigmaCheck:
     """Compare the reported errors with the scatter about the path (module docstring); outliers removed
     one at a time (the worst first, since its residual also reaches its neighbours' predictions).
 
@@ -309,7 +311,10 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     two) is found beside them (:attr:`SigmaCheck.shared_px`).  ``omega_rad_s``: the path holds a sinusoid of
     that angular frequency (:func:`_stencils`); with ``follow_motion``, when the polynomial path cannot follow the
     motion (:attr:`SigmaCheck.smooth_path` false) the check is made again through the sinusoid of
-    :func:`motion_frequency` and that one is returned if its path follows the motion."""
+    :func:`motion_frequency` and that one is returned if its path follows the motion.  A path does not follow the
+    motion either when it leaves more than :data:`MAX_OUTLIER_SHARE` of the frames off it, or when its residuals
+    put the frames' error above ``largest_error_px`` (the worst a position can be known and still be taken for the
+    tip's: residuals that large are the motion's, not the spots')."""
     t_s, frames = np.asarray(t_s, float), np.asarray(frames, int)
     xy, var = np.asarray(xy, float), np.asarray(var, float)
     active = np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(var) & (var > 0), axis=1)
@@ -335,12 +340,13 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     floor_px, floor_se = _root(tau2, tau2_se)
     shared_px, shared_se = _root(kappa2, kappa2_se)
     acf, smooth = _path_follows(centres, z)
-    smooth = smooth and len(outliers) <= MAX_OUTLIER_SHARE * (len(centres) + len(outliers))
+    smooth = (smooth and len(outliers) <= MAX_OUTLIER_SHARE * (len(centres) + len(outliers))
+              and not _path_error_px(t_s, frames, xy, active, omega_rad_s) > largest_error_px)
     if follow_motion and not smooth and math.isnan(omega_rad_s):
         omega = motion_frequency(t_s[active], frames[active], xy[active])
         try:
             retried = check_sigmas(t_s, frames, xy, var, classes, floor=floor, min_factor=min_factor, groups=groups,
-                                   omega_rad_s=omega) if math.isfinite(omega) else None
+                                   omega_rad_s=omega, largest_error_px=largest_error_px) if math.isfinite(omega) else None
         except np.linalg.LinAlgError:  # a stencil of the frames left after the outliers on which the basis is singular
             retried = None
         if retried is not None and retried.smooth_path:
@@ -348,6 +354,16 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
                       floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se,
                       residual_acf=acf, smooth_path=smooth, omega_rad_s=omega_rad_s)
+
+
+def _path_error_px(t_s, frames, xy, active, omega_rad_s: float) -> float:
+    """The per-frame error [px] the residuals about the path imply on their own (their mean square over the
+    stencils' mean noise gain ``1 + sum w^2``), whatever errors were reported."""
+    idx, nb, w = _stencils(t_s, frames, active, omega_rad_s)
+    if len(idx) == 0:
+        return math.nan
+    r = xy[idx] - np.einsum("mj,mjk->mk", w, xy[nb])
+    return math.sqrt(float(np.mean(r * r)) / float(np.mean(1.0 + np.sum(w * w, axis=1))))
 
 
 def _path_follows(centres: np.ndarray, z: np.ndarray) -> tuple[tuple, bool]:

@@ -42,7 +42,7 @@ from ..camera import Camera
 from .detect import Detection, detection_threshold, opening_size_px
 from .appearance import MarkerImage
 from .transfer import settle_transfer
-from .follow import ANCHOR_FRAMES, SIZE_RANGE, TipFollower
+from .follow import ANCHOR_FRAMES, MAX_SIGMA_RADII, SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .fields import judged_fields, read_as_fields
@@ -265,7 +265,7 @@ def _sensor_doubts(camera: Camera, lossy: bool, follower: TipFollower) -> str:
 
 
 def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, lossy: bool,
-                     tip_name: str, camera: Camera, length_m: float) -> SigmaCheck:
+                     tip_name: str, camera: Camera, length_m: float, largest_error_px: float) -> SigmaCheck:
     """Check the tip's errors against its scatter about its path (:mod:`gyrorig.tracking.scatter`), for
     blended frames and the rest apart, and correct them where the check shows them wrong; turn the outliers into
     ``outlier`` rows without angles.
@@ -294,7 +294,7 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
     floor = lossy or not math.isfinite(camera.gain_e_per_adu)
     path = (angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index], np.array([rows.tip_px[r] for r in index]))
     check = check_sigmas(*path, var, classes, floor=floor, min_factor=1.0 if doubts else 0.0, groups=runs,
-                         follow_motion=True)
+                         follow_motion=True, largest_error_px=largest_error_px)
     if not math.isfinite(check.factor):
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
     if not check.smooth_path:
@@ -543,7 +543,8 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         return track(video, replace(given, interlace=again), protocol, progress=progress, frame_dots=frame_dots,
                      watch_camera=watch_camera)
     doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
-    check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2])
+    check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2],
+                             MAX_SIGMA_RADII * follower.r_expected)
     source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source) + said
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
