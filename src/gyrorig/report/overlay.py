@@ -119,7 +119,7 @@ def write_overlay(video, angles: pd.DataFrame, markers: pd.DataFrame, path: str 
 def write_first_look(look, path: str | Path, title: str = "") -> Path:
     """The first frame the tracker searched, every spot that stood out in it circled in the colour of what
     became of it (legend: the verdicts and their counts), written atomically to ``path`` (PNG)."""
-    from ..tracking.follow import Verdict
+    from ..tracking.first_look import Verdict
 
     colours = {Verdict.TAKEN: "lime", Verdict.WITH_SCENE: "orange", Verdict.UNCONFIRMED: "yellow", Verdict.SHAPE: "red",
                Verdict.NOT_ALIKE: "red", Verdict.NO_FIT: "magenta", Verdict.SIZE: "cyan",

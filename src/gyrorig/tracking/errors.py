@@ -9,7 +9,7 @@ class TrackingError(RuntimeError):
     """The video cannot be tracked (unreadable, camera mismatch, marker never found).
 
     ``first_look``: when the tip was never found, the first frame searched and every spot that stood out in
-    it with the reason it was refused (:class:`gyrorig.tracking.follow.FirstLook`; None otherwise)."""
+    it with the reason it was refused (:class:`gyrorig.tracking.first_look.FirstLook`; None otherwise)."""
 
     def __init__(self, *args, first_look=None):
         super().__init__(*args)

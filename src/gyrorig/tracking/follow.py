@@ -39,7 +39,6 @@ import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, replace
-from enum import Enum
 
 import cv2
 import numpy as np
@@ -48,6 +47,7 @@ from ..markers import Marker
 from ..camera import Camera
 from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
+from .first_look import MAX_RECORDED, Candidate, FirstLook, Verdict
 from .rays import tip_from_pixel
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
@@ -136,67 +136,6 @@ def _lab_images(camera: Camera, markers: tuple[Marker, ...]) -> list[tuple[float
     return out
 
 
-class Verdict(str, Enum):
-    """What became of a spot that stood out in the first frame searched."""
-
-    SIZE = "not the tip's size"
-    LAB_MARKER = "a lab marker"
-    OFF_SPHERE = "out of the tip's reach"
-    NOT_FITTED = "fainter than the candidates fitted"
-    NO_FIT = "no spot fit"
-    SHAPE = "fitted, not the tip's shape or size"
-    NOT_ALIKE = "fitted, unlike the tip before it was lost"
-    UNCONFIRMED = "not found again in the next frame"
-    WITH_SCENE = "moved with the scene"
-    TAKEN = "taken for the tip"
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """A spot of the first frame searched: its centre and radius [px] and its :class:`Verdict`."""
-
-    x_px: float
-    y_px: float
-    radius_px: float
-    verdict: Verdict
-
-
-#: the first look records at most this many spots
-MAX_RECORDED = 60
-
-
-@dataclass
-class FirstLook:
-    """The first frame the follower searched, the detection threshold, and every spot that stood out in it."""
-
-    frame: np.ndarray
-    threshold: Detection
-    candidates: list
-    #: the tip's image radius the protocol and camera predict (upright) [px]
-    expected_radius_px: float
-    settled: bool = False
-
-    def settle(self, fits: list, near: list, kept: list) -> None:
-        """The next frame's verdict on the first frame's fitted candidates (``fits``; ``near``: the pairs that
-        found them again, ``kept``: the one taken): taken, moved with the scene, or not found again."""
-        chosen = {id(p[4]) for p in kept}
-        confirmed = {id(p[4]) for p in near}
-        by_fit = {(f.x_px, f.y_px): f for f in fits}
-        for k, c in enumerate(self.candidates):
-            f = by_fit.get((c.x_px, c.y_px))
-            if c.verdict is Verdict.UNCONFIRMED and f is not None:
-                v = Verdict.TAKEN if id(f) in chosen else Verdict.WITH_SCENE if id(f) in confirmed else c.verdict
-                self.candidates[k] = replace(c, verdict=v)
-        self.settled = True
-
-    def reasons(self) -> dict[str, int]:
-        """How many spots had each verdict."""
-        out: dict[str, int] = {}
-        for c in self.candidates:
-            out[c.verdict.value] = out.get(c.verdict.value, 0) + 1
-        return out
-
-
 def scene_shift(before: np.ndarray | None, after: np.ndarray) -> np.ndarray | None:
     """How the scene moved between two frames [px] (phase correlation of the frames downsampled to at most
     :data:`REGISTER_WIDTH_PX`, Hann-windowed), or None when there is no frame before or the scene has too little
@@ -232,6 +171,10 @@ class TipFollower:
         self.last: deque[tuple[float, float]] = deque(maxlen=4)  # accepted positions, latest last
         #: the tip's speed over each step between frames it was followed in [px/frame]
         self.speeds: deque[float] = deque(maxlen=SPEED_MEMORY)
+        #: the speed the last two reacquisitions implied (from where the tip was lost, over the frames between)
+        #: [px/frame], and the steps followed since the last
+        self.gap_speeds: deque[float] = deque(maxlen=2)
+        self.steps_since_gap = 0
         self.last_r = self.r_expected
         self.radii: deque[float] = deque(maxlen=15)
         self.amplitudes: deque[float] = deque(maxlen=15)
@@ -343,8 +286,10 @@ class TipFollower:
 
     def _fast_speed(self) -> float:
         """The tip's largest remembered speed [px/frame] when it exceeds the tip's radius per frame (see
-        :data:`SPEED_MEMORY`), else 0."""
-        fast = max(self.speeds, default=0.0)
+        :data:`SPEED_MEMORY`), else 0; a speed two reacquisitions in a row implied counts too (a tip too fast to be
+        followed between frames is found again only where it turns, and never seen to move fast)."""
+        gap = min(self.gap_speeds) if len(self.gap_speeds) == 2 and self.steps_since_gap < SPEED_MEMORY else 0.0
+        fast = max(max(self.speeds, default=0.0), gap)
         return fast if fast > self.r_expected else 0.0
 
     def _acceptable(self, fit: SpotFit | None, predicted: np.ndarray | None, gate: float) -> bool:
@@ -588,6 +533,9 @@ class TipFollower:
             return Located(None, "missing")
         earlier, self.pending, self.confirmed, self.earlier = self.earlier, [], None, ()
         quality = "reacquired" if self.had_lock else "ok"
+        if self.had_lock and self.lost_at is not None and self.since_lost > 0:
+            self.gap_speeds.append(math.hypot(fit.x_px - self.lost_at[0], fit.y_px - self.lost_at[1]) / self.since_lost)
+            self.steps_since_gap = 0
         for f in reversed(earlier):
             self._accept(f)
         self._accept(fit)
@@ -605,6 +553,7 @@ class TipFollower:
     def _accept(self, fit: SpotFit) -> None:
         if self.last:
             self.speeds.append(math.hypot(fit.x_px - self.last[-1][0], fit.y_px - self.last[-1][1]) / (1 + self.misses))
+            self.steps_since_gap += 1
         self.last.append((fit.x_px, fit.y_px))
         self.last_r = fit.radius_px
         self.radii.append(fit.radius_px)
