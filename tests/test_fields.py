@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from fractions import Fraction
+from pathlib import Path
 
 import av
 import numpy as np
@@ -13,7 +15,7 @@ import pytest
 from gyrorig.bench.variants import variant_protocols
 from gyrorig.protocols import parse_protocol
 from gyrorig.render.phone import PhoneStyle, render_phone_video
-from gyrorig.tracking import load_camera, track
+from gyrorig.tracking import CameraFileError, load_camera, track
 from gyrorig.tracking.fields import bob, field_timing_evidence
 
 FIELD_FPS = 50.0
@@ -165,3 +167,15 @@ def test_a_field_order_stated_against_the_tips_path_is_said(tmp_path, field_rate
     camera = replace(load_camera(rendered["camera"]), interlace="bottom-field-first")
     res = track(video, camera, parse_protocol(user))
     assert res.frame_times["fields"] == "bottom-field-first" and len(res.source_problems) == 1
+
+
+def test_camera_json_states_the_scan_or_is_refused_naming_it(tmp_path, field_rate_render):
+    """``interlace`` in camera.json: one of the modes, read into the camera; anything else refused, naming the key."""
+    _, rendered, _ = field_rate_render
+    d = json.loads(Path(rendered["camera"]).read_text())
+    for mode in ("progressive", "top-field-first", "bottom-field-first"):
+        (tmp_path / "c.json").write_text(json.dumps({**d, "interlace": mode}))
+        assert load_camera(tmp_path / "c.json").interlace == mode
+    (tmp_path / "c.json").write_text(json.dumps({**d, "interlace": "upper"}))
+    with pytest.raises(CameraFileError, match="interlace"):
+        load_camera(tmp_path / "c.json")

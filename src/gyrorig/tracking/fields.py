@@ -163,7 +163,10 @@ def read_as_fields(frames, camera, source):
     order = frames.interlaced if mode == "auto" else (None if mode == "progressive" else mode)
     if order is None:
         return frames, camera
-    fps = frames.fps if math.isfinite(frames.fps) and frames.fps > 0 else 1.0 / source.frame_interval_s()
+    fps = frames.fps
+    if not (math.isfinite(fps) and fps > 0):
+        interval = source.frame_interval_s()
+        fps = 1.0 / interval if math.isfinite(interval) and interval > 0 else math.nan
     if not (math.isfinite(fps) and fps > 0):
         raise BadInputError(f"{source}: an interlaced video without a frame rate: its fields cannot be timed")
     if math.isfinite(camera.fps) and abs(camera.fps / fps - 1.0) < 0.02:
