@@ -24,7 +24,8 @@ __all__ = ["Detection", "Blob", "find_blobs", "stands_out", "detection_threshold
 THRESHOLD_SIGMAS = 5.0
 #: ... but at most this fraction of the frame's highest local contrast
 PEAK_FRACTION = 0.5
-#: a blob wider than the widest spot looked for, after its cut at half its peak, is cut again at this fraction of it
+#: a blob wider than the widest spot looked for (after its cut at half its peak, where made) is cut at this fraction of
+#: its peak
 SECOND_CUT = 0.75
 
 
@@ -66,8 +67,8 @@ def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_
     """The blobs of ``mask`` (in window coordinates offset by ``x0, y0``), appended to ``out``.  A large blob
     whose peak contrast exceeds ``split_above`` is cut again at half its peak (a bright spot joined to a
     texture's faint network, a mortar line or a rim, by a low threshold stands apart at half its height); a blob
-    still wider than ``max_radius_px`` (its inscribed circle) is cut once more at :data:`SECOND_CUT` of its peak (a
-    spot joined to a bright patch of the scene that stands out half as much)."""
+    wider than ``max_radius_px`` (its inscribed circle; after that cut, where made) is cut once more at
+    :data:`SECOND_CUT` of its peak (a spot joined to a bright patch of the scene that stands out half as much)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     min_area = max(3.0, math.pi * min_radius_px * min_radius_px)
     for i in range(1, n):
