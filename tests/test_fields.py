@@ -15,7 +15,7 @@ import pytest
 from gyrorig.bench.variants import variant_protocols
 from gyrorig.protocols import parse_protocol
 from gyrorig.render.phone import PhoneStyle, render_phone_video
-from gyrorig.tracking import CameraFileError, load_camera, track
+from gyrorig.tracking import CameraFileError, VideoFile, load_camera, track
 from gyrorig.tracking.fields import bob, field_timing_evidence
 
 FIELD_FPS = 50.0
@@ -179,3 +179,24 @@ def test_camera_json_states_the_scan_or_is_refused_naming_it(tmp_path, field_rat
     (tmp_path / "c.json").write_text(json.dumps({**d, "interlace": "upper"}))
     with pytest.raises(CameraFileError, match="interlace"):
         load_camera(tmp_path / "c.json")
+
+
+@pytest.mark.parametrize("codec, size, expected", [("dvvideo", (720, 576), "bottom-field-first"),
+                                                   ("libx264", (320, 240), "top-field-first")])
+def test_the_field_order_is_read_from_the_stream_or_its_standard(tmp_path, codec, size, expected):
+    """An interlaced stream's field order: x264's flag (top first) as the stream states it; DV states none, and its
+    standard fixes the bottom field first (PAL and NTSC alike)."""
+    path = tmp_path / ("v.dv" if codec == "dvvideo" else "v.mp4")
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream(codec, rate=25)
+        stream.width, stream.height, stream.pix_fmt = *size, "yuv420p"
+        if codec == "libx264":
+            stream.options = {"x264-params": "interlaced=1:tff=1"}
+        for _ in range(4):
+            for packet in stream.encode(av.VideoFrame.from_ndarray(np.zeros((size[1], size[0], 3), np.uint8),
+                                                                   format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    with VideoFile(path).open() as frames:
+        assert frames.interlaced == expected

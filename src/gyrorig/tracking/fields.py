@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Iterator
 
 import numpy as np
@@ -41,35 +41,30 @@ _FIRST_SHOWN = {2: "top-field-first", 5: "top-field-first", 3: "bottom-field-fir
 
 def field_order_of(frame, stream) -> str | None:
     """The field order of an interlaced stream (:data:`FIELD_ORDERS`), from its first decoded ``frame``'s interlace
-    flag and the stream's field order; None for progressive pictures."""
+    flag and the stream's field order; where the stream does not say, DV's (bottom first, as its standard fixes it)
+    or top first (HD's); None for progressive pictures."""
     if frame is None or not bool(getattr(frame, "interlaced_frame", False)):
         return None
     order = getattr(stream.codec_context, "field_order", None)
     key = order.lower() if isinstance(order, str) else int(order or 0)
-    return _FIRST_SHOWN.get(key, "top-field-first")
+    unsaid = "bottom-field-first" if stream.codec_context.name == "dvvideo" else "top-field-first"
+    return _FIRST_SHOWN.get(key, unsaid)
 
 
 def bob(image: np.ndarray, first_row: int) -> np.ndarray:
     """The field of ``image`` whose rows start at ``first_row`` (0: the top field, 1: the bottom one), its other rows
-    each the mean of the field's rows above and below (the first or last row copied from its one neighbour); the
-    same shape and type as ``image`` (2-D, or rows x columns x channels)."""
+    each the mean of the field's rows above and below (at the picture's edge, its one neighbour); the same shape and
+    type as ``image`` (2-D, or rows x columns x channels)."""
     rows = image[first_row::2]
+    others = np.arange(1 - first_row, image.shape[0], 2)
+    above = np.clip((others - 1 - first_row) // 2, 0, len(rows) - 1)
+    below = np.clip((others + 1 - first_row) // 2, 0, len(rows) - 1)
     out = np.empty_like(image)
     out[first_row::2] = rows
-    wide = rows.astype(np.uint32 if image.dtype.kind in "ui" else image.dtype)
-    between = wide[:-1] + wide[1:]
-    between = (between + 1) // 2 if image.dtype.kind in "ui" else between / 2
-    other = 1 - first_row
-    n_other = len(range(other, image.shape[0], 2))
-    if first_row == 0:  # rows 1, 3, ...: between rows 0-2, 2-4, ...; the last may lie below the field's last row
-        out[1::2][:len(between)] = between
-        if n_other > len(between):
-            out[1::2][len(between):] = rows[-1]
-    else:  # rows 0, 2, ...: row 0 above the field's first row, then between rows 1-3, 3-5, ...
-        out[0] = rows[0]
-        out[2::2][:len(between)] = between
-        if n_other - 1 > len(between):
-            out[2::2][len(between):] = rows[-1]
+    if image.dtype.kind in "ui":
+        out[others] = (rows[above].astype(np.uint32) + rows[below] + 1) // 2
+    else:
+        out[others] = (rows[above] + rows[below]) / 2
     return out
 
 
@@ -84,19 +79,18 @@ def field_frames(frames, order: str, half_interval_s: float):
     damaged: list = []
 
     def items() -> Iterator[tuple[np.ndarray, float]]:
-        k = 0
-        for image, t in frames.items:
+        for image, t in frames.items:  # the picture's type is appended to frames.frame_types before it comes
             for j, first_row in enumerate(rows):
                 if types is not None:
-                    types.append(frames.frame_types[k] if k < len(frames.frame_types) else "")
+                    types.append(frames.frame_types[-1] if frames.frame_types else "")
                 yield bob(image, first_row), t + j * half_interval_s
-            k += 1
         damaged.extend((2 * first, 2 * end, message) for first, end, message in frames.damaged)
 
     return replace(frames, fps=2 * frames.fps, count=2 * frames.count, items=items(), frame_types=types,
                    damaged=damaged, interlaced=None, fields=order)
 
 
+@dataclass(frozen=True)
 class FieldEvidence:
     """What the tip's path says of the fields' timing (:func:`field_timing_evidence`).
 
@@ -107,8 +101,9 @@ class FieldEvidence:
     pictures with both fields and the next picture's first tracked; ``signal``: the steps' mean square over the
     noise's (NaN ratio when too small to judge)."""
 
-    def __init__(self, ratio: float, pairs: int, signal: float):
-        self.ratio, self.pairs, self.signal = ratio, pairs, signal
+    ratio: float
+    pairs: int
+    signal: float
 
     @property
     def verdict(self) -> str | None:

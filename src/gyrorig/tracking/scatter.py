@@ -148,7 +148,7 @@ NOISE_ACF = _noise_acf()
 
 #: a sinusoid in the path's basis is looked for between these turns per frame (below, the polynomial follows it;
 #: above, the frames no longer sample it), among this many of the track's strongest periodogram peaks (over a few
-#: seconds the precession's arc leaks past the quadratic taken off, and the nod's peak can be the sixth)
+#: seconds the precession's arc leaks past the quadratic taken off, and its peaks can outrank the nod's)
 SINUSOID_TURN_RANGE = (0.3, 2.5)
 SINUSOID_PEAKS = 12
 
@@ -341,7 +341,8 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     shared_px, shared_se = _root(kappa2, kappa2_se)
     acf, smooth = _path_follows(centres, z)
     smooth = (smooth and len(outliers) <= MAX_OUTLIER_SHARE * (len(centres) + len(outliers))
-              and not _path_error_px(t_s, frames, xy, active, omega_rad_s) > largest_error_px)
+              and not (math.isfinite(largest_error_px)
+                       and _path_error_px(t_s, frames, xy, active, omega_rad_s) > largest_error_px))
     if follow_motion and not smooth and math.isnan(omega_rad_s):
         omega = motion_frequency(t_s[active], frames[active], xy[active])
         try:
