@@ -27,7 +27,7 @@ from gyrorig.render import render_video
 from gyrorig.camera import Camera, Sensor
 from gyrorig.tracking import FrameArrays, load_camera, track
 from gyrorig.tracking.ellipse import DiscGeometry, disc_image, fit_ellipse_spot
-from gyrorig.tracking.scatter import NOISE_ACF, check_sigmas, motion_frequency
+from gyrorig.tracking.scatter import LOCAL_FRAMES, NOISE_ACF, check_sigmas, local_factors, motion_frequency
 
 
 @pytest.mark.parametrize("name", ["disc", "disc-mp4", "plain-top", "dim-tip"])
@@ -129,6 +129,27 @@ def test_scatter_check_finds_an_error_common_to_each_run_of_b_pictures():
     se = math.sqrt(1 / (2 * 2 * len(common)) + (check.shared_px_se / check.shared_px) ** 2)
     assert abs(pulls.std() - 1) < 4 * se, (pulls.std(), se)
     assert (error[b] / np.hypot(f * sigma, check.floor_px)[b, None]).std() > 2.0
+
+
+def test_errors_are_widened_where_the_record_scatters_more():
+    """A record's errors change along it (the scene behind the tip, its speed): here 0.02 px everywhere as reported,
+    but 0.05 px over frames 400-520 of 1000.  One factor for the record (1.3) leaves that stretch's pulls at 2; the
+    local factors find 2.5 there, each known to sqrt((1 + 2 sum rho^2) / (2 N)) from the N = 80 coordinates of its
+    window (rho the noise's residual correlations: 4 of those 57 %), and elsewhere 1 or the window's chance excess
+    (their mean within 1 + 4 of those standard errors over the window's count of independent stretches)."""
+    rng = np.random.default_rng(11)
+    t, frames, xy = _path(1000)
+    sigma = np.where((frames >= 400) & (frames < 520), 0.05, 0.02)
+    var = np.full(xy.shape, 0.02**2)
+    local = local_factors(t, frames, xy + rng.normal(0, 1, xy.shape) * sigma[:, None], var, np.ones(len(t), bool))
+    inner = (frames >= 400 + LOCAL_FRAMES // 2) & (frames < 520 - LOCAL_FRAMES // 2)
+    se = math.sqrt((1 + 2 * np.sum(NOISE_ACF**2)) / (2 * 2 * LOCAL_FRAMES))
+    assert np.all(np.abs(local[inner] / 2.5 - 1) < 4 * se), local[inner]
+    outside = (frames < 400 - LOCAL_FRAMES) | (frames >= 520 + LOCAL_FRAMES)
+    assert np.all(local >= 1.0) and np.mean(local[outside]) - 1.0 < 4 * se / math.sqrt(outside.sum() / LOCAL_FRAMES)
+    assert np.mean(local[outside] > 1.0) < 0.9  # not widened everywhere
+    few = local_factors(t[:20], frames[:20], xy[:20], var[:20], np.ones(20, bool))
+    assert np.array_equal(few, np.ones(20))  # too few checked frames for a window: nothing widened
 
 
 def test_scatter_check_knows_when_the_path_cannot_follow_the_motion():

@@ -217,6 +217,7 @@ def _with_capture_fps(camera, capture_fps: float | None):
 
 def _cmd_track(args: argparse.Namespace) -> int:
     from ..tracking import load_camera, track_video
+    from ..tracking.scatter import check_summary
 
     protocol = load_protocol(args.protocol)
     camera = _with_capture_fps(load_camera(args.camera, require_pose=False), args.capture_fps)
@@ -247,10 +248,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
         print("camera model taken as exact (camera.json has no intrinsics_covariance or pose_covariance)")
     check = summary.get("sigma_check")
     if check and check["coordinates"]:
-        print(f"per-frame errors against the tip's scatter about its path: factor {check['factor']:.3g} +- "
-              f"{check['factor_se']:.2g} ({check['coordinates']} coordinates), "
-              f"{'applied' if check['applied'] else 'not applied'}: {check['reason']}; "
-              f"{check['outliers']} outlier frame(s)")
+        print(check_summary(check))
     ft = summary.get("frame_times") or {}
     if ft:
         print(f"frame times: median interval {ft['median_interval_s'] * 1e3:.4g} ms ({ft['measured_fps']:.5g} fps; "

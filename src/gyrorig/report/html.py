@@ -18,6 +18,7 @@ from ..fit import FitResult, FitTerms
 from ..prediction import Prediction
 from ..protocols import Protocol
 from ..smooth import SmoothResult
+from ..tracking.scatter import check_summary
 from .plots import plot_fit
 
 __all__ = ["write_report"]
@@ -130,10 +131,8 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
               f"{tracking.get('frames', '?')} frames.")
         check = tracking.get("sigma_check")
         if check and check.get("coordinates"):
-            tr += html.escape(f" Per-frame errors against the tip's scatter about its path: factor "
-                              f"{check['factor']:.3g} +- {check['factor_se']:.2g}, "
-                              f"{'applied' if check['applied'] else 'not applied'} ({check['reason']}); "
-                              f"{check['outliers']} outlier frame(s).")
+            summary = check_summary(check)
+            tr += html.escape(f" {summary[0].upper()}{summary[1:]}.")
         tr += "</p>"
         tr += "".join(f'<p class="bad">The video: {html.escape(problem)}.</p>'
                       for problem in tracking.get("source_problems", ()))

@@ -31,7 +31,7 @@ from scipy.signal import lombscargle
 from scipy.stats import chi2
 
 __all__ = ["SigmaCheck", "check_sigmas", "b_picture_runs", "path_residuals", "neighbour_positions", "motion_frequency",
-           "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF"]
+           "local_factors", "check_summary", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF", "LOCAL_FRAMES", "LOCAL_Z"]
 
 #: neighbours on each side that predict a frame
 HALF_WINDOW = 3
@@ -43,6 +43,12 @@ OUTLIER_Z = 5.0
 #: too low for it: the frames near each turn of the path off it together), whatever its residuals' correlations say
 MAX_OUTLIER_SHARE = 0.1
 
+
+#: the scatter is also compared with the errors over each stretch of this many checked frames (:func:`local_factors`)
+LOCAL_FRAMES = 40
+#: ... and a stretch's errors widened where its factor exceeds 1 by this many of its standard errors (0: wherever it
+#: exceeds 1, as the record's own factor is applied when the models are in doubt: never down, whatever its error)
+LOCAL_Z = 0.0
 
 #: the residuals' correlations from frame to frame are compared at lags 1 to this
 ACF_LAGS = 4
@@ -104,6 +110,10 @@ class SigmaCheck:
     #: the angular frequency of the sinusoid in the path's basis (:func:`motion_frequency`) [rad/s]; NaN: the
     #: polynomial path
     omega_rad_s: float = math.nan
+    #: frames whose errors were widened further by their stretch's own scatter (:func:`local_factors`), and the
+    #: largest such factor
+    local_frames: int = 0
+    local_max_factor: float = 1.0
 
     def as_dict(self) -> dict:
         return {"factor": self.factor, "factor_se": self.factor_se, "coordinates": self.coordinates,
@@ -114,7 +124,19 @@ class SigmaCheck:
                 "floor_px": self.floor_px, "floor_px_se": self.floor_px_se,
                 "residual_acf": list(self.residual_acf), "smooth_path": self.smooth_path,
                 "shared_px": self.shared_px, "shared_px_se": self.shared_px_se,
-                "omega_rad_s": None if math.isnan(self.omega_rad_s) else self.omega_rad_s}
+                "omega_rad_s": None if math.isnan(self.omega_rad_s) else self.omega_rad_s,
+                "local_frames": self.local_frames, "local_max_factor": self.local_max_factor}
+
+
+def check_summary(check: dict) -> str:
+    """One sentence for a user on a :meth:`SigmaCheck.as_dict` (as ``track.json`` holds it)."""
+    local = check.get("local_frames", 0)
+    return (f"per-frame errors against the tip's scatter about its path: factor {check['factor']:.3g} +- "
+            f"{check['factor_se']:.2g} ({check['coordinates']} coordinates), "
+            f"{'applied' if check['applied'] else 'not applied'}: {check['reason']}; "
+            + (f"widened further in {local} frame(s) where the scatter grew along the record (up to "
+               f"{check['local_max_factor']:.3g}x); " if local else "")
+            + f"{check['outliers']} outlier frame(s)")
 
 
 def _stencils(t_s: np.ndarray, frames: np.ndarray, active: np.ndarray, omega_rad_s: float = math.nan
@@ -355,6 +377,40 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
                       floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se,
                       residual_acf=acf, smooth_path=smooth, omega_rad_s=omega_rad_s)
+
+
+def local_factors(t_s, frames, xy, var, active, omega_rad_s: float = math.nan, *, window: int = LOCAL_FRAMES,
+                  z_min: float = LOCAL_Z) -> np.ndarray:
+    """The factor by which each frame's errors fall short of the scatter about the path around it: the RMS of the
+    normalised residuals (:func:`path_residuals`) of the ``window`` checked frames centred on it (nearest in the record),
+    where that exceeds 1 by ``z_min`` of its standard errors, else 1 (``f sqrt((1 + 2 sum rho_k^2) / (2 N))`` from ``N``
+    coordinates: neighbouring residuals share frames, their squares correlated as :data:`NOISE_ACF` squared).
+
+    A record's errors change along it (the scene behind the tip, the tip's speed, the light), which one factor for the
+    whole record averages away: where the scatter grows, its stretch's errors grow with it.  ``t_s, frames`` (n,),
+    ``xy, var`` (n, 2) sorted by time, ``active`` (n,) the frames the path may use.  Returns (n,); frames not checked
+    take their nearest checked frame's factor (all 1 with fewer than ``window`` checked frames)."""
+    idx, z = path_residuals(np.asarray(t_s, float), np.asarray(frames, int), np.asarray(xy, float),
+                            np.asarray(var, float), np.asarray(active, bool), omega_rad_s)
+    n = len(np.asarray(t_s))
+    if len(idx) < window:
+        return np.ones(n)
+    count = 2.0 * window
+    f = _window_rms(z, window)
+    f = np.where(f > 1.0 + z_min * f * math.sqrt((1.0 + 2.0 * np.sum(NOISE_ACF**2)) / (2.0 * count)), f, 1.0)
+    nearest = np.clip(np.searchsorted(idx, np.arange(n)), 0, len(idx) - 1)
+    before = np.clip(nearest - 1, 0, len(idx) - 1)
+    closer = np.abs(idx[before] - np.arange(n)) < np.abs(idx[nearest] - np.arange(n))
+    return f[np.where(closer, before, nearest)]
+
+
+def _window_rms(z: np.ndarray, window: int) -> np.ndarray:
+    """The RMS of the residuals ``z`` (m, 2) over the ``window`` rows centred on each row (held inside the record at
+    its ends; all rows when there are fewer)."""
+    window = min(window, len(z))
+    sums = np.r_[0.0, np.cumsum(np.sum(z * z, axis=1))]
+    lo = np.clip(np.arange(len(z)) - window // 2, 0, len(z) - window)
+    return np.sqrt((sums[lo + window] - sums[lo]) / (2.0 * window))
 
 
 def _path_error_px(t_s, frames, xy, active, omega_rad_s: float) -> float:

@@ -48,7 +48,7 @@ from .errors import BadInputError, TrackingError
 from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
 from .rays import angle_covariances, angles_with_covariance
-from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas
+from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
 from .timing import FrameClock, check_frame_rate, checked_frame_times, frame_interval_stats, settle_timing
 from .sources import as_source, fingerprint, prepended
@@ -316,6 +316,11 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
         scale, added = np.where(larger, scale_free, scale), np.where(larger, added_free, added)
         if np.mean(larger) > 0.5:
             check, factors = replace(free, outliers=check.outliers), factors_free
+    if doubts:  # and stretch by stretch: the record's errors change along it (module scatter's local_factors)
+        kept = ~np.isin(np.arange(len(index)), check.outliers)
+        local = local_factors(*path, scale[:, None] ** 2 * var + added[:, None], kept, check.omega_rad_s)
+        scale, added = scale * local, added * local**2
+        check = replace(check, local_frames=int(np.sum(local > 1.0)), local_max_factor=float(local.max()))
     reasons = [f"{label} frames' errors are smaller than their scatter" for label in factors]
     reason = doubts or "; ".join(reasons) or "sensor and spot models hold"
     changed = np.isin(classes, list(factors))
