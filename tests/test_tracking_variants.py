@@ -321,13 +321,14 @@ def test_a_path_that_leaves_many_frames_off_it_does_not_follow_the_motion():
     the frames at every turn of the nod, and taking them out one by one left too few neighbours for its residuals'
     correlations to show it: 35 of 98 frames were called outliers, every one within 2.7 of its own sigmas of the
     truth.  A path that leaves more than a tenth of the frames off it is a path that does not follow the motion (the
-    tracker then tries the nod's own frequency: :func:`motion_frequency`)."""
+    tracker then tries the nod's own frequency: :func:`motion_frequency`); with the outliers' scale taken over each
+    frame's stretch where that is larger, the turns' frames stay in and their residuals' correlations show it."""
     track = pd.read_csv(Path(__file__).parent / "data" / "heavy_top_50fps_1280x720_tip_track.csv")
     xy = track[["x_px", "y_px"]].to_numpy()
     var = track[["var_x_px2", "var_y_px2"]].to_numpy()
     check = check_sigmas(track.t_s, track.frame, xy, var, track["class"].to_numpy(), floor=True, min_factor=1.0)
     truth_z = np.abs(xy - track[["x_true_px", "y_true_px"]].to_numpy()) / np.sqrt(var)
-    assert truth_z.max() < 5.0 and len(check.outliers) > 0.1 * len(track) and not check.smooth_path
+    assert truth_z.max() < 5.0 and not check.smooth_path
 
 
 def test_the_nods_frequency_is_found_beyond_the_periodograms_first_peaks():

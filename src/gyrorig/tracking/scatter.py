@@ -8,8 +8,10 @@ frame's leave-one-out residual ``r`` about the path of its six nearest neighbour
 the tracker reports), if those errors are right.  :func:`check_sigmas` compares: the RMS of
 ``r / sqrt(that)`` over the record is the factor by which the reported errors are off, known to about
 ``1 / sqrt(2 N)`` from ``N`` checked coordinates; single frames far off the path (more than
-:data:`OUTLIER_Z` of their scaled error) are outliers: a position that is not the tip's, or one that
-light from another marker pulled away.
+:data:`OUTLIER_Z` of their scaled error: the record's median residual, or their stretch's where that is larger)
+are outliers: a position that is not the tip's, or one that light from another marker pulled away.  A stretch of
+the record whose errors fall short by more than the rest's is not a run of outliers: it is widened
+(:func:`local_factors`).
 
 Beside the factors the check can solve an error common to every frame (a lossy codec's floor) and one common to
 the frames of each group (a codec's run of B pictures), and it says when the path cannot follow the motion at all
@@ -26,6 +28,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import median_filter
 from scipy.optimize import lsq_linear
 from scipy.signal import lombscargle
 from scipy.stats import chi2
@@ -345,8 +348,9 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
         centres, z = path_residuals(t_s, frames, xy, var, active, omega_rad_s)
         if len(centres) < 5:
             return SigmaCheck(math.nan, math.nan, 2 * len(centres), tuple(outliers))
-        # robust scale while outliers may remain: the median of z^2 is 0.4549 for a unit normal
-        scale = math.sqrt(float(np.median(z * z)) / 0.4549)
+        # robust scale while outliers may remain: the median of z^2 is 0.4549 for a unit normal; over the record, or
+        # over each frame's stretch where that is larger
+        scale = np.sqrt(np.maximum(float(np.median(z * z)), _running_median(z * z, LOCAL_FRAMES)) / 0.4549)
         worst = np.max(np.abs(z), axis=1) / scale
         k = int(np.argmax(worst))
         if worst[k] <= OUTLIER_Z:
@@ -402,6 +406,12 @@ def local_factors(t_s, frames, xy, var, active, omega_rad_s: float = math.nan, *
     before = np.clip(nearest - 1, 0, len(idx) - 1)
     closer = np.abs(idx[before] - np.arange(n)) < np.abs(idx[nearest] - np.arange(n))
     return f[np.where(closer, before, nearest)]
+
+
+def _running_median(z2: np.ndarray, window: int) -> np.ndarray:
+    """The median of ``z2`` (m, 2) over the ``window`` rows centred on each row (both columns; the record's ends
+    repeated beyond them)."""
+    return np.mean(median_filter(z2.ravel(), size=2 * window + 1, mode="nearest").reshape(-1, 2), axis=1)
 
 
 def _window_rms(z: np.ndarray, window: int) -> np.ndarray:
