@@ -10,11 +10,17 @@
 
 Only the first keeps the sensor's noise model; the others are judged by the recorded-footage models
 (:mod:`gyrorig.tracking.scene_spot`, the scatter check).
+
+Each marker is fitted in the image of its own colour and polarity: the lab markers (fiducials), when they share one
+other than the tip's, in theirs (:func:`lab_marker_image`; a white dot's colour excess is about 0, so a red tip's
+image does not show white fiducials).  From RGB frames (a coloured tip's) a bright or dark marker's image is the
+luma the video coded (BT.709's weights on the encoded values), linearised.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -23,22 +29,46 @@ from ..markers import Marker
 from ..camera import Camera
 from .transfer import TRANSFERS, linear_level
 
-__all__ = ["MarkerImage"]
+__all__ = ["MarkerImage", "lab_marker_image"]
 
 _CHANNEL = {"red": 0, "green": 1, "blue": 2}
+#: BT.709's luma weights of R', G', B' (as a 1 x 3 matrix for ``cv2.transform``)
+_LUMA = np.array([[0.2126, 0.7152, 0.0722]])
 
 
 class MarkerImage:
     """Turns decoded frames (RGB for a coloured marker) into the tracker's image (module docstring); calling it
     maps one decoded frame; ``keeps_sensor_model`` whether the sensor's noise model still describes the result."""
 
-    def __init__(self, marker: Marker, camera: Camera, levels: tuple[int, int] | None = None):
+    def __init__(self, marker: Marker, camera: Camera, levels: tuple[int, int] | None = None, *,
+                 rgb: bool | None = None):
+        """``rgb``: whether the decoded frames are RGB (default: for a coloured marker; a bright or dark marker's
+        image from RGB frames is their luma)."""
         self.colour = marker.colour != "any"
+        self.rgb = self.colour if rgb is None else bool(rgb)
         self.dark = marker.polarity == "dark"
-        self.keeps_sensor_model = not (self.colour or self.dark)
+        self.keeps_sensor_model = not (self.colour or self.dark or self.rgb)
         self.top = float(camera.max_adu)
         self.channel = _CHANNEL.get(marker.colour)
-        self._linear = _linearizer(camera, None if self.colour else levels)
+        self._linear = _linearizer(camera, None if self.rgb else levels)
+
+    def doubts(self, camera: Camera, lossy: bool, shape: str, marker: Marker) -> str:
+        """Why the per-frame errors cannot come from the sensor and spot models alone ('' when they can): the camera
+        file, the codec (``lossy``), the tip's ``shape`` and this image (:meth:`describe`)."""
+        doubts = []
+        if not math.isfinite(camera.gain_e_per_adu):
+            doubts.append("no sensor gain in camera.json")
+        if camera.sensor.transfer not in (None, "linear"):
+            doubts.append(f"transfer curve {camera.sensor.transfer}")
+        elif camera.gamma != 1.0:
+            doubts.append(f"sensor gamma {camera.gamma:g}")
+        if lossy:
+            doubts.append("lossy codec")
+        if shape == "blob":
+            doubts.append("a tip marker of no exact model (blob)")
+        elif shape == "disc":
+            doubts.append("a disc marker's model is approximate (first-order edge)")
+        return "; ".join(doubts + ([self.describe(marker)] if self.describe(marker) else []))
 
     def describe(self, marker: Marker) -> str:
         """Why the sensor model no longer holds ('' when it does)."""
@@ -57,6 +87,8 @@ class MarkerImage:
                 "white or retroreflective tip is tracked from the full-resolution brightness")
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
+        if self.rgb and not self.colour:
+            frame = cv2.transform(frame, _LUMA)
         image = frame if self._linear is None else self._linear(frame)
         if self.colour:
             rgb = np.asarray(image, np.float32)
@@ -65,6 +97,18 @@ class MarkerImage:
         if self.dark:
             image = (self.top if not self.colour else 0.0) - np.asarray(image, np.float32)
         return image
+
+
+def lab_marker_image(lab: Sequence[Marker], tip: Marker, camera: Camera,
+                     levels: tuple[int, int] | None = None) -> MarkerImage | None:
+    """The image the lab markers ``lab`` are fitted in, when it is not the tip's: the one of the colour and polarity
+    they share, made from the frames decoded for the tip (RGB for a coloured tip, else luma).  None when the tip's
+    image serves: they are alike to it, differ among themselves, or are coloured where the frames are luma (then
+    fitted in the luma, where a sticker shows by its brightness)."""
+    kinds = {(m.colour, m.polarity) for m in lab}
+    if len(kinds) != 1 or kinds == {(tip.colour, tip.polarity)} or (tip.colour == "any" and lab[0].colour != "any"):
+        return None
+    return MarkerImage(lab[0], camera, levels, rgb=tip.colour != "any")
 
 
 def _linearizer(camera: Camera, levels: tuple[int, int] | None) -> Callable[[np.ndarray], np.ndarray] | None:

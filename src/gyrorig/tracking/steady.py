@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,9 +110,15 @@ class CameraMotion:
 class CameraWatch:
     """Collects the fiducials' displacements while the record is tracked (module docstring)."""
 
-    def __init__(self, camera: Camera, fiducials_px: list[tuple[float, float, float]]):
+    def __init__(self, camera: Camera, fiducials_px: list[tuple[float, float, float]],
+                 image: Callable[[np.ndarray], np.ndarray] | None = None):
+        """``image``: maps a decoded frame to the image the fiducials are fitted in, when that is not the tip's
+        (:func:`gyrorig.tracking.appearance.lab_marker_image`); None: the tip's image serves."""
         margin = 10.0
         self.camera = camera
+        self.image = image
+        #: whether the fiducials are fitted in their own image (None: not yet decided, at the first check)
+        self.own_image: bool | None = None
         self.spots = [(x, y, r) for x, y, r in fiducials_px
                       if margin + 3 * r < x < camera.width_px - margin - 3 * r
                       and margin + 3 * r < y < camera.height_px - margin - 3 * r]
@@ -133,12 +140,9 @@ class CameraWatch:
             return TURN_OUTLIER_PX
         return max(TURN_OUTLIER_MIN_PX, TURN_OUTLIER_SIGMAS * float(np.median(self.misses)) / 1.1774)
 
-    def observe(self, frame: np.ndarray, count: int, index: int) -> None:
-        """Fit the fiducials in every :data:`CHECK_EVERY`-th frame (``count`` the frames seen before this one), and
-        in every frame once they have moved by :data:`MIN_MOTION_PX` from where they were first seen (a shaking
-        camera's displacement is then measured in each frame, not interpolated); ``index`` the frame's number."""
-        if len(self.spots) < 2 or count % self.every:
-            return
+    def _moves(self, frame: np.ndarray) -> np.ndarray:
+        """Each fiducial found in ``frame`` near where it is expected: (rx, ry, dx, dy, variance) rows, ``rx, ry`` its
+        place about the fiducials' centre, ``dx, dy`` its displacement, ``variance`` its fit's per axis."""
         moves = []
         for x, y, r in self.spots:
             rx, ry = x - self.centre[0], y - self.centre[1]
@@ -149,7 +153,21 @@ class CameraWatch:
                     or math.hypot(fit.x_px - x0, fit.y_px - y0) > max(3.0, REACH_RADII * r)):
                 continue
             moves.append((rx, ry, fit.x_px - x, fit.y_px - y, max(float(np.trace(fit.cov_xy)) / 2, 1e-8)))
-        m = np.array(moves).reshape(-1, 5)
+        return np.array(moves).reshape(-1, 5)
+
+    def observe(self, frame: np.ndarray, count: int, index: int, decoded: np.ndarray | None = None) -> None:
+        """Fit the fiducials in every :data:`CHECK_EVERY`-th frame (``count`` the frames seen before this one), and
+        in every frame once they have moved by :data:`MIN_MOTION_PX` from where they were first seen (a shaking
+        camera's displacement is then measured in each frame, not interpolated); ``index`` the frame's number;
+        ``frame`` the tip's image, ``decoded`` the frame as decoded (for the fiducials' own image)."""
+        if len(self.spots) < 2 or count % self.every:
+            return
+        if self.image is not None and decoded is not None and self.own_image is not False:
+            own = self.image(decoded)
+            if self.own_image is None:  # the first check: their own image, unless the tip's shows them better
+                self.own_image = _score(self._moves(own)) >= _score(self._moves(frame))
+            frame = own if self.own_image else frame
+        m = self._moves(frame)
         if len(self.variances) >= TURN_OUTLIER_SAMPLES:  # a fit far less sure than the fiducials' usual is not clean
             m = m[m[:, 4] <= MAX_SIGMA_RATIO ** 2 * float(np.median(self.variances))]
         self.variances.extend(m[:, 4].tolist())
@@ -245,6 +263,11 @@ def _similarity_fit(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _moved_by(x: np.ndarray, r: np.ndarray) -> np.ndarray:
     """The displacements ``(tx, ty, a, b)`` gives at the places ``r`` (k, 2)."""
     return x[:2] + np.column_stack([x[2] * r[:, 0] - x[3] * r[:, 1], x[3] * r[:, 0] + x[2] * r[:, 1]])
+
+
+def _score(moves: np.ndarray) -> tuple[int, float]:
+    """How well fiducials were found (:meth:`CameraWatch._moves`): more of them, then smaller errors."""
+    return len(moves), -float(np.median(moves[:, 4])) if len(moves) else 0.0
 
 
 def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misses) -> tuple | None:

@@ -40,7 +40,7 @@ from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_count, camera_mode_prior_column
 from ..camera import Camera
 from .detect import Detection, detection_threshold, opening_size_px
-from .appearance import MarkerImage
+from .appearance import MarkerImage, lab_marker_image
 from .transfer import settle_transfer
 from .follow import ANCHOR_FRAMES, MAX_SIGMA_RADII, SIZE_RANGE, TipFollower
 from .dots import DotTracker
@@ -246,24 +246,6 @@ class _Tables:
         return angles, markers.sort_values("frame", kind="stable").reset_index(drop=True)
 
 
-def _sensor_doubts(camera: Camera, lossy: bool, follower: TipFollower) -> str:
-    """Why the per-frame errors cannot come from the sensor and spot models alone ('' when they can)."""
-    doubts = []
-    if not math.isfinite(camera.gain_e_per_adu):
-        doubts.append("no sensor gain in camera.json")
-    if camera.sensor.transfer not in (None, "linear"):
-        doubts.append(f"transfer curve {camera.sensor.transfer}")
-    elif camera.gamma != 1.0:
-        doubts.append(f"sensor gamma {camera.gamma:g}")
-    if lossy:
-        doubts.append("lossy codec")
-    if follower.shape == "blob":
-        doubts.append("a tip marker of no exact model (blob)")
-    elif follower.shape == "disc":
-        doubts.append("a disc marker's model is approximate (first-order edge)")
-    return "; ".join(doubts)
-
-
 def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, lossy: bool,
                      tip_name: str, camera: Camera, length_m: float, largest_error_px: float) -> SigmaCheck:
     """Check the tip's errors against its scatter about its path (:mod:`gyrorig.tracking.scatter`), for
@@ -456,6 +438,10 @@ def _steadied(rows: _Tables, watch: CameraWatch, camera: Camera, length_m: float
                        "by %.2g deg RMS): each tip pixel is taken back by their displacement in its frame", source,
                        motion.rms_px, motion.roll_rms_deg)
         steady_angle_rows(rows.angles, rows.tip_px, rows.tip_cov, motion, camera, length_m)
+    elif motion is None and len(watch.spots) >= 2:
+        logger.warning("%s: the protocol's fiducials (%d in view) were not found in the frames: whether the camera "
+                       "moved is not known (a hand-held camera's motion would be taken for the tip's); check their "
+                       "place, size, colour and polarity in the protocol", source, len(watch.spots))
     return motion
 
 
@@ -466,10 +452,9 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     With ``frame_dots`` (and frame-fixed dots off the axis in the protocol, like the crossbar) these are tracked
     too: their detections go to ``markers`` and the frame's angle about the axis to ``angles`` (``psi_rad,
     psi_sigma_rad``; modulo pi for a symmetric pair).  Frame numbers come from the container's timestamps on
-    camera.json's frame rate (frames a camera dropped
-    are gaps; a variable rate's frames keep their order and own times; a slow-motion file's times are scaled by its
-    rate over ``camera.capture_fps``; an interlaced video's fields are frames, :mod:`~gyrorig.tracking.fields`); a
-    frame identical to the one before is marked ``duplicate``.  Frames are read at the video's own bit depth.  With
+    camera.json's frame rate (frames a camera dropped are gaps; a variable rate's frames keep their order and own
+    times; a slow-motion file's times are scaled by its rate over ``camera.capture_fps``; an interlaced video's fields
+    are frames, :mod:`~gyrorig.tracking.fields`); a frame identical to the one before is marked ``duplicate``.  Frames are read at the video's own bit depth.  With
     ``watch_camera`` (and lab fiducials in the protocol) the camera's own motion is followed on the fiducials and
     taken off the tip (:mod:`gyrorig.tracking.steady`); not with a rough pose (it puts the fiducials where they are
     not).  Raises :class:`TrackingError` for an unreadable video, a camera that does not match the video, or a tip
@@ -491,7 +476,8 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
             # the codec changed the pixel values, or the image is not the sensor's: the noise model does not hold
             camera = camera.with_sensor(gain_e_per_adu=math.nan)
         follower = _follower(camera, tip, markers, source)
-        watch = CameraWatch(camera, follower.lab_px if watch_camera else [])
+        watch = CameraWatch(camera, follower.lab_px if watch_camera else [],
+                            lab_marker_image(markers.fiducials(), tip, camera, frames.levels))
         dot_markers = markers.frame_dots() if frame_dots else ()
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
@@ -521,10 +507,10 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
                 k += 1
                 continue
             prev_hash = digest
-            frame = appearance(frame)
+            raw, frame = frame, appearance(frame)
             if k % 100 == 0:  # the contrast's spread, refreshed every 100 frames (drifting light, moving scenes)
                 threshold = detection_threshold(frame, scale_px, floor=4.0 * camera.max_adu / 255.0)
-            watch.observe(frame, k, index)
+            watch.observe(frame, k, index, raw)
             follower.shift_px = watch.last
             rows.frame(camera, tip, follower, dots, frame, index, t_frame, threshold)
             t_track += time.perf_counter() - t1
@@ -547,7 +533,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     if again:
         return track(video, replace(given, interlace=again), protocol, progress=progress, frame_dots=frame_dots,
                      watch_camera=watch_camera)
-    doubts = "; ".join(d for d in (_sensor_doubts(camera, lossy, follower), appearance.describe(tip)) if d)
+    doubts = appearance.doubts(camera, lossy, follower.shape, tip)
     check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2],
                              MAX_SIGMA_RADII * follower.r_expected)
     source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source) + said
