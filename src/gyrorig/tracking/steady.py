@@ -13,7 +13,8 @@ moves the whole picture alike (a rotation about the camera's centre maps the ima
 first order, whatever the depth); a turn about its own axis rotates the picture, which moves the tip, far from the
 fiducials' centre, unlike any one shift (a hand-held phone turns by a tenth of a degree or so every way).  Where the
 displacements, averaged over :data:`SMOOTH_CHECKS` neighbouring checks and counted once per frame, scatter about their
-median by more than :data:`MIN_STEADY_PX` and 4 of that average's errors (the turn and scale counted as the
+median by more than :data:`MIN_STEADY_PX` and 4 of that average's errors, or as they are by more than their noise (a
+tremor faster than the average, at a low frame rate: :func:`_beyond_noise`; the turn and scale counted as the
 displacement they give at the fiducials' distance from their centre), the camera moved (a hand's tremor, or a tripod
 knocked once): each tip pixel is taken back by its frame's displacement at that pixel (interpolated between checks)
 before its direction is found, and the displacement's error joins the tip's (between checks, the interpolation's
@@ -207,7 +208,6 @@ class CameraWatch:
         grid = np.arange(s[0, 0], s[-1, 0] + 1.0)
         rms = _spread(grid, s[:, 0], s[:, 1], s[:, 2])
         n = min(SMOOTH_CHECKS, len(s))
-        beyond = max(MIN_STEADY_PX, 4.0 * sd / math.sqrt(n))
         # a turn about the axis (or a scale), as the displacement it gives at the fiducials' distance from their centre
         # (checks with too few fiducials for it take their neighbours')
         fitted = np.isfinite(s[:, 3])
@@ -215,12 +215,13 @@ class CameraWatch:
         if turned:
             for c in (3, 4):
                 s[:, c] = np.interp(s[:, 0], s[fitted, 0], s[fitted, c])
-            turned = _moved(grid, s[:, 0], self.lever * s[:, 3], self.lever * s[:, 4], n) > beyond
             # its error from the fits' scatter as the shift's, or from its own scatter about its smooth path
             idx, z = path_residuals(s[:, 0], s[:, 0].astype(int), self.lever * s[:, 3:5], np.ones((len(s), 2)),
                                     np.ones(len(s), bool))
             turn_sd = math.sqrt(max(turn_var, float(np.mean(z ** 2)) if len(idx) >= 10 else 0.0))
-        moved = turned or _moved(grid, s[:, 0], s[:, 1], s[:, 2], n) > beyond
+            turned = _beyond_noise(grid, s[:, 0], self.lever * s[:, 3], self.lever * s[:, 4], sd, n,
+                                   max(sd, turn_sd))
+        moved = turned or _beyond_noise(grid, s[:, 0], s[:, 1], s[:, 2], sd, n)
         steps = np.diff(s[:, 0])
         speed = math.sqrt(float(np.mean((np.diff(s[:, 1]) ** 2 + np.diff(s[:, 2]) ** 2) / (2 * steps ** 2))))
         turn = dict(roll_rad=s[:, 4], scale=s[:, 3], centre_px=self.centre, lever_px=self.lever,
@@ -300,6 +301,18 @@ def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misse
     w = 1.0 / m[:, 4]
     t = (w[:, None] * d).sum(axis=0) / w.sum()
     return np.r_[t, math.nan, math.nan], d - t, w, np.diag([1.0 / w.sum()] * 2 + [math.nan] * 2)
+
+
+def _beyond_noise(grid: np.ndarray, frames: np.ndarray, dx: np.ndarray, dy: np.ndarray, sd: float, n: int,
+                  sd_each: float | None = None) -> bool:
+    """Whether the displacements ``dx, dy`` checked in ``frames`` (each with the error ``sd`` per axis; ``sd_each``
+    where one check's differs from what their average is taken to carry) move by more than :data:`MIN_STEADY_PX` and
+    more than their noise: averaged over ``n`` neighbouring checks, by 4 of the average's errors (a knock's step, or a
+    slow drift), or as they are, by 4 standard errors of their noise's RMS over the checks (``sd (1 + 4 / sqrt(2
+    N))``: a tremor faster than ``n`` checks, which the average takes away, at a low frame rate)."""
+    each = sd if sd_each is None else sd_each
+    slow = _moved(grid, frames, dx, dy, n) > max(MIN_STEADY_PX, 4.0 * sd / math.sqrt(n))
+    return slow or _moved(grid, frames, dx, dy, 1) > max(MIN_STEADY_PX, each * (1.0 + 4.0 / math.sqrt(2 * len(frames))))
 
 
 def _moved(grid: np.ndarray, frames: np.ndarray, dx: np.ndarray, dy: np.ndarray, n: int) -> float:
