@@ -68,7 +68,8 @@ class MarkerImage:
             doubts.append("a tip marker of no exact model (blob)")
         elif shape == "disc":
             doubts.append("a disc marker's model is approximate (first-order edge)")
-        return "; ".join(doubts + ([self.describe(marker)] if self.describe(marker) else []))
+        own = self.describe(marker)
+        return "; ".join(doubts + ([own] if own else []))
 
     def describe(self, marker: Marker) -> str:
         """Why the sensor model no longer holds ('' when it does)."""

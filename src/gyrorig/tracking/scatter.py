@@ -34,7 +34,8 @@ from scipy.signal import lombscargle
 from scipy.stats import chi2
 
 __all__ = ["SigmaCheck", "check_sigmas", "b_picture_runs", "path_residuals", "neighbour_positions", "motion_frequency",
-           "local_factors", "check_summary", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF", "LOCAL_FRAMES", "LOCAL_Z"]
+           "local_factors", "check_summary", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF", "LOCAL_FRAMES",
+           "LOCAL_Z"]
 
 #: neighbours on each side that predict a frame
 HALF_WINDOW = 3
@@ -386,9 +387,10 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
 def local_factors(t_s, frames, xy, var, active, omega_rad_s: float = math.nan, *, window: int = LOCAL_FRAMES,
                   z_min: float = LOCAL_Z) -> np.ndarray:
     """The factor by which each frame's errors fall short of the scatter about the path around it: the RMS of the
-    normalised residuals (:func:`path_residuals`) of the ``window`` checked frames centred on it (nearest in the record),
-    where that exceeds 1 by ``z_min`` of its standard errors, else 1 (``f sqrt((1 + 2 sum rho_k^2) / (2 N))`` from ``N``
-    coordinates: neighbouring residuals share frames, their squares correlated as :data:`NOISE_ACF` squared).
+    normalised residuals (:func:`path_residuals`) of the ``window`` checked frames centred on it (nearest in the
+    record), where that exceeds 1 by ``z_min`` of its standard errors, else 1 (``f sqrt((1 + 2 sum rho_k^2) / (2 N))``
+    from ``N`` coordinates: neighbouring residuals share frames, their squares correlated as :data:`NOISE_ACF`
+    squared).
 
     A record's errors change along it (the scene behind the tip, the tip's speed, the light), which one factor for the
     whole record averages away: where the scatter grows, its stretch's errors grow with it.  ``t_s, frames`` (n,),
