@@ -280,7 +280,8 @@ class TipFollower:
         acc = max((float(np.linalg.norm(p[k + 1] - 2 * p[k] + p[k - 1])) for k in range(1, len(p) - 1)), default=0.0)
         steps = 1 + self.misses
         gate = MIN_GATE_PX + 0.5 * float(np.linalg.norm(v)) * steps + 2.0 * acc * steps * steps
-        gate = max(gate, MIN_GATE_PX + self.r_expected * steps) if len(p) < 3 else gate  # no acceleration seen
+        if len(p) < 3:  # no acceleration seen yet
+            gate = max(gate, MIN_GATE_PX + self.r_expected * steps)
         fast = self._fast_speed()
         return p[-1] + v * steps, max(gate, MIN_GATE_PX + 2.0 * fast * steps)
 

@@ -34,8 +34,7 @@ from scipy.signal import lombscargle
 from scipy.stats import chi2
 
 __all__ = ["SigmaCheck", "check_sigmas", "b_picture_runs", "path_residuals", "neighbour_positions", "motion_frequency",
-           "local_factors", "check_summary", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF", "LOCAL_FRAMES",
-           "LOCAL_Z"]
+           "local_factors", "check_summary", "OUTLIER_Z", "HALF_WINDOW", "MAX_SPAN", "NOISE_ACF", "LOCAL_FRAMES"]
 
 #: neighbours on each side that predict a frame
 HALF_WINDOW = 3
@@ -50,9 +49,6 @@ MAX_OUTLIER_SHARE = 0.1
 
 #: the scatter is also compared with the errors over each stretch of this many checked frames (:func:`local_factors`)
 LOCAL_FRAMES = 40
-#: ... and a stretch's errors widened where its factor exceeds 1 by this many of its standard errors (0: wherever it
-#: exceeds 1, as the record's own factor is applied when the models are in doubt: never down, whatever its error)
-LOCAL_Z = 0.0
 
 #: the residuals' correlations from frame to frame are compared at lags 1 to this
 ACF_LAGS = 4
@@ -373,8 +369,9 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     if follow_motion and not smooth and math.isnan(omega_rad_s):
         omega = motion_frequency(t_s[active], frames[active], xy[active])
         try:
-            retried = check_sigmas(t_s, frames, xy, var, classes, floor=floor, min_factor=min_factor, groups=groups,
-                                   omega_rad_s=omega, largest_error_px=largest_error_px) if math.isfinite(omega) else None
+            retried = None if not math.isfinite(omega) else check_sigmas(
+                t_s, frames, xy, var, classes, floor=floor, min_factor=min_factor, groups=groups, omega_rad_s=omega,
+                largest_error_px=largest_error_px)
         except np.linalg.LinAlgError:  # a stencil of the frames left after the outliers on which the basis is singular
             retried = None
         if retried is not None and retried.smooth_path:
@@ -384,13 +381,13 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
                       residual_acf=acf, smooth_path=smooth, omega_rad_s=omega_rad_s)
 
 
-def local_factors(t_s, frames, xy, var, active, omega_rad_s: float = math.nan, *, window: int = LOCAL_FRAMES,
-                  z_min: float = LOCAL_Z) -> np.ndarray:
+def local_factors(t_s, frames, xy, var, active, omega_rad_s: float = math.nan, *,
+                  window: int = LOCAL_FRAMES) -> np.ndarray:
     """The factor by which each frame's errors fall short of the scatter about the path around it: the RMS of the
     normalised residuals (:func:`path_residuals`) of the ``window`` checked frames centred on it (nearest in the
-    record), where that exceeds 1 by ``z_min`` of its standard errors, else 1 (``f sqrt((1 + 2 sum rho_k^2) / (2 N))``
-    from ``N`` coordinates: neighbouring residuals share frames, their squares correlated as :data:`NOISE_ACF`
-    squared).
+    record), where that exceeds 1, else 1: widened wherever the scatter says so, never narrowed, as the record's own
+    factor is applied when the models are in doubt (each known to ``sqrt((1 + 2 sum rho_k^2) / (2 N))`` from ``N``
+    coordinates: neighbouring residuals share frames, their squares correlated as :data:`NOISE_ACF` squared).
 
     A record's errors change along it (the scene behind the tip, the tip's speed, the light), which one factor for the
     whole record averages away: where the scatter grows, its stretch's errors grow with it.  ``t_s, frames`` (n,),
@@ -401,9 +398,7 @@ def local_factors(t_s, frames, xy, var, active, omega_rad_s: float = math.nan, *
     n = len(np.asarray(t_s))
     if len(idx) < window:
         return np.ones(n)
-    count = 2.0 * window
-    f = _window_rms(z, window)
-    f = np.where(f > 1.0 + z_min * f * math.sqrt((1.0 + 2.0 * np.sum(NOISE_ACF**2)) / (2.0 * count)), f, 1.0)
+    f = np.maximum(_window_rms(z, window), 1.0)
     nearest = np.clip(np.searchsorted(idx, np.arange(n)), 0, len(idx) - 1)
     before = np.clip(nearest - 1, 0, len(idx) - 1)
     closer = np.abs(idx[before] - np.arange(n)) < np.abs(idx[nearest] - np.arange(n))

@@ -454,11 +454,11 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     psi_sigma_rad``; modulo pi for a symmetric pair).  Frame numbers come from the container's timestamps on
     camera.json's frame rate (frames a camera dropped are gaps; a variable rate's frames keep their order and own
     times; a slow-motion file's times are scaled by its rate over ``camera.capture_fps``; an interlaced video's fields
-    are frames, :mod:`~gyrorig.tracking.fields`); a frame identical to the one before is marked ``duplicate``.  Frames are read at the video's own bit depth.  With
-    ``watch_camera`` (and lab fiducials in the protocol) the camera's own motion is followed on the fiducials and
-    taken off the tip (:mod:`gyrorig.tracking.steady`); not with a rough pose (it puts the fiducials where they are
-    not).  Raises :class:`TrackingError` for an unreadable video, a camera that does not match the video, or a tip
-    that is never found.
+    are frames, :mod:`~gyrorig.tracking.fields`); a frame identical to the one before is marked ``duplicate``.  Frames
+    are read at the video's own bit depth.  With ``watch_camera`` (and lab fiducials in the protocol) the camera's own
+    motion is followed on the fiducials and taken off the tip (:mod:`gyrorig.tracking.steady`); not with a rough pose
+    (it puts the fiducials where they are not).  Raises :class:`TrackingError` for an unreadable video, a camera that
+    does not match the video, or a tip that is never found.
     """
     markers, tip = _markers_and_tip(protocol)  # parsed once per call
     source, given = as_source(video), camera
