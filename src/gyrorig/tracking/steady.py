@@ -129,6 +129,9 @@ class CameraWatch:
         self.samples: list[tuple] = []  # (frame, dx, dy, scale, roll, residuals, weights, covariance): _similarity
         self.last = (0.0, 0.0)
         self.turn = (0.0, 0.0)
+        #: how much the fitted turn changed from one check to the next (each component of ``(a, b)``, as a distance)
+        self.turn_steps: deque[float] = deque(maxlen=FIT_MEMORY)
+        self.turn_fitted = False
         #: how far each fiducial kept lately was from the others' fit [px], and each fit's own variance [px^2]
         self.misses: deque[float] = deque(maxlen=FIT_MEMORY)
         self.variances: deque[float] = deque(maxlen=FIT_MEMORY)
@@ -140,6 +143,13 @@ class CameraWatch:
         if len(self.misses) < TURN_OUTLIER_SAMPLES:
             return TURN_OUTLIER_PX
         return max(TURN_OUTLIER_MIN_PX, TURN_OUTLIER_SIGMAS * float(np.median(self.misses)) / 1.1774)
+
+    def _turn_sd(self) -> float | None:
+        """The last fitted turn's error for the next check, per component of ``(a, b)``: the turn's change from one
+        check to the next, from its median over the record so far (None before a turn was fitted twice)."""
+        if not self.turn_steps:
+            return None
+        return float(np.median(self.turn_steps)) / 1.1774
 
     def _moves(self, frame: np.ndarray) -> np.ndarray:
         """Each fiducial found in ``frame`` near where it is expected: (rx, ry, dx, dy, variance) rows, ``rx, ry`` its
@@ -172,14 +182,16 @@ class CameraWatch:
         if len(self.variances) >= TURN_OUTLIER_SAMPLES:  # a fit far less sure than the fiducials' usual is not clean
             m = m[m[:, 4] <= MAX_SIGMA_RATIO ** 2 * float(np.median(self.variances))]
         self.variances.extend(m[:, 4].tolist())
-        fitted = _similarity(m, self.turn, self._miss_limit(), self.misses)
+        fitted = _similarity(m, self.turn, self._miss_limit(), self.misses, self._turn_sd())
         if fitted is None:
             return
         (dx, dy, a, b), resid, weights, cov = fitted
         self.samples.append((index, dx, dy, a, b, resid, weights, cov))
         self.last = (dx, dy)
         if math.isfinite(a):
-            self.turn = (a, b)
+            if self.turn_fitted:
+                self.turn_steps.append(math.hypot(a - self.turn[0], b - self.turn[1]))
+            self.turn, self.turn_fitted = (a, b), True
         first = self.samples[0]
         turned = self.lever * math.hypot(self.turn[0] - first[3], self.turn[1] - first[4])
         if math.hypot(dx - first[1], dy - first[2]) + (turned if math.isfinite(turned) else 0.0) > MIN_MOTION_PX:
@@ -271,36 +283,77 @@ def _score(moves: np.ndarray) -> tuple[int, float]:
     return len(moves), -float(np.median(moves[:, 4])) if len(moves) else 0.0
 
 
-def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misses) -> tuple | None:
+def _left_out(m: np.ndarray, turn: tuple[float, float], turn_sd: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """For each fiducial of ``m`` (:func:`_similarity`): how far the others' fit misses it [px], and that miss in its
+    standard errors (its own fit's and the others' fit's at its place: a deleted residual).  With only
+    :data:`MIN_TURN_FIDUCIALS` others their turn is not fitted (three places leave two equations over, which a drift or
+    an outlier among them fits as a false turn): their shift under the turn ``turn`` held from the last check, whose
+    change since then (``turn_sd`` per component of ``(a, b)``) counts as the held turn's error; ``turn_sd`` None (no
+    turn fitted yet: the pose's own may be off) fits the others' turn whatever their number."""
+    miss, z = np.empty(len(m)), np.empty(len(m))
+    for j in range(len(m)):
+        others = np.delete(m, j, axis=0)
+        rx, ry = m[j, :2]
+        if len(others) > MIN_TURN_FIDUCIALS or turn_sd is None:
+            x, cov = _similarity_fit(others)
+            at = np.array([[1.0, 0.0, rx, -ry], [0.0, 1.0, ry, rx]])
+            predicted = float(np.trace(at @ cov @ at.T)) / 2
+        else:
+            x = np.r_[_held_shift(others, turn)[0], turn]
+            predicted = 1.0 / float(np.sum(1.0 / others[:, 4])) + (turn_sd * math.hypot(rx, ry)) ** 2
+        miss[j] = math.hypot(*(m[j, 2:4] - _moved_by(x, m[[j], :2])[0]))
+        z[j] = miss[j] / math.sqrt(m[j, 4] + predicted)
+    return miss, z
+
+
+def _held_shift(m: np.ndarray, turn: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The shift of the fiducials ``m`` under the turn ``(a, b)`` held, weighted by their fits' own errors: ``(t,
+    residuals, weights)``."""
+    d = m[:, 2:4] - _moved_by(np.r_[0.0, 0.0, turn], m[:, :2])
+    w = 1.0 / m[:, 4]
+    t = (w[:, None] * d).sum(axis=0) / w.sum()
+    return t, d - t, w
+
+
+def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misses,
+                turn_sd: float | None = None) -> tuple | None:
     """The picture's move from the fiducials' ``m`` (k, 5): each one's place about their centre, its displacement and
     its fit's variance per axis.  With :data:`MIN_TURN_FIDUCIALS` or more, a shift, scale and turn
-    ``d = t + (a I + b J) r`` (:func:`_similarity_fit`); with more, the fiducial the others' fit misses most (in its
-    own errors) left out first while it misses by more than ``limit_px`` and :data:`TURN_OUTLIER_SIGMAS` of its errors
-    (the misses of those kept appended to ``misses``); with fewer, the shift alone under the turn ``(a, b)`` found
-    before, a and b returned NaN, a fiducial far from the others' median (:data:`OUTLIER_PX`) left out.  Returns
-    ``((tx, ty, a, b), residuals (k', 2), weights (k',), covariance of (tx, ty, a, b))``; None with fewer than two
-    fiducials."""
+    ``d = t + (a I + b J) r`` (:func:`_similarity_fit`); with more, each is checked against the others' fit
+    (:func:`_left_out`) and, while one misses by more than ``limit_px`` and :data:`TURN_OUTLIER_SIGMAS` of the miss's
+    errors, the one missed by most of them left out (the misses of those kept appended to ``misses``): an outlier
+    among the others drags their fit, and the miss in the errors of both fits picks it rather than a good fiducial
+    whose own fit is the surest.  With fewer, or as few after one was left out (once a turn was fitted: ``turn_sd``
+    not None), the shift alone under the turn ``turn`` found before (``turn_sd`` its error since, per component), a and
+    b returned NaN, a fiducial far from the others'
+    median (:data:`OUTLIER_PX`) left out.  Returns ``((tx, ty, a, b), residuals (k', 2), weights (k',), covariance
+    of (tx, ty, a, b))``; None with fewer than two fiducials."""
+    left_out = False
     while len(m) > MIN_TURN_FIDUCIALS:
-        miss = np.array([math.hypot(*(m[j, 2:4] - _moved_by(_similarity_fit(np.delete(m, j, 0))[0], m[[j], :2])[0]))
-                         for j in range(len(m))])
-        off = (miss > limit_px) & (miss > TURN_OUTLIER_SIGMAS * np.sqrt(m[:, 4]))
+        miss, z = _left_out(m, turn, None)
+        off = (miss > limit_px) & (z > TURN_OUTLIER_SIGMAS)
+        if len(m) == MIN_TURN_FIDUCIALS + 1 and turn_sd is not None and off.any():
+            # off against the others' own turn, and against their shift under the turn held: a fiducial one of them
+            # drags their turn, or the camera's turn changed since, would be missed by one fit or the other
+            miss_held, z = _left_out(m, turn, turn_sd)
+            off &= (miss_held > limit_px) & (z > TURN_OUTLIER_SIGMAS)
         if not off.any():
             misses.extend(miss.tolist())
             break
-        m = np.delete(m, int(np.argmax(np.where(off, miss / np.sqrt(m[:, 4]), -1.0))), axis=0)
-    if len(m) >= MIN_TURN_FIDUCIALS:
+        m = np.delete(m, int(np.argmax(np.where(off, z, -1.0))), axis=0)
+        left_out = True
+    if len(m) > MIN_TURN_FIDUCIALS or (len(m) == MIN_TURN_FIDUCIALS and not (left_out and turn_sd is not None)):
         x, cov = _similarity_fit(m)
         return x, m[:, 2:4] - _moved_by(x, m[:, :2]), 1.0 / m[:, 4], cov
     if len(m) < 2:
         return None
-    d = m[:, 2:4] - _moved_by(np.r_[0.0, 0.0, turn], m[:, :2])  # the shift under the turn held
+    d = m[:, 2:4] - _moved_by(np.r_[0.0, 0.0, turn], m[:, :2])  # the displacements under the turn held
     near = np.hypot(d[:, 0] - np.median(d[:, 0]), d[:, 1] - np.median(d[:, 1])) <= OUTLIER_PX
-    m, d = m[near], d[near]
-    if len(d) < 2:
+    m = m[near]
+    if len(m) < 2:
         return None
-    w = 1.0 / m[:, 4]
-    t = (w[:, None] * d).sum(axis=0) / w.sum()
-    return np.r_[t, math.nan, math.nan], d - t, w, np.diag([1.0 / w.sum()] * 2 + [math.nan] * 2)
+    t, resid, w = _held_shift(m, turn)
+    return np.r_[t, math.nan, math.nan], resid, w, np.diag([1.0 / w.sum()] * 2 + [math.nan] * 2)
 
 
 def _beyond_noise(grid: np.ndarray, frames: np.ndarray, dx: np.ndarray, dy: np.ndarray, sd: float, n: int,
