@@ -712,18 +712,13 @@ def test_a_tip_moving_farther_than_its_size_between_frames_is_followed(tmp_path)
     assert error.max() < found.radius_px.median()
 
 
-@pytest.mark.slow
-def test_a_tip_too_fast_to_be_followed_is_followed_once_found_again_twice(tmp_path):
-    """1080p at 25 frames/s with 8 ms exposures (a camera set to PAL rates), the tip 11 px across moving up to
-    37 px between frames: found only where the nod turns (two frames a few pixels apart confirm it), then lost at
-    the next step, which the gate from a turn's short steps does not hold: 8 of 73 frames tracked.  Where the tip was
-    found again twice in a row, each time farther from where it was lost than its radius per frame since, that speed
-    bounds the gate as a speed seen between followed frames does.  At least 70 % of the visible frames tracked (the
-    first second, before two such reacquisitions, stays mostly missing), none beyond 5 sigma flagged ok."""
+def _fast_nod_at_25_frames_per_second(tmp_path, width_px: int, height_px: int):
+    """3 s of the phone variant's rig filmed at 25 frames/s with 8 ms exposures (a camera set to PAL rates): the
+    heavy top's nod moves the tip by up to 3.5 of its radii between frames; tracked as the user describes it."""
     scene, user, _ = variant_protocols("phone-coffee-hevc", 3.0)
     tilt = math.radians(13.87)
     for d in (scene, user):
-        d["camera"].update(fps=25.0, exposure_s=0.008, width_px=1920, height_px=1080,
+        d["camera"].update(fps=25.0, exposure_s=0.008, width_px=width_px, height_px=height_px,
                            position_m=[0.75 * math.sin(tilt), 0.0, 0.75 * math.cos(tilt)])
     style = PhoneStyle(photo="coffee", crf=25, bit_depth=10, b_frames=3, jitter_fraction=0.058, drop_fraction=0.031,
                        background_level=0.596, flicker_fraction=0.077, drift_px_per_s=18.2)
@@ -731,7 +726,29 @@ def test_a_tip_too_fast_to_be_followed_is_followed_once_found_again_twice(tmp_pa
     res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user))
     m, found, e_th, e_ph = _pulls(res, pd.read_csv(rendered["truth"]))
     wrong = (e_th.abs() > 5) | (e_ph.abs() > 5)
-    assert len(found) >= 0.7 * m.visible.sum() and not (wrong & (found.quality == "ok")).any()
+    return m, found, wrong
+
+
+@pytest.mark.slow
+def test_a_tip_too_fast_to_be_followed_is_followed_once_found_again_twice(tmp_path):
+    """1080p at 25 frames/s, the tip 11 px across moving up to 37 px between frames: found only where the nod turns
+    (two frames a few pixels apart confirm it), then lost at the next step, which the gate from a turn's short steps
+    does not hold: 8 of 73 frames tracked.  Where the tip was found again twice in a row, each time farther from
+    where it was lost than its radius per frame since, that speed bounds the gate as a speed seen between followed
+    frames does (55 of 73), and once followed fast it is followed back through the first second (73 of 73).  At
+    least 95 % of the visible frames tracked, none beyond 5 sigma flagged ok."""
+    m, found, wrong = _fast_nod_at_25_frames_per_second(tmp_path, 1920, 1080)
+    assert len(found) >= 0.95 * m.visible.sum() and not (wrong & (found.quality == "ok")).any()
+
+
+def test_a_tip_seen_to_move_fast_is_followed_back_through_the_frames_it_was_lost_in(tmp_path):
+    """720p at 25 frames/s: until the tip has been seen to move fast it is lost after each turn of the nod, and the
+    first second's frames stayed missing (69 of 73 tracked on this render, 69-70 on two more seeds).  Once followed
+    for a few frames at the speed it moves, it is followed back through the frames before, from where it was taken,
+    in which the spots of its look were kept: at least 99 % of the visible frames tracked (73 of 73 on three seeds),
+    none beyond 5 sigma flagged ok."""
+    m, found, wrong = _fast_nod_at_25_frames_per_second(tmp_path, 1280, 720)
+    assert len(found) >= 0.99 * m.visible.sum() and not (wrong & (found.quality == "ok")).any()
 
 
 def test_dropped_frames_are_gaps_and_times_are_the_capture_grid(phone_clip):

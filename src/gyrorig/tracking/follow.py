@@ -20,7 +20,11 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   (of those, the nearest to the tip's expected size): dots on the spinning rotor jump by a large fraction
   of a turn between frames, a static spot of the wrong size fails the size test, and one of the right size
   (a highlight, a screw head) never moves.  The frames searched meanwhile get the tip's positions back once
-  it is taken.  A sleeping top's tip, at the pole, need not move.
+  it is taken.  A sleeping top's tip, at the pole, need not move;
+- **following back**: at a frame rate low for the motion the tip is taken only where it turns and lost at the next
+  step until it has been seen to move fast; once it has, and has been followed for :data:`BACK_AFTER` frames, it is
+  followed back through the frames it was not taken in, among the spots of its look kept from each, as it is
+  followed forward.
 
 A sphere's spot fitted jointly with a neighbour (``blended``) that fails these is fitted again with the
 neighbour's light masked out (a whirling dot is a streak, not a disc); if that fails too, the frame
@@ -45,6 +49,7 @@ import numpy as np
 
 from ..markers import Marker
 from ..camera import Camera
+from .backward import follow_back
 from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .first_look import MAX_RECORDED, Candidate, FirstLook, Verdict
@@ -110,17 +115,21 @@ SLEEPING_TILT_RAD = 0.05
 #: within this many expected radii, and is forgotten after this many frames searched
 ANCHOR_REACH_RADII = 4.0
 ANCHOR_FRAMES = 240
+#: once the tip has been followed this many frames after an acquisition and seen to move fast (:data:`SPEED_MEMORY`),
+#: it is followed back through the frames before in which it was not taken (:meth:`TipFollower._follow_back`): at a
+#: frame rate low for the motion it is found only where it turns until a speed has been seen
+BACK_AFTER = 10
 
 
 @dataclass(frozen=True)
 class Located:
     """The follower's verdict on one frame: the tip's fit (None: missing), its quality flag, and, when this frame
-    completed an acquisition, the tip's fits in the frames searched before it (the latest first), which were
-    left missing while the tip could not yet be told from the scene."""
+    completed an acquisition or the tip was followed back from it, the tip's fits in the frames before it (the latest
+    first; None where the frame is left as it was), which were left missing while the tip could not yet be told."""
 
     fit: SpotFit | None
     quality: str
-    earlier: tuple[SpotFit, ...] = ()
+    earlier: tuple[SpotFit | None, ...] = ()
 
 
 def _lab_images(camera: Camera, markers: tuple[Marker, ...]) -> list[tuple[float, float, float]]:
@@ -187,6 +196,11 @@ class TipFollower:
         self.anchors: list[tuple[SpotFit, np.ndarray, int]] = []
         self.history: list[list[SpotFit]] = []  # each searched frame's candidates, the latest last
         self.earlier: tuple[SpotFit, ...] = ()  # the acquired tip's fits in the frames searched before
+        #: each frame seen lately, the latest last: where the tip was (x, y) [px] if it was taken there, else the spots
+        #: of its look found in the frame (a list of fits; None: not searched), through which a tip seen to move fast
+        #: on its reacquisition is followed back (:meth:`_follow_back`)
+        self.lately: deque = deque(maxlen=ANCHOR_FRAMES)
+        self.followed = 0  # frames followed since the tip was last acquired
         self.confirmed: SpotFit | None = None  # the candidate of the last frame that this frame confirmed
         self.had_lock = False
         #: the first frame searched: every spot that stood out and what became of it
@@ -377,12 +391,19 @@ class TipFollower:
         return None
 
     def _acquire(self, frame: np.ndarray, threshold: Detection) -> SpotFit | None:
-        """Candidates that look like the tip anywhere; the one nearest to a candidate of the previous frame
-        (within :data:`ACQUIRE_REACH`, of similar amplitude), or None (this frame's candidates then wait
-        for the next)."""
-        # the highest-contrast candidates of a plausible size (a textured background offers many), the ones
-        # nearest the tip's expected size fitted first
+        """The spots of the tip's look anywhere (:meth:`_look`); the one nearest to a candidate of the previous frame
+        (within :data:`ACQUIRE_REACH`, of similar amplitude, moved unlike the scene), or None (this frame's
+        candidates then wait for the next)."""
         record = [] if self.first_look is None else None  # the first search is kept, to show why it failed
+        fits, busy = self._look(frame, threshold, record)
+        self.lately.append(fits)
+        return self._acquire_among(frame, threshold, fits, busy, record)
+
+    def _look(self, frame: np.ndarray, threshold: Detection, record: list | None = None
+              ) -> tuple[list[SpotFit], bool]:
+        """The spots of the tip's look anywhere in the frame: the highest-contrast candidates of a plausible size (a
+        textured background offers many), the ones nearest the tip's expected size fitted first; and whether the
+        scene is busy (:data:`BUSY_CANDIDATES`).  ``record``: the candidates' fates are appended to it."""
         everything = self._candidates(frame, threshold, refused=record)
         busy = len(everything) >= BUSY_CANDIDATES
         cand = sorted(everything[:ACQUIRE_CANDIDATES], key=lambda c: abs(c.r - self.r_expected))
@@ -404,6 +425,11 @@ class TipFollower:
             elif record is not None:
                 why = Verdict.NO_FIT if fit is None else Verdict.NOT_ALIKE if self.had_lock else Verdict.SHAPE
                 record.append(Candidate(x0, y0, r0, why))
+        return fits, busy
+
+    def _acquire_among(self, frame: np.ndarray, threshold: Detection, fits: list[SpotFit], busy: bool,
+                       record: list | None) -> SpotFit | None:
+        """:meth:`_acquire` among this frame's ``fits``."""
         reach = max(ACQUIRE_REACH * self.r_expected + 5.0, FAST_REACH * self._fast_speed())
         pairs = [(abs(math.log(f.radius_px / self.r_expected)), math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
                  for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
@@ -522,8 +548,13 @@ class TipFollower:
             fit = self._track(frame, threshold, others)
             if fit is not None:
                 self._accept(fit)
-                return Located(fit, "ok")
+                self.lately.append((fit.x_px, fit.y_px))
+                self.followed += 1
+                if self.followed != BACK_AFTER or not self._fast_speed():
+                    return Located(fit, "ok")
+                return Located(fit, "ok", self._follow_back(fit))
             self.misses += 1
+            self.lately.append(self._look(frame, threshold)[0])  # the tip may be followed back here (_follow_back)
             if self.misses > COAST_FRAMES:
                 self._lose()
             return Located(None, "missing")
@@ -532,15 +563,34 @@ class TipFollower:
         fit = self._acquire(frame, threshold)
         if fit is None:
             return Located(None, "missing")
-        earlier, self.pending, self.confirmed, self.earlier = self.earlier, [], None, ()
+        chain, self.pending, self.confirmed, self.earlier = self.earlier, [], None, ()
         quality = "reacquired" if self.had_lock else "ok"
         if self.had_lock and self.lost_at is not None and self.since_lost > 0:
             self.gap_speeds.append(math.hypot(fit.x_px - self.lost_at[0], fit.y_px - self.lost_at[1]) / self.since_lost)
             self.steps_since_gap = 0
-        for f in reversed(earlier):
+        for f in reversed(chain):
             self._accept(f)
         self._accept(fit)
-        return Located(fit, quality, earlier)
+        self.followed = 0
+        self._taken(chain)
+        self.lately[-1] = (fit.x_px, fit.y_px)
+        return Located(fit, quality, chain)
+
+    def _follow_back(self, fit: SpotFit) -> tuple[SpotFit | None, ...]:
+        """The tip followed back from this frame through the frames seen lately (:func:`.backward.follow_back`), with
+        the gate it is followed forward with once seen to move fast (:meth:`_prediction`); the frames given back are
+        followed ones from now on."""
+        fast = self._fast_speed()
+        earlier = follow_back(self.lately, (fit.x_px, fit.y_px), lambda steps: MIN_GATE_PX + 2.0 * fast * steps,
+                              self._appearance_ok, COAST_FRAMES)
+        self._taken(earlier)
+        return earlier
+
+    def _taken(self, earlier: tuple[SpotFit | None, ...]) -> None:
+        """Mark the frames before the latest in :attr:`lately` where ``earlier`` (the latest first) gives the tip."""
+        for back, f in enumerate(earlier, start=2):
+            if f is not None:
+                self.lately[-back] = (f.x_px, f.y_px)
 
     def _lose(self) -> None:
         """Forget the track; remember where it ended and how fast the tip moved (a reacquisition's reach)."""

@@ -192,7 +192,9 @@ class _Tables:
         located = follower.locate(frame, threshold, self.others)
         self.others = () if dots is None else None
         for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
-            # this frame completed an acquisition: the frames searched before it get the tip's positions back
+            # an acquisition, or the tip followed back: the frames before get the tip's positions back
+            if fit is None:  # taken in that frame, or not found in it
+                continue
             self._tip_rows(camera, tip, follower, None, None, *seen, fit, located.quality, row=row)
         self.seen = self.seen[-ANCHOR_FRAMES:] + [(len(self.angles), index, t_frame, threshold)]
         if located.fit is None:
