@@ -34,7 +34,9 @@ of the frames dropped; the user's camera.json has no sensor numbers), 1280x720 a
 - ``phone-camera-ippp``: ``camera`` (the cameraman, in grey), HEVC with no B pictures (I and P only, as many phones'
   hardware encoders write);
 - ``phone-brick-crf32``: ``brick``, H.264 at CRF 32 (a file shrunk for sharing: the codec smooths the noise away and
-  moves runs of B pictures alike by about 0.2 px).
+  moves runs of B pictures alike by about 0.2 px);
+- ``phone-30fps``: ``coffee``, HEVC, at 30 fps (most phones' default rate: the heavy top's nod moves the tip by up to
+  three of its radii between frames), eight times as long, so that it holds as many frames as the others.
 """
 
 from __future__ import annotations
@@ -69,8 +71,11 @@ PHONE_VARIANTS = {
     "phone-handheld": (dict(photo="coffee", codec="libx265", shake_px=2.0), {}),
     "phone-camera-ippp": (dict(photo="camera", codec="libx265", b_frames=0), {}),
     "phone-brick-crf32": (dict(photo="brick", codec="libx264", crf=32), {}),
+    "phone-30fps": (dict(photo="coffee", codec="libx265"), {}),
 }
 VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip", *PHONE_VARIANTS)
+#: phone variants filmed at another frame rate than the others' 240 fps (their records as many frames long)
+PHONE_FPS = {"phone-30fps": 30.0}
 
 
 def _base() -> dict:
@@ -142,6 +147,9 @@ def variant_protocols(name: str, duration_s: float) -> tuple[dict, dict, str]:
     if name in PHONE_VARIANTS:
         _phone_camera(d)
         codec = "phone"
+    if name in PHONE_FPS:
+        d["scene"]["duration_s"] = duration_s * d["camera"]["fps"] / PHONE_FPS[name]
+        d["camera"]["fps"] = PHONE_FPS[name]
     user = copy.deepcopy(d)
     if name in PHONE_VARIANTS:  # what a user writes down: where the markers are and how big, the tip's colour
         user["markers"] = {k: {kk: vv for kk, vv in m.items() if kk != "brightness_e_per_s"}
