@@ -71,6 +71,23 @@ def test_a_good_camera_file_loads(tmp_path):
     assert load_camera(tmp_path / "nested.json").dist_coeffs.tolist() == GOOD["dist_coeffs"]
 
 
+@pytest.mark.parametrize("keys,unknown,readout", [({"shutter": "rolling", "readout_time_s": None}, True, None),
+                                                  ({"shutter": "rolling"}, True, None),
+                                                  ({"shutter": "rolling", "readout_time_s": 0.02}, False, 0.02),
+                                                  ({"readout_time_s": None}, False, 0.0), ({}, False, 0.0)])
+def test_a_rolling_shutter_without_its_readout_is_one_the_fit_finds(tmp_path, keys, unknown, readout):
+    """A phone's rolling shutter, its readout time not known (null or left out): no row delay is put on the frames'
+    times, and the camera says it is unknown (the tracker then gives each tip's row to the fit); a readout stated
+    is used; a global shutter has none.  The camera writes its shutter back as it read it."""
+    (tmp_path / "camera.json").write_text(json.dumps({**GOOD, **keys}))
+    cam = load_camera(tmp_path / "camera.json")
+    assert cam.readout_unknown is unknown
+    assert cam.row_delay_s(240.0) == (0.0 if unknown or readout == 0.0 else 0.5 * readout)
+    written = {k: cam.to_json()[k] for k in ("shutter", "readout_time_s")}
+    (tmp_path / "again.json").write_text(json.dumps({**GOOD, **written}))
+    assert load_camera(tmp_path / "again.json").readout_unknown is unknown
+
+
 @pytest.mark.parametrize("name", sorted(BAD))
 def test_a_bad_camera_file_is_refused_where_it_enters(tmp_path, name):
     (tmp_path / "camera.json").write_text(json.dumps(BAD[name]))

@@ -65,6 +65,36 @@ def test_b_pictures_shrunk_nutation_is_taken_off():
     assert NoteKind.CODEC_SMOOTHING in [n.kind for n in told.notes]
 
 
+def test_a_rolling_shutters_unknown_readout_is_fitted_from_the_motion():
+    """A phone's rolling shutter reads each row later than the one above (here 4 ms from top to bottom, at 200 fps),
+    and the tip's row follows its motion (from 0.2 to 0.8 of the frame): its angles are the simulator's at
+    ``t + row * 4 ms``, stamped ``t``, with errors of 5e-4 rad (a phone's).  Given each frame's row, the fit finds
+    the readout within 3 standard errors and the precession rate and nutation frequency within 3 of the exact
+    solution's; without the rows the record's clock is warped and they are off by more than 5 (measured: 30 and 29,
+    with a reduced chi-square of 1.05)."""
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    t = np.arange(0.0, 2.0, 1 / 200.0)
+    first = simulate(p, t_eval_s=t)
+    rows = 0.5 + 0.3 * np.sin(first.theta_rad.to_numpy()) * np.cos(first.phi_rad.to_numpy())
+    seen = simulate(p, t_eval_s=t + rows * 0.004)
+    rng = np.random.default_rng(6)
+    sigma = 5e-4
+    sph = sigma / np.sin(seen.theta_rad.to_numpy())
+    angles = pd.DataFrame({"frame": np.arange(len(t)), "t_s": t,
+                           "theta_rad": seen.theta_rad.to_numpy() + sigma * rng.normal(size=len(t)),
+                           "phi_rad": wrap_angle(seen.phi_rad.to_numpy() + sph * rng.normal(size=len(t))),
+                           "theta_sigma_rad": sigma, "phi_sigma_rad": sph, "row_fraction": rows})
+    pred = predict(p, simulate_damping=False)
+    told = fit_angles(angles, p, prediction=pred)
+    readout, readout_se = told.params["readout_time_s"]
+    assert abs(readout - 0.004) < 3 * readout_se
+    assert told.notes_of(NoteKind.ROLLING_SHUTTER)
+    untold = fit_angles(angles.drop(columns=["row_fraction"]), p, prediction=pred)
+    for name in ("precession_rate_rad_s", "nutation_frequency_rad_s"):
+        assert abs(told.quantities[name].diff_exact_se) < 3.0
+        assert abs(untold.quantities[name].diff_exact_se) > 5.0
+
+
 def test_error_bars_far_larger_than_the_scatter_are_said_to_be():
     """Frames whose stated errors are 5 times their noise (as when a record's check reads motion as noise at a
     low frame rate): the reduced chi-square is about 1/25, far below its band, and a note says the standard
@@ -190,7 +220,8 @@ def test_bad_input_is_refused_by_name():
                                            nutation_origin_s=-1.0),
                                       dict(fit_axis=True),
                                       dict(fit_axis=True, damped=True, harmonics=2, transient=True, sidebands=True,
-                                           transient_min_rate_per_s=5.0, nutation_origin_s=-1.0, b_frames=True)])
+                                           transient_min_rate_per_s=5.0, nutation_origin_s=-1.0, b_frames=True),
+                                      dict(harmonics=2, b_frames=True, rolling_shutter=True)])
 def test_analytic_jacobian_matches_finite_differences(spec_kw):
     from scipy.optimize._numdiff import approx_derivative
 
@@ -203,7 +234,8 @@ def test_analytic_jacobian_matches_finite_differences(spec_kw):
     ix = m.index
     p[ix["log_cone_angle"]], p[ix["precession_rate_rad_s"]] = np.log(0.5), 1.7
     for name, v in (("nutation_frequency_rad_s", 59.0), ("persistent_frequency_rad_s", 59.5), ("axis_tilt_rad", 0.05),
-                    ("axis_azimuth_rad", 1.5), ("transient_rate_logit", -1.0), ("b_frame_shrink", 0.02)):
+                    ("axis_azimuth_rad", 1.5), ("transient_rate_logit", -1.0), ("b_frame_shrink", 0.02),
+                    ("readout_time_s", 0.005)):
         if name in ix:
             p[ix[name]] = v
     n = 400
@@ -213,7 +245,9 @@ def test_analytic_jacobian_matches_finite_differences(spec_kw):
     cov[:, 0, 0], cov[:, 1, 1] = 1e-8, 2e-8
     cov[:, 0, 1] = cov[:, 1, 0] = 3e-9
     b = (np.arange(n) % 4 != 0) if spec.b_frames else None  # three B pictures in four
-    white = Residuals(m, FitData(np.arange(n), t, np.full(n, 0.5), np.zeros(n), cov, seg, 1.0, b_frame=b))
+    rows = 0.5 + 0.3 * np.sin(1.7 * t) if spec.rolling_shutter else None
+    white = Residuals(m, FitData(np.arange(n), t, np.full(n, 0.5), np.zeros(n), cov, seg, 1.0, b_frame=b,
+                                 row_fraction=rows))
     jn = approx_derivative(white, p, method="3-point")
     ja = white.jac(p)
     assert np.max(np.abs(ja - jn).max(axis=0) / np.abs(jn).max(axis=0)) < 1e-5

@@ -168,8 +168,16 @@ class Camera:
         return -self.rotation.T @ np.ravel(self.tvec)
 
     def row_delay_s(self, y_px: float) -> float:
-        """Start of row ``y_px``'s exposure after the frame's start (rolling shutter; 0 for a global one). [s]"""
-        return (y_px / self.height_px) * self.readout_time_s if self.shutter == "rolling" else 0.0
+        """Start of row ``y_px``'s exposure after the frame's start (rolling shutter; 0 for a global one, and for a
+        rolling one whose readout is not known: :attr:`readout_unknown`). [s]"""
+        return (y_px / self.height_px) * self.readout_time_s if self.shutter == "rolling" and not \
+            self.readout_unknown else 0.0
+
+    @property
+    def readout_unknown(self) -> bool:
+        """A rolling shutter whose readout time camera.json does not state (a phone's): the frames' times are their
+        first row's, and the fit finds the readout from the motion (:class:`gyrorig.fit.terms.RollingShutter`)."""
+        return self.shutter == "rolling" and not math.isfinite(self.readout_time_s)
 
     def with_intrinsics(self, names: tuple[str, ...], delta: np.ndarray) -> "Camera":
         """The camera with the named intrinsics (:data:`INTRINSIC_PARAMETERS`) moved by ``delta``."""
@@ -196,7 +204,7 @@ class Camera:
             "fps": self.fps,
             "exposure_s": self.exposure_s,
             "shutter": self.shutter,
-            "readout_time_s": self.readout_time_s,
+            "readout_time_s": None if self.readout_unknown else self.readout_time_s,
             "psf_sigma_px": self.psf_sigma_px,
             "motion_blur_samples": self.motion_blur_samples,
             **({"interlace": self.interlace} if self.interlace != "auto" else {}),

@@ -5,7 +5,8 @@
 ``theta_rad, phi_rad`` (unwrapped), ``theta_sigma_rad, phi_sigma_rad, theta_phi_corr``,
 ``tip_x, tip_y, tip_z`` (unit tip vector), ``quality`` (:data:`QUALITY_FLAGS`, comma-separated
 when several apply); then, when present, ``psi_rad, psi_sigma_rad`` (the frame's angle about
-the axis), ``exposure_s`` (the angles are averaged over it) and ``theta_cam_k_rad,
+the axis), ``exposure_s`` (the angles are averaged over it), ``row_fraction`` (the tip's row over the frame's
+height, under a rolling shutter whose readout camera.json does not state: the fit finds it) and ``theta_cam_k_rad,
 phi_cam_k_rad`` for each camera-model mode ``k = 1, 2, ...`` (each frame's angle shift for a
 one-sigma move of that mode) with ``cam_k_prior`` (the same in every row: 1 when the mode's sigma is
 knowledge from outside the record, a calibration or a pose from fiducials or a board, which the fit

@@ -58,6 +58,15 @@ class FitData:
     b_frame: np.ndarray | None = None
     #: the table's ``frame_type`` shows predicted (P or B) pictures: a lossy codec coded most frames from others
     inter_coded: bool = False
+    #: (n,) where in the frame each tip was read out (its row over the frame's height), from the table's
+    #: ``row_fraction``: a rolling shutter whose readout time is not known, which the fit finds
+    #: (:class:`~gyrorig.fit.terms.RollingShutter`); None when the table does not have it
+    row_fraction: np.ndarray | None = None
+
+    @property
+    def rolling_shutter(self) -> bool:
+        """Whether the frames' times lack their rows' delay under a rolling shutter (its readout fitted)."""
+        return self.row_fraction is not None
 
     @property
     def b_frames(self) -> bool:
@@ -194,4 +203,16 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
                    cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]), camera_shift=_camera_shifts(a),
                    camera_prior=_camera_priors(a, camera_mode_count(a.columns)),
                    exposure_s=_exposures(a, t), constraints=constraints or Constraints(), b_frame=b_frame,
-                   inter_coded=inter_coded)
+                   inter_coded=inter_coded, row_fraction=_row_fractions(a))
+
+
+def _row_fractions(a: pd.DataFrame) -> np.ndarray | None:
+    """The table's ``row_fraction`` (None without it); each in [0, 1] (a row of the frame over its height)."""
+    if "row_fraction" not in a.columns:
+        return None
+    rows = a["row_fraction"].to_numpy(float)
+    bad = np.flatnonzero(~(np.isfinite(rows) & (rows >= -0.01) & (rows <= 1.01)))
+    if len(bad):
+        raise FitError(f"row_fraction = {rows[bad[0]]!r} in row {int(bad[0]) + 1} of the measured frames: a tip's "
+                       "row over the frame's height, allowed [0, 1] wherever there are angles")
+    return rows

@@ -21,7 +21,7 @@ from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, Note, NoteKind, R
 from .selection import PLANNED_NONCENTRALITY, fit_model, left_out_noncentrality
 from .solver import Solution, solve
 from .spec import FitTerms
-from .terms import BFrameShrink
+from .terms import BFrameShrink, RollingShutter
 from .uncertainty import choose_errors, delta_se, phase_uncertainty, shared_pose_prior_root, statistical_covariance
 
 __all__ = ["fit_angles", "linear_response", "record_state", "state_values", "TERM_CHOICES", "STATE_NAMES"]
@@ -96,6 +96,13 @@ def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, c
                           "which smooths fast motion, so the nutation amplitude may come out low by more than its "
                           "error bar (0.5-1.5 % on HEVC renders of the air-cushion rig at 200 fps, CRF 23; none "
                           "with intra-only or lossless video)" + shrink))
+    if RollingShutter.NAME in sol.spec.names():
+        i = sol.spec.names().index(RollingShutter.NAME)
+        notes.append(Note(NoteKind.ROLLING_SHUTTER,
+                          f"camera.json states a rolling shutter without its readout time: fitted from the motion, "
+                          f"{1e3 * sol.x[i]:.3g} ms +- {1e3 * math.sqrt(sol.cov[i, i]):.2g} ms (each frame's time "
+                          "moved by its tip's row times it; left out, the delay warps the record's clock and biases "
+                          "the rates); a readout_time_s stated in camera.json makes the rest more precise"))
     if camera_se:
         notes.append(Note(NoteKind.CAMERA_MODES,
                           f"the camera model's uncertainty ({data.camera_modes} modes from the tracker) is in the fit "

@@ -20,7 +20,7 @@ from ..prediction import Prediction
 from ..protocols import Protocol
 from .data import FitData, FitError
 from .spec import ModelSpec
-from .terms import TERMS, BFrameShrink
+from .terms import TERMS, BFrameShrink, RollingShutter
 
 __all__ = ["FitModel", "Residuals", "SceneModel", "model_for_scene", "whitener"]
 
@@ -35,6 +35,8 @@ class FitModel:
         self._terms = [t for t in TERMS if t.present(spec)]
         #: the B pictures' shrink parameter's place in the vector (None: the model has none)
         self.shrink_index = self.index.get(BFrameShrink.NAME)
+        #: the rolling shutter's readout time's place in the vector (None: the model has none)
+        self.readout_index = self.index.get(RollingShutter.NAME)
 
     def vector(self, values: dict[str, float]) -> np.ndarray:
         """The parameter vector from named values (0 for a name not given)."""
@@ -176,6 +178,9 @@ class Residuals:
         if model.shrink_index is not None and data.b_frame is None:
             raise FitError("the model fits the B pictures' shrink, but the data do not say which frames are B pictures")
         self.b_rows = data.b_frame.astype(float) if model.shrink_index is not None else None
+        if model.readout_index is not None and data.row_fraction is None:
+            raise FitError("the model fits a rolling shutter's readout, but the data do not give the tips' rows")
+        self.rows = data.row_fraction if model.readout_index is not None else None
         self.W = whitener(data.cov)
         self.shift = data.camera_shift if m else None
         root = data.camera_prior_root if m else None
@@ -217,18 +222,37 @@ class Residuals:
             x[i] = v
         return x
 
+    def _times(self, p: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The times the model is evaluated at: each frame's (or its exposure's two Gauss-Legendre points), moved by
+        its row's delay under a fitted rolling shutter."""
+        taus = (self.tau,) if self.taus is None else self.taus
+        if self.rows is None:
+            return taus
+        delay = self.rows * p[self.model.readout_index]
+        return tuple(tt + delay for tt in taus)
+
     def lab(self, p: np.ndarray):
         seg, b = self.data.segment, self.b_rows
-        if self.taus is None:
-            return self.model.lab(p, self.tau, seg, b)
-        (t1, p1), (t2, p2) = (self.model.lab(p, tt, seg, b) for tt in self.taus)
+        taus = self._times(p)
+        if len(taus) == 1:
+            return self.model.lab(p, taus[0], seg, b)
+        (t1, p1), (t2, p2) = (self.model.lab(p, tt, seg, b) for tt in taus)
         return 0.5 * (t1 + t2), p1 + 0.5 * wrap_angle(p2 - p1)
 
     def lab_jacobian(self, p: np.ndarray):
         seg, b = self.data.segment, self.b_rows
-        if self.taus is None:
-            return self.model.lab_jacobian(p, self.tau, seg, b)
-        (a1, b1), (a2, b2) = (self.model.lab_jacobian(p, tt, seg, b) for tt in self.taus)
+        parts = []
+        for tt in self._times(p):
+            jt, jp = self.model.lab_jacobian(p, tt, seg, b)
+            if self.rows is not None:  # the readout moves each frame's time by its row: d/dtau times the row
+                h = 1e-6
+                (t_hi, p_hi), (t_lo, p_lo) = (self.model.lab(p, tt + s, seg, b) for s in (h, -h))
+                jt[:, self.model.readout_index] = self.rows * (t_hi - t_lo) / (2 * h)
+                jp[:, self.model.readout_index] = self.rows * wrap_angle(p_hi - p_lo) / (2 * h)
+            parts.append((jt, jp))
+        if len(parts) == 1:
+            return parts[0]
+        (a1, b1), (a2, b2) = parts
         return 0.5 * (a1 + a2), 0.5 * (b1 + b2)
 
     def raw(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

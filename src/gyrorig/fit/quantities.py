@@ -212,8 +212,8 @@ def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndar
     ph_i = wrap_angle(CubicSpline(t[keep], ph[keep])(data.t_s))
     # instantaneous, and free of the user's constraints: the truth is the unconstrained estimator's limit
     d = replace(data, theta_rad=th_i, phi_rad=ph_i, camera_shift=None, exposure_s=None, constraints=Constraints(),
-                b_frame=None)
-    spec0 = replace(spec, camera_modes=0, b_frames=False)
+                b_frame=None, row_fraction=None)
+    spec0 = replace(spec, camera_modes=0, b_frames=False, rolling_shutter=False)
     sol = solve(spec0, d, dict(zip(spec0.names(), x)))
     return {k: float(f(sol.x)) for k, f in quantity_functions(spec).items()}
 

@@ -210,7 +210,7 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
     """
     sel = Selector(terms=terms, noncentrality=noncentrality)
     spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1, camera_modes=data.camera_modes,
-                    b_frames=data.b_frames,
+                    b_frames=data.b_frames, rolling_shutter=data.rolling_shutter,
                     nutation_origin_s=float(data.t_s[0] - data.t_ref_s) if scene.spec.damped else 0.0)
     notes = [Note(NoteKind.SCENE, r) for r in scene.reasons]
     undetermined: dict[str, Reason] = {}

@@ -36,6 +36,9 @@ class ModelSpec:
     #: the record has a lossy codec's bi-predicted pictures beside others: their fast motion's shrink is fitted
     #: (:class:`~gyrorig.fit.terms.BFrameShrink`)
     b_frames: bool = False
+    #: the frames' times lack their rows' delay under a rolling shutter: its readout time is fitted
+    #: (:class:`~gyrorig.fit.terms.RollingShutter`)
+    rolling_shutter: bool = False
 
     def names(self) -> list[str]:
         """The model's parameter names, in the order of its parameter vector."""
@@ -48,6 +51,7 @@ class ModelSpec:
         out.update({term.summary_key: bool(getattr(self, term.flag)) for term in OPTIONAL.values()})
         out["camera_modes"] = self.camera_modes
         out["b_frame_shrink"] = self.b_frames and self.harmonics > 0
+        out["readout_time"] = self.rolling_shutter
         return out
 
 

@@ -79,7 +79,7 @@ def _check_camera_values(path: Path, d: dict) -> None:
         _scalar(path, "capture_fps", d["capture_fps"], 0.0, lo_open=True, hi=1e6)
     if d.get("shutter", "global") not in ("global", "rolling"):
         raise CameraFileError(f"{path}: shutter = {d['shutter']!r}: allowed 'global', 'rolling'")
-    if "readout_time_s" in d:
+    if d.get("readout_time_s") is not None:
         _scalar(path, "readout_time_s", d["readout_time_s"], 0.0, hi=10.0)
     if d.get("interlace", "auto") not in INTERLACE_MODES:
         raise CameraFileError(f"{path}: interlace = {d['interlace']!r}: allowed "
@@ -230,7 +230,7 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> Camera:
         np.asarray(d.get("rvec", [np.nan] * 3), dtype=float).ravel(),
         np.asarray(d.get("tvec", [np.nan] * 3), dtype=float).ravel(),
         int(d["image_size"][0]), int(d["image_size"][1]), float(d.get("fps", np.nan)), float(d.get("exposure_s", 0.0)),
-        shutter=d.get("shutter", "global"), readout_time_s=float(d.get("readout_time_s", 0.0)),
+        shutter=d.get("shutter", "global"), readout_time_s=_readout(d),
         psf_sigma_px=float(d.get("psf_sigma_px", 1.0)), sensor=known,
         motion_blur_samples=int(d.get("motion_blur_samples", 1)), intrinsics_covariance=cov_i,
         intrinsics_parameters=names or (), pose_covariance=cov_p, pose_points=points,
@@ -265,3 +265,12 @@ def _pose_points(path: Path, value) -> dict:
     if not (np.all(np.isfinite(obj)) and np.all(np.isfinite(img))):
         raise CameraFileError(f"{path}: pose_points must be finite (no NaN or inf)")
     return {"object_points_m": obj.tolist(), "image_points_px": img.tolist()}
+
+
+def _readout(d: dict) -> float:
+    """camera.json's readout time: NaN for a rolling shutter that states none (null or left out: a phone's, which
+    the fit finds), else the value given (0 by default)."""
+    given = d.get("readout_time_s")
+    if given is None:
+        return math.nan if d.get("shutter", "global") == "rolling" else 0.0
+    return float(given)

@@ -244,6 +244,11 @@ class _Tables:
                 psi_col[r_] = v_
             angles["psi_rad"], angles["psi_sigma_rad"] = psi_col[:, 0], psi_col[:, 1]
         angles["exposure_s"] = float(camera.exposure_s)
+        if camera.readout_unknown:  # where in the frame each tip was read out: the fit finds the readout time
+            rows = np.full(len(angles), np.nan)
+            for r_, (_, y_) in self.tip_px.items():
+                rows[r_] = y_ / camera.height_px
+            angles["row_fraction"] = rows
         markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS))
         return angles, markers.sort_values("frame", kind="stable").reset_index(drop=True)
 
