@@ -85,6 +85,16 @@ def test_fit_monte_carlo_runs_the_chain_and_summarises(tmp_path, capsys):
         combine_fit_runs([tmp_path / "nowhere"])
 
 
+def test_a_batch_whose_every_run_failed_is_summarised_as_failed():
+    """Runs that all failed (each a row with its error, no quantity) give an empty table that counts them, not a
+    crash (``bench fit`` once exited 3 with a KeyError after 7 minutes of runs)."""
+    from gyrorig.montecarlo import summarize_fit_monte_carlo
+
+    runs = pd.DataFrame([{"scene": "s", "seed": k, "duration_s": 1.0, "error": "FitError: no"} for k in range(3)])
+    table = summarize_fit_monte_carlo(runs)
+    assert table.empty and table.attrs["failed_runs"] == 3
+
+
 @pytest.mark.slow
 def test_the_data_sheet_run_finds_the_focal_length_and_keeps_its_pulls():
     """bench fit --datasheet-focal-sd: one run without calibration or fiducials; the focal length found is within 3

@@ -761,14 +761,13 @@ def test_a_phones_rolling_shutter_of_unknown_readout_is_fitted(tmp_path):
     chi-square of 440 (-4.4 and -3.8 measured; before, a null readout was refused and a missing one read as 0)."""
     scene, user, _ = variant_protocols("phone-coffee-hevc", 3.0)
     for d in (scene, user):
-        d["camera"].update(fps=30.0, shutter="rolling", readout_time_s=0.02)
-    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee"), seed=2)
+        d["camera"].update(fps=30.0)
+    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", readout_s=0.02), seed=2)
     camera = json.loads(Path(rendered["camera"]).read_text())
-    fits = {}
-    for shutter, readout in (("rolling", None), ("global", 0.0)):
-        (tmp_path / f"{shutter}.json").write_text(json.dumps({**camera, "shutter": shutter, "readout_time_s": readout}))
-        fits[shutter] = analyze(rendered["video"], tmp_path / f"{shutter}.json", parse_protocol(user),
-                                rng=np.random.default_rng(0))
+    assert camera["shutter"] == "rolling" and camera["readout_time_s"] is None
+    (tmp_path / "global.json").write_text(json.dumps({**camera, "shutter": "global", "readout_time_s": 0.0}))
+    fits = {shutter: analyze(rendered["video"], path, parse_protocol(user), rng=np.random.default_rng(0))
+            for shutter, path in (("rolling", rendered["camera"]), ("global", tmp_path / "global.json"))}
     assert fits["rolling"].angles.row_fraction.notna().sum() >= 0.9 * len(fits["rolling"].angles)
     readout, readout_se = fits["rolling"].fit.params["readout_time_s"]
     assert abs(readout - 0.02) < 3 * readout_se

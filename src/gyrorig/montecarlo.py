@@ -243,7 +243,7 @@ def summarize_fit_monte_carlo(runs: pd.DataFrame) -> pd.DataFrame:
            else pd.Series("", index=runs.index))
     ok = runs[(err == "") & (runs.status == "determined")] if "status" in runs else runs.iloc[0:0]
     rows = []
-    for (scene, name), g in ok.groupby(["scene", "quantity"], sort=False):
+    for (scene, name), g in (ok.groupby(["scene", "quantity"], sort=False) if len(ok) else ()):
         n = len(g)
         pulls = g.pull.astype(float)
         sd_est = float(np.std(g.value.astype(float) - g.truth.astype(float), ddof=1)) if n > 1 else math.nan

@@ -316,7 +316,8 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
         if args.phone is not None:
             from ..render.phone import PhoneStyle
 
-            phone = PhoneStyle(photo=args.phone)
+            number("", "--readout-ms", args.readout_ms, lo=0.0, hi=1e3 / 200.0)
+            phone = PhoneStyle(photo=args.phone, readout_s=args.readout_ms / 1e3)
             phone.check()
         datasheet = None
         if args.datasheet_focal_sd is not None:
@@ -329,6 +330,8 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
                                phone=phone, datasheet=datasheet)
         table = summarize_fit_monte_carlo(runs)
         how = f"recorded like a phone in front of {args.phone}" if phone else "through the sensor model"
+        if phone is not None and phone.readout_s:
+            how += f", a {args.readout_ms:g} ms rolling shutter camera.json does not state"
         if datasheet is not None:
             how += (f"; no calibration, no fiducials: camera at {list(datasheet.camera_position_m)} m, focal length "
                     f"drawn and stated +- {datasheet.focal_sd_rel:.0%}, placement +- {datasheet.placement_sd_m:g} m, "

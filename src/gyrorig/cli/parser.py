@@ -129,6 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="record each video as a phone would, in front of this scikit-image photograph (coffee, "
                          "brick, astronaut, camera, rocket, gravel, chelsea): gamma 2.2, HEVC, jittered times, "
                          "dropped frames, no sensor numbers (needs scikit-image)")
+    bf.add_argument("--readout-ms", type=float, default=0.0, metavar="MS",
+                    help="with --phone: the phone's rolling shutter reads its rows over this many ms, which camera.json "
+                         "does not state (the fit finds it)")
     bf.add_argument("--datasheet-focal-sd", type=float, default=None, metavar="REL",
                     help="no calibration and no fiducials: the camera 0.2 m off the vertical, its focal length drawn "
                          "and stated with this relative sd (0.05: a data sheet's 5 %%), the placement known to 3 cm; "

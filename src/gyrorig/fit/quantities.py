@@ -202,8 +202,9 @@ def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndar
     th = truth["theta_rad"].to_numpy(float)[order]
     ph = np.unwrap(truth["phi_rad"].to_numpy(float)[order])
     lo, hi = data.t_s[0], data.t_s[-1]
-    # container timestamps are rounded (to 1 ms, say): allow half a frame at either end
-    slack = 0.5 * float(np.median(np.diff(data.t_s))) if data.n > 1 else 0.0
+    # container timestamps are rounded (to 1 ms, say): allow half a frame at either end; a whole one when the frames'
+    # times lack their rows' delay under a rolling shutter (the truth's are the tip's own, up to a readout later)
+    slack = (1.0 if data.rolling_shutter else 0.5) * float(np.median(np.diff(data.t_s))) if data.n > 1 else 0.0
     if t[0] > lo + slack or t[-1] < hi - slack:
         raise FitError(f"the truth table ({t[0]:.6g}..{t[-1]:.6g} s) does not cover the measured times "
                        f"({lo:.6g}..{hi:.6g} s)")

@@ -99,6 +99,9 @@ class PhoneStyle:
     shake_hz: float = 3.0
     #: ... and turns about its optical axis by this RMS [deg] (the picture rotates about its centre), alike in time
     shake_roll_deg: float = 0.0
+    #: the phone's rolling shutter: the time from its top row to its bottom one [s], which its user does not know
+    #: (camera.json then says ``"shutter": "rolling"`` with ``readout_time_s`` null); 0: the scene's own shutter
+    readout_s: float = 0.0
 
     def check(self) -> None:
         if self.photo is not None and self.photo not in PHOTOS:
@@ -126,6 +129,8 @@ class PhoneStyle:
         if not 0.0 <= self.mains_fraction <= 1.0 or not self.mains_hz > 0.0 or not self.mains_readout_s >= 0.0:
             raise ValueError(f"mains_fraction = {self.mains_fraction}, mains_hz = {self.mains_hz}, mains_readout_s = "
                              f"{self.mains_readout_s}: allowed [0, 1], > 0 Hz, >= 0 s")
+        if not 0.0 <= self.readout_s < 1.0:
+            raise ValueError(f"readout_s = {self.readout_s}: allowed [0, 1) s (and below the frame interval)")
         if not 0.0 <= self.shake_roll_deg < 5.0:
             raise ValueError(f"shake_roll_deg = {self.shake_roll_deg}: allowed [0, 5) deg")
 
@@ -210,9 +215,9 @@ def photo_background(name: str | None, width_px: int, height_px: int, margin_px:
     return np.clip(img[:h, :w], 0.0, 1.0) ** 2.2
 
 
-def _coverage_protocol(scene: Mapping[str, Any] | Protocol) -> Protocol:
+def _coverage_protocol(scene: Mapping[str, Any] | Protocol, readout_s: float = 0.0) -> Protocol:
     """The scene (a protocol, or its dict) with every dot of one brightness and no background: the render is each
-    pixel's coverage."""
+    pixel's coverage; with ``readout_s``, through a rolling shutter of that readout."""
     d = copy.deepcopy(dict(scene.extra if isinstance(scene, Protocol) else scene))
     for m in d["markers"].values():
         if m.get("kind", "dot") != "occluder":
@@ -220,6 +225,8 @@ def _coverage_protocol(scene: Mapping[str, Any] | Protocol) -> Protocol:
     d["camera"] = dict(d["camera"])
     d["camera"]["sensor"] = {**d["camera"].get("sensor", {}), "background_e_per_s": 0.0}
     d["camera"]["illumination_drift_fraction"] = 0.0
+    if readout_s:
+        d["camera"].update(shutter="rolling", readout_time_s=readout_s)
     if isinstance(scene, Protocol):
         return replace(scene, extra={**scene.extra, "markers": d["markers"], "camera": d["camera"]})
     return parse_protocol(d)
@@ -279,7 +286,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
 
     style.check()
     rng = np.random.default_rng(seed)
-    protocol = _coverage_protocol(scene)
+    protocol = _coverage_protocol(scene, style.readout_s)
     cam = camera_setup(protocol).camera
     duration = protocol.scene.duration_s if duration_s is None else float(duration_s)
     n = int(math.floor(duration * cam.fps + 1e-9))
@@ -355,6 +362,8 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     camera["sensor"] = {"bit_depth": style.bit_depth, **({} if style.transfer else {"gamma": style.gamma})}
     if style.container_fps:  # slow motion: the user states the capture rate
         camera["capture_fps"] = cam.fps
+    if style.readout_s:  # a phone's rolling shutter, its readout not known to its user
+        camera["readout_time_s"] = None
     _io.write_json(camera, out / "camera.json")
     return {"video": str(out / name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.json"),
             "frames": n, "kept": keep.tolist(), "stored_t_s": t_store.tolist()}
