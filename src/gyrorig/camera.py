@@ -170,8 +170,8 @@ class Camera:
     def row_delay_s(self, y_px: float) -> float:
         """Start of row ``y_px``'s exposure after the frame's start (rolling shutter; 0 for a global one, and for a
         rolling one whose readout is not known: :attr:`readout_unknown`). [s]"""
-        return (y_px / self.height_px) * self.readout_time_s if self.shutter == "rolling" and not \
-            self.readout_unknown else 0.0
+        rolling = self.shutter == "rolling" and math.isfinite(self.readout_time_s)
+        return (y_px / self.height_px) * self.readout_time_s if rolling else 0.0
 
     @property
     def readout_unknown(self) -> bool:

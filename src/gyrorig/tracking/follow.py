@@ -197,8 +197,8 @@ class TipFollower:
         self.history: list[list[SpotFit]] = []  # each searched frame's candidates, the latest last
         self.earlier: tuple[SpotFit, ...] = ()  # the acquired tip's fits in the frames searched before
         #: each frame seen lately, the latest last: where the tip was (x, y) [px] if it was taken there, else the spots
-        #: of its look found in the frame (a list of fits; None: not searched), through which a tip seen to move fast
-        #: on its reacquisition is followed back (:meth:`_follow_back`)
+        #: of its look found in the frame (a list of fits), through which a tip seen to move fast is followed back
+        #: (:meth:`_follow_back`)
         self.lately: deque = deque(maxlen=ANCHOR_FRAMES)
         self.followed = 0  # frames followed since the tip was last acquired
         self.confirmed: SpotFit | None = None  # the candidate of the last frame that this frame confirmed
@@ -588,7 +588,7 @@ class TipFollower:
 
     def _taken(self, earlier: tuple[SpotFit | None, ...]) -> None:
         """Mark the frames before the latest in :attr:`lately` where ``earlier`` (the latest first) gives the tip."""
-        for back, f in enumerate(earlier, start=2):
+        for back, f in enumerate(earlier[:len(self.lately) - 1], start=2):
             if f is not None:
                 self.lately[-back] = (f.x_px, f.y_px)
 
