@@ -97,6 +97,25 @@ def test_a_track_at_60_samples_per_second_gets_its_errors_from_a_path_with_the_n
         assert abs(q.pull) < 4.0, (name, q.pull)
 
 
+def test_a_pixel_track_through_a_rolling_shutter_keeps_each_tips_own_time():
+    """A track of a phone video: each tip's row was read ``y / height * readout`` after the frame's time.  With the
+    readout stated the angles are at each tip's own time; stated unknown (``readout_time_s`` NaN: camera.json's null)
+    the rows go to the angle table for the fit, the times unmoved; a global shutter moves nothing."""
+    from dataclasses import replace as with_fields
+
+    p = load_protocol(HEAVY)
+    table, _, cam = _pixels(p, 0.1, 0, duration_s=0.5)
+    table = table.assign(sigma_px=0.1)
+    still, _ = angles_from_pixel_track(table, cam, p)
+    stated, _ = angles_from_pixel_track(table, with_fields(cam, shutter="rolling", readout_time_s=0.004), p)
+    unknown, _ = angles_from_pixel_track(table, with_fields(cam, shutter="rolling", readout_time_s=math.nan), p)
+    rows = table.y_px.to_numpy() / cam.height_px
+    np.testing.assert_allclose(stated.t_s - still.t_s, rows * 0.004, atol=1e-12)
+    np.testing.assert_allclose(unknown.t_s, still.t_s, atol=0)
+    np.testing.assert_allclose(unknown.row_fraction, rows, rtol=1e-12)
+    assert "row_fraction" not in still and "row_fraction" not in stated
+
+
 def test_a_track_too_coarse_in_time_for_its_path_is_not_checked_by_it():
     """At 25 frames/s the heavy top's nutation (9.5 Hz) turns by 2.4 rad between frames: no path through a frame's
     neighbours predicts it, and the scatter about one is the motion, not the noise (it gave errors 50x too large on

@@ -222,11 +222,16 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
     ok = np.isfinite(th)
     phi = np.full(len(t), np.nan)
     phi[ok] = np.unwrap(ph[ok])
+    # each tip's own time: its row's delay under a rolling shutter (none when camera.json states no readout: then
+    # its row goes to the fit, which finds the readout)
+    delay = np.array([camera.row_delay_s(y) if math.isfinite(y) else 0.0 for y in xy[:, 1]])
     angles = pd.DataFrame({
-        "frame": frames, "t_s": t + 0.5 * (camera.exposure_s if math.isfinite(camera.exposure_s) else 0.0),
+        "frame": frames, "t_s": t + delay + 0.5 * (camera.exposure_s if math.isfinite(camera.exposure_s) else 0.0),
         "theta_rad": th, "phi_rad": phi, "theta_sigma_rad": np.where(ok, sth, np.nan),
         "phi_sigma_rad": np.where(ok, sph, np.nan), "theta_phi_corr": np.where(ok, c[:, 0, 1] / (sth * sph), np.nan),
         "tip_x": tips[:, 0], "tip_y": tips[:, 1], "tip_z": tips[:, 2], "quality": quality})
+    if camera.readout_unknown:
+        angles["row_fraction"] = np.where(ok, xy[:, 1] / camera.height_px, np.nan)
     pixels = {i: xy[i] for i in np.flatnonzero(ok)}
     camera_sigma = add_camera_modes(angles, pixels, camera, length, camera.pose_points, False)
     summary = {"frames": len(angles), "tracked_fraction": float(ok.mean()), "outliers": len(outliers),
