@@ -89,10 +89,18 @@ def test_a_rolling_shutters_unknown_readout_is_fitted_from_the_motion():
     readout, readout_se = told.params["readout_time_s"]
     assert abs(readout - 0.004) < 3 * readout_se
     assert told.notes_of(NoteKind.ROLLING_SHUTTER)
+    assert not told.notes_of(NoteKind.READOUT_BEYOND_FRAME)
     untold = fit_angles(angles.drop(columns=["row_fraction"]), p, prediction=pred)
     for name in ("precession_rate_rad_s", "nutation_frequency_rad_s"):
         assert abs(told.quantities[name].diff_exact_se) < 3.0
         assert abs(untold.quantities[name].diff_exact_se) > 5.0
+    # rows that ran the other way (a lower row read earlier, by -4 ms over the frame; the 4 ms alike for all frames is
+    # a clock shift): no shutter does that, and it is said
+    back = simulate(p, t_eval_s=t + (1.0 - rows) * 0.004)
+    reversed_rows = angles.assign(theta_rad=back.theta_rad.to_numpy() + (angles.theta_rad - seen.theta_rad).to_numpy(),
+                                  phi_rad=wrap_angle(back.phi_rad.to_numpy()
+                                                     + wrap_angle((angles.phi_rad - seen.phi_rad).to_numpy())))
+    assert fit_angles(reversed_rows, p, prediction=pred).notes_of(NoteKind.READOUT_BEYOND_FRAME)
 
 
 def test_error_bars_far_larger_than_the_scatter_are_said_to_be():

@@ -98,11 +98,21 @@ def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, c
                           "with intra-only or lossless video)" + shrink))
     if RollingShutter.NAME in sol.spec.names():
         i = sol.spec.names().index(RollingShutter.NAME)
+        readout, se = float(sol.x[i]), math.sqrt(max(float(sol.cov[i, i]), 0.0))
+        interval = float(np.median(np.diff(data.t_s))) if data.n > 1 else math.inf
+        # a video's rows are all read within its frame interval
+        beyond = not -3.0 * se <= readout <= interval + 3.0 * se
         notes.append(Note(NoteKind.ROLLING_SHUTTER,
                           f"camera.json states a rolling shutter without its readout time: fitted from the motion, "
-                          f"{1e3 * sol.x[i]:.3g} ms +- {1e3 * math.sqrt(sol.cov[i, i]):.2g} ms (each frame's time "
-                          "moved by its tip's row times it; left out, the delay warps the record's clock and biases "
-                          "the rates); a readout_time_s stated in camera.json makes the rest more precise"))
+                          f"{1e3 * readout:.3g} ms +- {1e3 * se:.2g} ms (each frame's time moved by its tip's row "
+                          "times it; left out, the delay warps the record's clock and biases the rates); a "
+                          "readout_time_s stated in camera.json makes the rest more precise"))
+        if beyond:
+            notes.append(Note(NoteKind.READOUT_BEYOND_FRAME,
+                              f"the fitted readout ({1e3 * readout:.3g} ms) lies outside the frame interval "
+                              f"({1e3 * interval:.3g} ms), where no rolling shutter reads its rows: the model misses "
+                              "something else (a pose found from this same motion?) and the rates are not to be "
+                              "trusted; state readout_time_s in camera.json"))
     if camera_se:
         notes.append(Note(NoteKind.CAMERA_MODES,
                           f"the camera model's uncertainty ({data.camera_modes} modes from the tracker) is in the fit "

@@ -106,6 +106,7 @@ class NoteKind(StrEnum):
     #: the frames come from an inter-coded video (P, B pictures): its motion compensation can smooth fast motion
     CODEC_SMOOTHING = "codec-smoothing"
     ROLLING_SHUTTER = "rolling-shutter"
+    READOUT_BEYOND_FRAME = "readout-beyond-frame"
     #: a fixed value or prior far from what the record alone says (the term is the parameter)
     PRIOR_CONFLICT = "prior-conflict"
     #: an input value that is allowed but unlikely (a unit slip, :mod:`gyrorig.plausibility`)
