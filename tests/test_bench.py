@@ -85,6 +85,13 @@ def test_fit_monte_carlo_runs_the_chain_and_summarises(tmp_path, capsys):
         combine_fit_runs([tmp_path / "nowhere"])
 
 
+def test_a_readout_longer_than_the_frame_interval_is_refused_before_any_run(capsys):
+    """bench fit --readout-ms beyond the scene's frame interval (5 ms at 200 fps): no rolling shutter reads its rows
+    so slowly; refused with exit 2 before rendering anything."""
+    assert main(["bench", "fit", "--phone", "coffee", "--readout-ms", "9", "--quick"]) == 2
+    assert main(["bench", "fit", "--phone", "coffee", "--readout-ms", "-1", "--quick"]) == 2
+
+
 def test_a_batch_whose_every_run_failed_is_summarised_as_failed():
     """Runs that all failed (each a row with its error, no quantity) give an empty table that counts them, not a
     crash (``bench fit`` once exited 3 with a KeyError after 7 minutes of runs)."""

@@ -296,7 +296,7 @@ def _cmd_bench_variants(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_fit(args: argparse.Namespace) -> int:
-    from ..montecarlo import FIT_MC_SCENES, combine_fit_runs, fit_monte_carlo, summarize_fit_monte_carlo
+    from ..montecarlo import FIT_MC_SCENES, combine_fit_runs, fit_monte_carlo, scene_protocol, summarize_fit_monte_carlo
 
     if args.combine:
         runs = combine_fit_runs(args.combine)
@@ -316,7 +316,9 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
         if args.phone is not None:
             from ..render.phone import PhoneStyle
 
-            number("", "--readout-ms", args.readout_ms, lo=0.0, hi=1e3 / 200.0)
+            # a rolling shutter reads its rows within the frame interval of every scene run
+            fastest = max(float(scene_protocol(s).extra["camera"]["fps"]) for s in scenes)
+            number("", "--readout-ms", args.readout_ms, lo=0.0, hi=1e3 / fastest)
             phone = PhoneStyle(photo=args.phone, readout_s=args.readout_ms / 1e3)
             phone.check()
         datasheet = None

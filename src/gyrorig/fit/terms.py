@@ -504,9 +504,8 @@ class RollingShutter(Term):
     """A rolling shutter whose readout time camera.json does not state (a phone's: 4-30 ms): each row of a frame is
     read later than the one above, so a tip at the row fraction ``y / height`` was seen ``readout_time_s`` times
     that after the frame's time.  Left out, the delay follows the tip's row, which the precession and the nod move:
-    the record's clock is warped, and the rates come out off by many standard errors with a chi-square that looks
-    right (240 fps, 4 ms: -0.11 % on the precession rate, 15 s.e.).  The model is evaluated at ``tau + row_fraction
-    * readout_time_s`` (:class:`gyrorig.fit.model.Residuals`, from the data's rows); present when the angle table
+    the record's clock is warped, and the rates are biased with a chi-square that can look right (measured in
+    docs/recordings.md).  The model is evaluated at ``tau + row_fraction * readout_time_s`` (:class:`gyrorig.fit.model.Residuals`, from the data's rows); present when the angle table
     gives each frame's row."""
 
     NAME = "readout_time_s"

@@ -130,7 +130,8 @@ class PhoneStyle:
             raise ValueError(f"mains_fraction = {self.mains_fraction}, mains_hz = {self.mains_hz}, mains_readout_s = "
                              f"{self.mains_readout_s}: allowed [0, 1], > 0 Hz, >= 0 s")
         if not 0.0 <= self.readout_s < 1.0:
-            raise ValueError(f"readout_s = {self.readout_s}: allowed [0, 1) s (and below the frame interval)")
+            raise ValueError(f"readout_s = {self.readout_s}: allowed [0, 1) s (the scene's camera refuses one beyond "
+                             "its frame interval)")
         if not 0.0 <= self.shake_roll_deg < 5.0:
             raise ValueError(f"shake_roll_deg = {self.shake_roll_deg}: allowed [0, 5) deg")
 

@@ -325,9 +325,8 @@ def _similarity(m: np.ndarray, turn: tuple[float, float], limit_px: float, misse
     among the others drags their fit, and the miss in the errors of both fits picks it rather than a good fiducial
     whose own fit is the surest.  With fewer, or as few after one was left out (once a turn was fitted: ``turn_sd``
     not None), the shift alone under the turn ``turn`` found before (``turn_sd`` its error since, per component), a and
-    b returned NaN, a fiducial far from the others'
-    median (:data:`OUTLIER_PX`) left out.  Returns ``((tx, ty, a, b), residuals (k', 2), weights (k',), covariance
-    of (tx, ty, a, b))``; None with fewer than two fiducials."""
+    b returned NaN, a fiducial far from the others' median (:data:`OUTLIER_PX`) left out.  Returns ``((tx, ty, a, b),
+    residuals (k', 2), weights (k',), covariance of (tx, ty, a, b))``; None with fewer than two fiducials."""
     left_out = False
     while len(m) > MIN_TURN_FIDUCIALS:
         miss, z = _left_out(m, turn, None)
