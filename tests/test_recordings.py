@@ -21,7 +21,7 @@ import pytest
 import skimage.data
 
 from _stats import sd_ratio_band
-from gyrorig.bench.variants import variant_protocols
+from gyrorig.bench.variants import track_variant, variant_protocols
 from gyrorig.camera import Camera
 from gyrorig.cli import main
 from gyrorig.markers import parse_markers
@@ -120,6 +120,39 @@ def test_scene_spot_errors_hold_on_real_photographs():
     pulls = np.array(pulls)
     assert len(errors) >= 280
     assert 0.7 <= pulls.std() <= 1.5 and np.abs(pulls).max() < 5.0
+
+
+def _edge_pulls(dark_level: float, draws: int = 200) -> tuple[int, np.ndarray]:
+    """A 6.5 px disc (250) blurred by 2 px (the camera file says 1: a recording's optics and codec) on a scene of 160
+    with a straight edge 12-17 px from its centre beyond which the scene is ``dark_level``: fits and pulls."""
+    rng = np.random.default_rng(0)
+    cam = _camera()
+    yy, xx = np.mgrid[0:400, 0:400]
+    fitted, pulls = 0, []
+    for _ in range(draws):
+        angle, gap = rng.uniform(0, 2 * math.pi), rng.uniform(12, 17)
+        x, y = 200 + rng.uniform(0, 1), 200 + rng.uniform(0, 1)
+        scene = np.where((xx - x) * math.cos(angle) + (yy - y) * math.sin(angle) > gap, dark_level, 160.0)
+        image = _disc(cv2.GaussianBlur(scene, (0, 0), 2.0), x, y, 6.5, 250.0, 2.0) + rng.normal(0, 2.0, scene.shape)
+        fit = fit_scene_spot(image.astype(np.float32), x + rng.uniform(-1, 1), y + rng.uniform(-1, 1),
+                             6.5 * rng.uniform(0.9, 1.1), cam)
+        if fit is not None:
+            fitted += 1
+            pulls += list(np.array([fit.x_px - x, fit.y_px - y]) / np.sqrt(np.diag(fit.cov_xy)))
+    return fitted, np.array(pulls)
+
+
+def test_a_dark_objects_edge_beside_the_marker_is_left_out_of_its_fit():
+    """A dark object's edge beside the disc (the white tip passing a cup's rim on a white table): the ring that stands
+    in for the scene behind the disc's edge reached across it, the fit cycled or failed (52 % of 200 draws fitted)
+    and its pulls' SD was 1.6 where it did not; the ring's sectors that dark are now left out of the fit.  Every draw
+    is fitted, none beyond 5 sigma, and the pulls' SD is as on the same scene without the object (0.63 there: the
+    scene fit's errors are conservative on a flat scene; 400 pulls each, their SDs known to +- 0.04 each, compared to
+    0.15)."""
+    fitted, pulls = _edge_pulls(40.0)
+    _, flat = _edge_pulls(160.0)
+    assert fitted >= 195 and np.abs(pulls).max() < 5.0
+    assert abs(pulls.std() - flat.std()) < 0.15
 
 
 def test_the_sandwich_covariance_is_its_definition():
@@ -271,6 +304,59 @@ def test_a_phone_recording_renders_from_a_protocol_as_from_its_dict(tmp_path):
         assert all(np.array_equal(x, y) for (x, _), (y, _) in zip(fa, fb))
 
 
+def _ramp_recording(path, frames: int, fps: int = 30) -> None:
+    """A grey recording (H.264, 320 x 240) whose level rises by 4 per frame from 40, and a bright square moving
+    across it."""
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("libx264", rate=fps)
+        stream.width, stream.height, stream.pix_fmt = 320, 240, "yuv420p"
+        for k in range(frames):
+            img = np.full((240, 320, 3), 40 + 4 * k, np.uint8)
+            img[100:140, 10 + 8 * k:50 + 8 * k] = 230
+            for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+
+
+def test_a_real_recording_plays_behind_the_rig(tmp_path):
+    """``PhoneStyle.background_video``: a recording (here a grey ramp at 30 fps) plays behind the markers at its own
+    speed, so the picture's level follows the recording's over the render's 0.3 s; the markers' truth is the one in
+    front of a photograph.  A recording that ends before the render, or a path that is not a file, is refused by
+    name, and no output is left."""
+    scene, _, _ = variant_protocols("sphere", 0.3)
+    _ramp_recording(tmp_path / "behind.mp4", 20)
+    style = PhoneStyle(photo=None, background_video=str(tmp_path / "behind.mp4"), background_level=1.0, codec="ffv1",
+                       drift_px_per_s=0.0, photo_shift_px=0.0, flicker_fraction=0.0, drop_fraction=0.0)
+    moving = render_phone_video(scene, tmp_path / "v", style=style, seed=2)
+    still = render_phone_video(scene, tmp_path / "p", style=replace(style, background_video=None, photo="brick"),
+                               seed=2)
+    pd.testing.assert_frame_equal(pd.read_csv(moving["truth"]), pd.read_csv(still["truth"]))
+    with VideoFile(moving["video"]).open() as frames:
+        corner = np.array([np.median(np.asarray(f)[:60, :60]) for f, _ in frames])
+    t = np.arange(len(corner)) / 200.0
+    # the recording's level at each time (frames cross-faded), through the camera's BT.709 curve and the luma range
+    expected = np.interp(t * 30, np.arange(20), 40 + 4 * np.arange(20.0))
+    linear = (expected / 255.0) ** 2.2
+    coded = np.where(linear < 0.018, 4.5 * linear, 1.099 * linear ** 0.45 - 0.099)
+    assert np.corrcoef(corner, coded)[0, 1] > 0.99 and corner[-1] - corner[0] > 20
+    short = replace(style, video_start_s=0.5)  # 0.17 s of the recording left for a 0.3 s render
+    with pytest.raises(ValueError, match="background_video"):
+        render_phone_video(scene, tmp_path / "short", style=short, seed=2)
+    assert not list((tmp_path / "short").glob("*video*"))
+    with pytest.raises(ValueError, match="background_video"):
+        render_phone_video(scene, tmp_path / "none", style=replace(style, background_video=str(tmp_path / "no.mp4")))
+
+
+def test_the_bench_plays_a_recording_behind_the_rig_only_when_given_one(tmp_path, capsys):
+    """``bench variants --variants phone-video`` without ``--background-video`` is refused (exit 2) before any render;
+    with a recording the variant is rendered in front of it and tracked (a short one here: the ramp's 0.66 s)."""
+    assert main(["bench", "variants", "--variants", "phone-video", "--duration", "0.2"]) == 2
+    _ramp_recording(tmp_path / "behind.mp4", 20)
+    row = track_variant("phone-video", duration_s=0.25, background_video=str(tmp_path / "behind.mp4"))
+    assert row["tracked_fraction"] >= 0.9 and row["wrong_ok"] == 0
+
+
 def test_a_highlight_of_the_tips_size_is_not_taken_for_it(tmp_path):
     """In front of the coffee photograph (640 x 480, seed 3) a highlight on the cup's handle is as round and as large
     as the tip (nearer the size the user stated, 10 % large), and the top, released from rest, barely moves in its
@@ -308,6 +394,38 @@ def test_the_tip_is_found_again_after_it_was_hidden(tmp_path):
     m, found, e_th, e_ph = _pulls(res, truth)
     after = m[m.frame >= 55]
     assert after.theta_rad.notna().mean() >= 0.9
+    assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
+
+
+def test_a_tip_lost_where_its_nod_turns_is_found_again_far_from_there(tmp_path):
+    """The heavy top's tip stands still at each cusp of its nod; hidden from such a cusp for 90 frames (a hand in
+    front of the rig), it shows again about 150 px from there, the precession having carried it on.  The
+    reacquisition's reach followed the last steps before the loss (a median of about 0.3 px per frame here, 0.5 px of
+    reach per frame since), so the tip, plainly visible again, stayed out of reach for good; the reach now follows the
+    speeds the tip was seen to move at: it is taken again as it shows (the first frames confirm it and are traced
+    back), and none is beyond 5 sigma."""
+    scene, user, _ = variant_protocols("sphere", 1.2)
+    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
+                                                                   drop_fraction=0.0), seed=1)
+    truth = pd.read_csv(rendered["truth"])
+    tip = truth[truth.marker == "tip"].set_index("frame")
+    step = np.hypot(np.diff(tip.x_px), np.diff(tip.y_px))
+    cusp = 50 + int(np.argmin(step[50:75]))  # the nod's third cusp
+    hidden = range(cusp + 2, cusp + 92)  # the last steps seen: 0.6, 0.26, 0.06 px
+    with VideoFile(rendered["video"]).open() as source:
+        frames = [np.array(f) for f, _ in source]
+        t_s = np.arange(len(frames)) / 200.0
+        stored = {"levels": source.levels, "transfer": source.transfer}
+    for k in hidden:
+        x, y = tip.loc[k, ["x_px", "y_px"]]
+        yy, xx = np.mgrid[0:frames[k].shape[0], 0:frames[k].shape[1]]
+        cover = np.hypot(xx - x, yy - y) < 14
+        frames[k][cover] = np.median(frames[k][(np.hypot(xx - x, yy - y) < 20) & ~cover])
+    res = track(FrameArrays(frames, t_s, **stored), load_camera(rendered["camera"]), parse_protocol(user),
+                frame_dots=False)
+    m, found, e_th, e_ph = _pulls(res, truth)
+    shown = m[(m.frame > hidden[-1]) & (m.frame <= hidden[-1] + 8)]
+    assert shown.theta_rad.notna().all()
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 

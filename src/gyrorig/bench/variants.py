@@ -36,7 +36,10 @@ of the frames dropped; the user's camera.json has no sensor numbers), 1280x720 a
 - ``phone-brick-crf32``: ``brick``, H.264 at CRF 32 (a file shrunk for sharing: the codec smooths the noise away and
   moves runs of B pictures alike by about 0.2 px);
 - ``phone-30fps``: ``coffee``, HEVC, at 30 fps (most phones' default rate: the heavy top's nod moves the tip by up to
-  three of its radii between frames), eight times as long, so that it holds as many frames as the others.
+  three of its radii between frames), eight times as long, so that it holds as many frames as the others;
+- ``phone-video`` (only with a recording given, ``--background-video``): a real recording plays behind the rig at
+  its own speed, as it was exposed (hands, people, their own sensor noise and codec), HEVC; e.g. OpenCV's sample
+  clips (Debian's ``opencv-doc``: ``box.mp4``, ``cup.mp4`` of a hand over a white table, ``vtest.avi``).
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ import math
 import tempfile
 import time
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -58,7 +62,8 @@ from ..render import render_video
 from ..render.phone import PhoneStyle, render_phone_video
 from ..tracking import VideoFile, load_camera, track, warm_up
 
-__all__ = ["VARIANTS", "variant_protocols", "centroid_50", "clear_frames", "track_variant", "variant_benchmark"]
+__all__ = ["VARIANTS", "VIDEO_VARIANTS", "variant_protocols", "centroid_50", "clear_frames", "track_variant",
+           "variant_benchmark"]
 
 #: the phone-recorded variants: the :class:`~gyrorig.render.phone.PhoneStyle` of each, and what the user's
 #: protocol says of the tip beyond its place and size
@@ -72,8 +77,12 @@ PHONE_VARIANTS = {
     "phone-camera-ippp": (dict(photo="camera", codec="libx265", b_frames=0), {}),
     "phone-brick-crf32": (dict(photo="brick", codec="libx264", crf=32), {}),
     "phone-30fps": (dict(photo="coffee", codec="libx265"), {}),
+    "phone-video": (dict(photo=None, codec="libx265", background_level=1.0, drift_px_per_s=0.0), {}),
 }
-VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip", *PHONE_VARIANTS)
+#: variants that need a recording to play behind the rig (``background_video``)
+VIDEO_VARIANTS = ("phone-video",)
+VARIANTS = ("sphere", "disc", "disc-mp4", "plain-top", "dim-tip",
+            *(n for n in PHONE_VARIANTS if n not in VIDEO_VARIANTS))
 #: phone variants filmed at another frame rate than the others' 240 fps (their records as many frames long)
 PHONE_FPS = {"phone-30fps": 30.0}
 
@@ -127,8 +136,8 @@ def _disc_markers(d: dict) -> None:
 
 def variant_protocols(name: str, duration_s: float) -> tuple[dict, dict, str]:
     """The rendered scene, the protocol the tracker is given (what a user would write), and the codec."""
-    if name not in VARIANTS:
-        raise ValueError(f"variant {name!r}: allowed {', '.join(VARIANTS)}")
+    if name not in VARIANTS + VIDEO_VARIANTS:
+        raise ValueError(f"variant {name!r}: allowed {', '.join(VARIANTS + VIDEO_VARIANTS)}")
     d = _base()
     d["scene"]["duration_s"] = duration_s
     codec = "lossless"
@@ -214,15 +223,29 @@ def clear_frames(truth: pd.DataFrame, scene: dict, camera: dict) -> pd.Index:
     return pd.Index([f for f in tip.index if f not in crowded])
 
 
-def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0, protocols: tuple | None = None) -> dict:
+def _phone_style(name: str, background_video: str | None, video_start_s: float) -> PhoneStyle:
+    """The variant's recording style; a :data:`VIDEO_VARIANTS` one plays ``background_video`` behind the rig."""
+    style = PhoneStyle(**PHONE_VARIANTS[name][0])
+    if name not in VIDEO_VARIANTS:
+        return style
+    if background_video is None:
+        raise ValueError(f"variant {name!r} plays a recording behind the rig: give one (background_video, "
+                         "--background-video)")
+    return replace(style, background_video=str(background_video), video_start_s=video_start_s)
+
+
+def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0, protocols: tuple | None = None,
+                  background_video: str | None = None, video_start_s: float = 0.0) -> dict:
     """Render one variant, track it with the user's protocol, and compare with the truth.
 
     ``protocols``: ``(scene, user, codec)`` to use instead of :func:`variant_protocols`'s (e.g. a user
-    protocol that describes the marker differently)."""
+    protocol that describes the marker differently); ``background_video`` (from ``video_start_s`` [s]): the
+    recording a :data:`VIDEO_VARIANTS` variant plays behind the rig."""
     scene, user, codec = protocols if protocols is not None else variant_protocols(name, duration_s)
     with tempfile.TemporaryDirectory() as tmp:
         if codec == "phone":
-            rendered = render_phone_video(scene, f"{tmp}/v", style=PhoneStyle(**PHONE_VARIANTS[name][0]), seed=seed)
+            rendered = render_phone_video(scene, f"{tmp}/v", style=_phone_style(name, background_video, video_start_s),
+                                          seed=seed)
         else:
             rendered = render_video(parse_protocol(scene), f"{tmp}/v", seed=seed, codec=codec, calibration_views=0)
         camera = load_camera(f"{tmp}/v/camera.json")
@@ -264,11 +287,13 @@ def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0, protocol
             "sigma_scaled": bool(res.sigma_check.applied) if res.sigma_check else False}
 
 
-def variant_benchmark(names=VARIANTS, *, duration_s: float = 1.0, seed: int = 0, progress=None) -> pd.DataFrame:
+def variant_benchmark(names=VARIANTS, *, duration_s: float = 1.0, seed: int = 0, progress=None,
+                      background_video: str | None = None, video_start_s: float = 0.0) -> pd.DataFrame:
     """:func:`track_variant` for each variant; one row each."""
     rows = []
     for k, name in enumerate(names):
-        rows.append(track_variant(name, duration_s=duration_s, seed=seed))
+        rows.append(track_variant(name, duration_s=duration_s, seed=seed, background_video=background_video,
+                                  video_start_s=video_start_s))
         if progress:
             progress(k + 1, len(names))
     return pd.DataFrame(rows)

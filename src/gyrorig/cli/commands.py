@@ -280,15 +280,22 @@ def _cmd_bench_track(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_variants(args: argparse.Namespace) -> int:
-    from ..bench.variants import VARIANTS, variant_benchmark
+    from ..bench.variants import VARIANTS, VIDEO_VARIANTS, variant_benchmark
 
-    names = args.variants or VARIANTS
-    unknown = [n for n in names if n not in VARIANTS]
+    video = args.background_video
+    names = args.variants or (VARIANTS + (VIDEO_VARIANTS if video else ()))
+    unknown = [n for n in names if n not in VARIANTS + VIDEO_VARIANTS]
     if unknown:
-        raise ValueError(f"--variants {' '.join(unknown)}: allowed {', '.join(VARIANTS)}")
+        raise ValueError(f"--variants {' '.join(unknown)}: allowed {', '.join(VARIANTS + VIDEO_VARIANTS)}")
+    if video is None and set(names) & set(VIDEO_VARIANTS):
+        raise ValueError(f"--variants {' '.join(VIDEO_VARIANTS)} plays a recording behind the rig: give it "
+                         "(--background-video)")
+    if video is not None and not Path(video).is_file():
+        raise ValueError(f"--background-video {video}: not a file")
     number("", "--duration", args.duration, lo=0.0, lo_open=True, hi=60.0)
-    table = variant_benchmark(names, duration_s=args.duration, seed=args.seed,
-                              progress=progress_printer("variants"))
+    number("", "--video-start", args.video_start, lo=0.0, hi=1e5)
+    table = variant_benchmark(names, duration_s=args.duration, seed=args.seed, progress=progress_printer("variants"),
+                              background_video=video, video_start_s=args.video_start)
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if args.out:
         _io.write_csv(table, Path(args.out) / "variants.csv")

@@ -100,6 +100,10 @@ def build_parser() -> argparse.ArgumentParser:
     bv.add_argument("--variants", nargs="+", default=None, help="variants to run (default: all)")
     bv.add_argument("--duration", type=float, default=1.0, help="video length [s] (default 1)")
     bv.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    bv.add_argument("--background-video", default=None,
+                    help="a real recording to play behind the rig: adds the phone-video variant (e.g. OpenCV's sample "
+                         "clips, Debian's opencv-doc: box.mp4, cup.mp4, vtest.avi)")
+    bv.add_argument("--video-start", type=float, default=0.0, help="where in the recording to start [s] (default 0)")
     bv.add_argument("--out", default=None, help="also write variants.csv here")
     bv.set_defaults(func="_cmd_bench_variants")
 

@@ -49,6 +49,10 @@ class PhoneStyle:
 
     #: a scikit-image photograph (:data:`PHOTOS`), or None for a flat grey background
     photo: str | None = "coffee"
+    #: a real recording (any file FFmpeg reads) played behind the rig at its own speed from ``video_start_s``,
+    #: in place of the photograph: its own sensor noise, codec and motion (hands, people) behind the tip
+    background_video: str | None = None
+    video_start_s: float = 0.0
     #: background brightness (linear, 0-1, of the photograph's brightest value)
     background_level: float = 0.55
     #: the background drifts by this many pixels per second (something moving behind the rig); 0: static
@@ -106,6 +110,10 @@ class PhoneStyle:
     def check(self) -> None:
         if self.photo is not None and self.photo not in PHOTOS:
             raise ValueError(f"photo = {self.photo!r}: allowed {', '.join(PHOTOS)} or None")
+        if self.background_video is not None and not Path(self.background_video).is_file():
+            raise ValueError(f"background_video = {self.background_video!r}: not a file")
+        if not 0.0 <= self.video_start_s < 1e5:
+            raise ValueError(f"video_start_s = {self.video_start_s}: allowed [0, 1e5) s")
         if self.codec not in ("libx264", "libx265", "ffv1"):
             raise ValueError(f"codec = {self.codec!r}: allowed 'libx264', 'libx265', 'ffv1'")
         if self.transfer not in ("bt709", None):
@@ -209,11 +217,55 @@ def photo_background(name: str | None, width_px: int, height_px: int, margin_px:
     img = getattr(skimage.data, name)()
     if img.ndim == 2:
         img = np.repeat(img[:, :, None], 3, axis=2)
-    img = img[:, :, :3].astype(np.float32) / 255.0
+    return _covering(img[:, :, :3].astype(np.float32) / 255.0, w, h)
+
+
+def _covering(img: np.ndarray, w: int, h: int) -> np.ndarray:
+    """An RGB image (0-1) scaled to cover ``w`` x ``h`` and cut to it, in linear light (the power law 2.2)."""
     scale = max(w / img.shape[1], h / img.shape[0])
     img = cv2.resize(img, (int(math.ceil(img.shape[1] * scale)), int(math.ceil(img.shape[0] * scale))),
                      interpolation=cv2.INTER_CUBIC)
     return np.clip(img[:h, :w], 0.0, 1.0) ** 2.2
+
+
+class _Recording:
+    """A real recording behind the rig: its picture at a time [s from ``start_s``], cross-faded between the two
+    frames around it, in linear RGB covering the frame plus ``margin_px`` on every side.  Frames are decoded once,
+    in order (times asked for must not decrease)."""
+
+    def __init__(self, path: str, width_px: int, height_px: int, margin_px: int, start_s: float):
+        import av
+
+        self._path, self._start = path, start_s
+        self._size = (width_px + 2 * margin_px, height_px + 2 * margin_px)
+        self._container = av.open(path)
+        self._frames = self._container.decode(video=0)
+        self._t0: float | None = None
+        self._before = self._after = self._next()
+
+    def _next(self) -> tuple[float, np.ndarray]:
+        try:
+            frame = next(self._frames)
+        except StopIteration:
+            raise ValueError(f"background_video = {self._path!r}: the recording ends before the render does "
+                             f"(from video_start_s = {self._start} s)") from None
+        t = float(frame.time if frame.time is not None else 0.0)
+        self._t0 = t if self._t0 is None else self._t0
+        img = frame.to_ndarray(format="rgb24").astype(np.float32) / 255.0
+        return t - self._t0, _covering(img, *self._size)
+
+    def at(self, t_s: float) -> np.ndarray:
+        t = self._start + t_s
+        while self._after[0] < t:
+            self._before, self._after = self._after, self._next()
+        (ta, a), (tb, b) = self._before, self._after
+        if tb <= ta or t <= ta:
+            return b if t >= tb else a
+        f = np.float32((t - ta) / (tb - ta))
+        return a * (1.0 - f) + b * f
+
+    def close(self) -> None:
+        self._container.close()
 
 
 def _coverage_protocol(scene: Mapping[str, Any] | Protocol, readout_s: float = 0.0) -> Protocol:
@@ -295,7 +347,9 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     shake = _shake(style, rng)
     placed = rng.uniform(-style.photo_shift_px, style.photo_shift_px, 2)
     margin = int(math.ceil(abs(style.drift_px_per_s) * duration + style.photo_shift_px)) + 2
-    photo = photo_background(style.photo, cam.width_px, cam.height_px, margin)
+    recording = None if style.background_video is None else _Recording(
+        style.background_video, cam.width_px, cam.height_px, margin, style.video_start_s)
+    photo = photo_background(style.photo, cam.width_px, cam.height_px, margin) if recording is None else None
     peak = _COVERAGE_E_PER_S * cam.exposure_s
     rgb = np.asarray(style.marker_rgb, np.float32)
     out = Path(out_dir)
@@ -328,7 +382,8 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
             shift = style.drift_px_per_s * t  # along (0.8, 0.6), by fractions of a pixel (bilinear)
             centre = (margin + placed[0] + 0.8 * shift + (cam.width_px - 1) / 2,
                       margin + placed[1] + 0.6 * shift + (cam.height_px - 1) / 2)
-            bg = cv2.getRectSubPix(photo, (cam.width_px, cam.height_px), centre) * style.background_level
+            bg = cv2.getRectSubPix(photo if recording is None else recording.at(t), (cam.width_px, cam.height_px),
+                                   centre) * style.background_level
             alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
             linear = (bg * (1.0 - alpha) + alpha * rgb) * _light(style, t, cam.exposure_s, cam.height_px)
             if shake is not None:  # the camera turned a little: the whole picture moves (the truth's pixels with it)
@@ -351,6 +406,8 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
         os.chmod(tmp, 0o644)
         os.replace(tmp, out / name)
     finally:
+        if recording is not None:
+            recording.close()
         try:
             container.close()
         except Exception:  # noqa: BLE001 - already closed, or failed while writing: the file is removed below

@@ -3,13 +3,11 @@
 A spot is taken for the tip only when it looks like the tip at that instant and is where the tip can
 be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse than a gap):
 
-- **shape and size**: a sphere's fitted radius against its image's (:data:`SIZE_RANGE`); a flat
-  disc on the stem axis must make the ellipse that the camera and the axis at that position predict
-  (semi-axes and orientation, :class:`~gyrorig.tracking.ellipse.DiscGeometry`); a blob of unknown
-  appearance only a loose size range;
-- **appearance**: once the tip has been followed for a few frames, its fitted radius, amplitude and
-  reduced chi-square must stay near their running medians (a different marker, or a neighbour's light
-  under the tip's own, changes them);
+- **shape and size**: a sphere's fitted radius against its image's (:data:`SIZE_RANGE`); a flat disc on the stem axis
+  must make the ellipse that the camera and the axis at that position predict (semi-axes and orientation,
+  :class:`~gyrorig.tracking.ellipse.DiscGeometry`); a blob of unknown appearance only a loose size range;
+- **appearance**: once the tip has been followed for a few frames, its fitted radius, amplitude and reduced
+  chi-square must stay near their running medians (a different marker, or a neighbour's light under it, changes them);
 - **motion**: the spot must lie within a gate around the position predicted from the last frames
   (the gate grows with the tip's observed speed and acceleration in pixels; once the tip has been seen to move
   more than its radius in a frame, it holds any step up to the fastest speed seen, :data:`SPEED_MEMORY`);
@@ -97,10 +95,12 @@ SCENE_MOTION_PX = 0.5
 #: correlation's peak holds at least this much of the response
 REGISTER_WIDTH_PX = 480
 REGISTER_MIN_RESPONSE = 0.08
-#: a reacquired tip lies within this many expected radii of where it was lost, plus this many times its median
-#: motion per frame before the loss for every frame since
+#: a reacquired tip lies within this many expected radii of where it was lost, plus this many times its speed for every
+#: frame since: the :data:`REACQUIRE_QUANTILE` of its steps remembered (:data:`SPEED_MEMORY`), or its last steps'
+#: median if more (a heavy top's tip stops at each cusp of its nod, where it is often lost)
 REACQUIRE_RADII = 3.0
 REACQUIRE_SPEEDS = 2.0
+REACQUIRE_QUANTILE = 0.9
 #: a spot whose centre is known worse than this fraction of the tip's expected radius is not a clean image of it
 #: (a texture's blob, a tip partly hidden)
 MAX_SIGMA_RADII = 0.25
@@ -596,7 +596,8 @@ class TipFollower:
         """Forget the track; remember where it ended and how fast the tip moved (a reacquisition's reach)."""
         if self.last:
             p = np.array(self.last)
-            speed = float(np.median(np.hypot(*np.diff(p, axis=0).T))) if len(p) > 1 else 0.0
+            speed = max(float(np.median(np.hypot(*np.diff(p, axis=0).T))) if len(p) > 1 else 0.0,
+                        float(np.quantile(np.asarray(self.speeds), REACQUIRE_QUANTILE)) if self.speeds else 0.0)
             self.lost_at = (float(p[-1, 0]), float(p[-1, 1]), speed)
             self.since_lost = self.misses
         self.last.clear()

@@ -234,18 +234,29 @@ def _sector_effects(xs, ys, cx, cy, jac, weight, coverage):
     return v
 
 
-def _scene_covariance(sol: "_Solution", fisher_inv: np.ndarray) -> np.ndarray:
+def _fitted_bins(sol: "_Solution") -> np.ndarray:
+    """Which angular bins about the fitted centre hold fitted pixels (the others' sectors were left out)."""
+    angles = np.arctan2(sol.ys - sol.p[1], sol.xs - sol.p[0])
+    bins = ((angles + math.pi) / (2 * math.pi) * ANGLE_BINS).astype(np.int64) % ANGLE_BINS
+    return np.bincount(bins, minlength=ANGLE_BINS) > 0
+
+
+def _scene_covariance(sol: "_Solution", fisher_inv: np.ndarray, kept: np.ndarray) -> np.ndarray:
     """What the scene behind the disc's edge, unseen, may do to the parameters: the ring stands in for it, but
     the edge lies ``3 sigma + 1`` px further in.  Taking the scene's texture as isotropic, it changes over that
     distance as much as it does along the ring over the same arc: the ring's structure function at that lag
     (mean square difference of bins that far apart) is the variance of each bin's error, independent from bin to
-    bin, and it reaches the fit through the pixels it lies behind (``(1 - c)`` of each, by their Jacobian rows)."""
+    bin, and it reaches the fit through the pixels it lies behind (``(1 - c)`` of each, by their Jacobian rows).
+    Only the ``kept`` bins enter the structure function (a dark object's edge, whose sectors are left out of the fit,
+    is not the scene behind the pixels fitted)."""
     p = sol.p
     gap = RING_GAP_SIGMAS * p[4]
     arc = 2 * math.pi * (p[2] + gap + RING_WIDTH_PX / 2) / ANGLE_BINS
     lag = max(1, int(round((gap + 1.0) / arc)))
-    var_bin = float(np.mean((np.roll(sol.bins, lag) - sol.bins) ** 2))
     v = _sector_effects(sol.xs, sol.ys, p[0], p[1], sol.jac, sol.weight, sol.coverage)
+    pairs = kept & np.roll(kept, lag)
+    squares = (np.roll(sol.bins, lag) - sol.bins) ** 2
+    var_bin = float(np.mean(squares[pairs] if pairs.any() else squares))
     return fisher_inv @ (var_bin * v.T @ v) @ fisher_inv
 
 
@@ -274,12 +285,13 @@ def _median(values):
 
 
 @njit(cache=True)
-def _foreign_bins(bins: np.ndarray, marker_level: float) -> np.ndarray:
+def _foreign_bins(bins: np.ndarray, marker_level: float, sign: float = 1.0) -> np.ndarray:
     """Ring bins holding another spot's light: above the ring's median by :data:`FOREIGN_Z` robust SDs of the
-    bins and by :data:`FOREIGN_CONTRAST` of the marker's contrast."""
+    bins and by :data:`FOREIGN_CONTRAST` of the marker's contrast (``sign = -1``: below it by as much, a dark
+    object's edge)."""
     med = np.median(bins)
     sd = max(1.4826 * np.median(np.abs(bins - med)), math.sqrt(1.0 / 12.0))
-    return bins > med + max(FOREIGN_Z * sd, FOREIGN_CONTRAST * (marker_level - med))
+    return sign * (bins - med) > max(FOREIGN_Z * sd, FOREIGN_CONTRAST * (marker_level - med))
 
 
 @njit(cache=True)
@@ -382,14 +394,9 @@ _HARMONICS = np.column_stack([np.ones(ANGLE_BINS)] + [f(n * _BIN_ANGLES) for n i
 
 
 @njit(cache=True)
-def _harmonic_power(radii):
-    """The mean power per coefficient of harmonics 2 to :data:`EDGE_HARMONICS` of the finite ``radii`` (least
-    squares on :data:`_HARMONICS`' rows, by its normal equations); NaN when fewer than
-    :data:`MIN_ARC_FRACTION` of the bins are finite."""
-    m = _HARMONICS.shape[1]
-    good = np.isfinite(radii)
-    if np.count_nonzero(good) < MIN_ARC_FRACTION * ANGLE_BINS:
-        return math.nan
+def _residual_sum(radii, good, m):
+    """The residual sum of squares of the finite ``radii`` (``good``) about their least-squares fit on the first
+    ``m`` columns of :data:`_HARMONICS` (by its normal equations); NaN when that cannot be solved."""
     a = np.zeros((m, m))
     rhs = np.zeros(m)
     for b in range(ANGLE_BINS):
@@ -401,19 +408,47 @@ def _harmonic_power(radii):
     coef, ok = _lu_solve(a, rhs)
     if not ok:
         return math.nan
-    return float(np.mean(coef[3:] ** 2))
+    total = 0.0
+    for b in range(ANGLE_BINS):
+        if good[b]:
+            model = 0.0
+            for i in range(m):
+                model += _HARMONICS[b, i] * coef[i]
+            total += (radii[b] - model) ** 2
+    return total
 
 
-def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution") -> float:
+@njit(cache=True)
+def _harmonic_power(radii):
+    """The mean power per coefficient of harmonics 2 to :data:`EDGE_HARMONICS` of the finite ``radii``: twice the
+    sum of squares they explain beyond the circle (harmonics 0 and 1), per coefficient and per bin.  On the whole
+    circle of bins this is the mean of their squared coefficients; on an arc (bins without an edge point) the
+    harmonics are not orthogonal and their coefficients would take up the noise many times over, while what they
+    explain stays what the edge departs from a circle by.  NaN when fewer than :data:`MIN_ARC_FRACTION` of the bins
+    are finite."""
+    good = np.isfinite(radii)
+    n = np.count_nonzero(good)
+    if n < MIN_ARC_FRACTION * ANGLE_BINS:
+        return math.nan
+    m = _HARMONICS.shape[1]
+    explained = _residual_sum(radii, good, 3) - _residual_sum(radii, good, m)
+    return 2.0 * max(explained, 0.0) / ((m - 3) * n)
+
+
+def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution", kept: np.ndarray) -> float:
     """The variance [px^2] per axis of the centre that the edge's own departures from a circle imply: the edge
     points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a shift of the centre and is
     therefore absorbed by the fit; its unseen power is taken as the mean power per coefficient of harmonics
     2 to :data:`EDGE_HARMONICS`.  Noise independent from bin to bin gives ``2 var / bins`` (what the pixels' own
     covariance already holds); a bump of another spot's light merged with the edge, a bulge of texture under it
     or something in front of the disc spread over neighbouring harmonics and give what they shift the centre by.
-    NaN when fewer than half the bins have an edge point."""
+    NaN when fewer than half the bins have an edge point.
+
+    Only the ``kept`` bins have an edge point (a dark object's edge, whose sectors are left out of the fit, would
+    bend it; another spot's light merged with the edge is what this looks for)."""
     x0, y0 = float(xx[0, 0]), float(yy[0, 0])
-    return _harmonic_power(_edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], sol.p[3], sol.bins))
+    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], sol.p[3], sol.bins)
+    return _harmonic_power(np.where(kept, radii, np.nan))
 
 
 @njit(cache=True)
@@ -498,13 +533,19 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
         return None
     win, xx, yy, saturated, _, background, amplitude = window
     allowed = ~saturated
+    x_first, y_first = float(xx[0, 0]), float(yy[0, 0])
+    ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + RING_GAP_SIGMAS * sigma_max, allowed)
+    dark = _foreign_bins(bins, background + amplitude, -1.0) if ok else np.zeros(ANGLE_BINS, np.bool_)
+    if dark.any():  # a dark object's edge within the widest ring: its sectors are left out
+        allowed = _without_sectors(allowed, x_first, y_first, x0, y0, dark)
     start = np.array([x0, y0, r0, background + amplitude, sigma])
     sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations)
     if sol is None:
         return None
+    kept = _fitted_bins(sol)  # all but a dark object's sectors
     foreign = _foreign_bins(sol.bins, sol.p[3])
     if foreign.any():  # another spot's light on the ring: its sectors (and one bin either side) are left out
-        allowed = _without_sectors(allowed, float(xx[0, 0]), float(yy[0, 0]), sol.p[0], sol.p[1], foreign)
+        allowed = _without_sectors(allowed, x_first, y_first, sol.p[0], sol.p[1], foreign)
         sol = _solve(win, xx, yy, allowed, sol.p, r0, sigma, sigma_max, iterations)
         if sol is None:
             return None
@@ -520,11 +561,11 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
         finv = np.linalg.inv(sol.fisher)
     except np.linalg.LinAlgError:
         return None
-    rough = _edge_roughness(win, xx, yy, sol)
+    rough = _edge_roughness(win, xx, yy, sol, kept)
     if not math.isfinite(rough):
         return None
     cov = (sandwich_covariance(sol.pick, win.shape, sol.jac, sol.weight, sol.resid, finv, parameters=2)
-           + _scene_covariance(sol, finv)[:2, :2] + rough * np.eye(2))
+           + _scene_covariance(sol, finv, kept)[:2, :2] + rough * np.eye(2))
     chi2 = float(np.sum(sol.resid ** 2 * sol.weight)) / max(n_used - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
                    bool(saturated.any()), True, blended, chi2_own=chi2)
