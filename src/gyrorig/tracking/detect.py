@@ -27,6 +27,9 @@ PEAK_FRACTION = 0.5
 #: a blob wider than the widest spot looked for (after its cut at half its peak, where made) is cut at this fraction of
 #: its peak
 SECOND_CUT = 0.75
+#: what lies under a blob's cut is searched for spots of its own only this far [px] (or the widest spot looked for, if
+#: less) from the parts the cut kept
+NEAR_KEPT_PX = 12.0
 
 
 @dataclass(frozen=True)
@@ -66,7 +69,8 @@ def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_
                 split_above: float | None, max_radius_px: float = math.inf, cut: float = 0.5) -> None:
     """The blobs of ``mask`` (in window coordinates offset by ``x0, y0``), appended to ``out``.  A large blob
     whose peak contrast exceeds ``split_above`` is cut again at half its peak (a bright spot joined to a
-    texture's faint network, a mortar line or a rim, by a low threshold stands apart at half its height); a blob
+    texture's faint network, a mortar line or a rim, by a low threshold stands apart at half its height), and what
+    lies below the cut is searched again in the same way (a fainter spot joined to it stands apart there); a blob
     wider than ``max_radius_px`` (its inscribed circle; after that cut, where made) is cut once more at
     :data:`SECOND_CUT` of its peak (a spot joined to a bright patch of the scene that stands out half as much)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
@@ -80,8 +84,15 @@ def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_
         values = sub[by:by + bh, bx:bx + bw]
         peak = float(values[own].max())
         if split_above is not None and peak > split_above and stats[i, cv2.CC_STAT_AREA] > 4 * min_area + 50:
-            _components(values, own & (values > cut * peak), x0 + bx, y0 + by, min_radius_px, out, None,
-                        max_radius_px, cut)
+            above = values > cut * peak
+            _components(values, own & above, x0 + bx, y0 + by, min_radius_px, out, None, max_radius_px, cut)
+            # what the cut left, away from what it kept, may hold a fainter spot of its own (a white tip on a white
+            # table joined to a crossbar dot on a dark rotor): searched in the same way, each part cut at half its own
+            # peak; beside a kept part (its halo, or a spot merged with it) it is that part's
+            reach = 2 * int(math.ceil(min(max_radius_px, NEAR_KEPT_PX))) + 1
+            near = cv2.dilate(above.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (reach, reach)))
+            _components(values, own & (near == 0), x0 + bx, y0 + by, min_radius_px, out, split_above, max_radius_px,
+                        cut)
             continue
         blob = np.pad(own.astype(np.uint8), 1)
         dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)

@@ -95,7 +95,8 @@ def warm_up() -> None:
 
 
 def _valid(p) -> bool:
-    return bool(np.all(np.isfinite(p)) and p[2] > 0.04 and p[4] > 0.04 and p[2] * p[4] - p[3] ** 2 > 1e-3
+    """Finite parameters of a bounded (a diverged step's are not), positive-definite ellipse of positive amplitude."""
+    return bool(np.all(np.abs(p) < 1e100) and p[2] > 0.04 and p[4] > 0.04 and p[2] * p[4] - p[3] ** 2 > 1e-3
                 and p[5] > 0)
 
 

@@ -205,8 +205,7 @@ class TipFollower:
         self.had_lock = False
         #: the first frame searched: every spot that stood out and what became of it
         self.first_look: FirstLook | None = None
-        #: where the tip was lost (x, y) and its median speed before [px/frame]
-        self.lost_at: tuple[float, float, float] | None = None
+        self.lost_at: tuple[float, float, float] | None = None  # where the tip was lost (x, y), its speed [px/frame]
         self.since_lost = 0  # frames since
         self.searched = 0  # frames searched so far
         #: the light at the tip's rows relative to the first frame's, and the last frame's mean level per row
@@ -307,8 +306,8 @@ class TipFollower:
         fast = max(max(self.speeds, default=0.0), gap)
         return fast if fast > self.r_expected else 0.0
 
-    def _acceptable(self, fit: SpotFit | None, predicted: np.ndarray | None, gate: float) -> bool:
-        if fit is None or not self._looks_like_tip(fit) or not self._appearance_ok(fit):
+    def _acceptable(self, fit: SpotFit | None, predicted: np.ndarray | None, gate: float, threshold: Detection) -> bool:
+        if fit is None or not (stands_out(fit, threshold) and self._looks_like_tip(fit) and self._appearance_ok(fit)):
             return False
         return predicted is None or math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) <= gate
 
@@ -370,10 +369,10 @@ class TipFollower:
         predicted, gate = self._prediction()
         if self.misses == 0 and len(self.last) >= 2 and self._clear(predicted, gate, others):
             fit = self._fit(frame, float(predicted[0]), float(predicted[1]), self.last_r)
-            if (fit is not None and not fit.blended and stands_out(fit, threshold)
+            if (fit is not None and not fit.blended
                     and math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) < max(2.0, 0.3 * fit.radius_px)
                     and self._verdict(fit.x_px, fit.y_px, fit.radius_px) is None
-                    and self._acceptable(fit, predicted, gate)):
+                    and self._acceptable(fit, predicted, gate, threshold)):
                 return fit
         cand = self._candidates(frame, threshold, predicted, int(2 * self.r_expected + 10 + gate))
         cand.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
@@ -382,11 +381,11 @@ class TipFollower:
                 # the motion prediction is sub-pixel; the blob's inscribed centre is not: fewer iterations
                 x0, y0, r0 = float(predicted[0]), float(predicted[1]), self.last_r
             fit = self._fit(frame, x0, y0, r0)
-            if self._acceptable(fit, predicted, gate):
+            if self._acceptable(fit, predicted, gate, threshold):
                 return fit
             if fit is not None and fit.blended and self.shape == "sphere" and self.camera.sensor_known:
                 fit = self._fit(frame, x0, y0, r0, neighbour="mask")
-                if self._acceptable(fit, predicted, gate):
+                if self._acceptable(fit, predicted, gate, threshold):
                     return fit
         return None
 
@@ -418,7 +417,8 @@ class TipFollower:
                     and not self._looks_like_tip(fit)):
                 fit = self._fit(frame, x0, y0, r0, neighbour="mask")
             # a reacquired tip is as bright as before it was lost (its image's size may have changed meanwhile)
-            if fit is not None and self._looks_like_tip(fit) and (not self.had_lock or self._as_bright(fit)):
+            if fit is not None and stands_out(fit, threshold) and self._looks_like_tip(fit) and (
+                    not self.had_lock or self._as_bright(fit)):
                 fits.append(fit)
                 if record is not None:
                     record.append(Candidate(fit.x_px, fit.y_px, fit.radius_px, Verdict.UNCONFIRMED))
