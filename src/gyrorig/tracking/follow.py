@@ -10,7 +10,7 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   chi-square must stay near their running medians (a different marker, or a neighbour's light under it, changes them);
 - **motion**: the spot must lie within a gate around the position predicted from the last frames
   (the gate grows with the tip's observed speed and acceleration in pixels; once the tip has been seen to move
-  more than its radius in a frame, it holds any step up to the fastest speed seen, :data:`SPEED_MEMORY`);
+  more than its radius in a frame, it holds any step up to the fastest speed seen twice, :data:`SPEED_MEMORY`);
 - **lab markers**: a spot where one of the protocol's lab-fixed markers appears, and nearer its size than the
   tip's, is never the tip;
 - **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
@@ -24,9 +24,8 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   followed back through the frames it was not taken in, among the spots of its look kept from each, as it is
   followed forward.
 
-A sphere's spot fitted jointly with a neighbour (``blended``) that fails these is fitted again with the
-neighbour's light masked out (a whirling dot is a streak, not a disc); if that fails too, the frame
-is ``missing``.
+A sphere's spot fitted jointly with a neighbour (``blended``) that fails these is fitted again with the neighbour's
+light masked out (a whirling dot is a streak, not a disc); if that fails too, the frame is ``missing``.
 
 Localisation follows the shape: the sphere model (:func:`~gyrorig.tracking.spot.fit_spot`) for
 spheres; the elliptical model (:func:`~gyrorig.tracking.ellipse.fit_ellipse_spot`) for discs and
@@ -37,6 +36,7 @@ is followed as a blob (its appearance depends on the spin angle).
 
 from __future__ import annotations
 
+import heapq
 import math
 import statistics
 from collections import deque
@@ -299,11 +299,11 @@ class TipFollower:
         return p[-1] + v * steps, max(gate, MIN_GATE_PX + 2.0 * fast * steps)
 
     def _fast_speed(self) -> float:
-        """The tip's largest remembered speed [px/frame] when it exceeds the tip's radius per frame (see
-        :data:`SPEED_MEMORY`), else 0; a speed two reacquisitions in a row implied counts too (a tip too fast to be
-        followed between frames is found again only where it turns, and never seen to move fast)."""
+        """The tip's second largest remembered speed [px/frame] (one step to a wrong spot is not a speed) when it
+        exceeds the tip's radius per frame (see :data:`SPEED_MEMORY`), else 0; a speed two reacquisitions in a row
+        implied counts too (a tip too fast to be followed between frames is found again only where it turns)."""
         gap = min(self.gap_speeds) if len(self.gap_speeds) == 2 and self.steps_since_gap < SPEED_MEMORY else 0.0
-        fast = max(max(self.speeds, default=0.0), gap)
+        fast = max(heapq.nlargest(2, self.speeds)[-1] if len(self.speeds) > 1 else 0.0, gap)
         return fast if fast > self.r_expected else 0.0
 
     def _acceptable(self, fit: SpotFit | None, predicted: np.ndarray | None, gate: float, threshold: Detection) -> bool:
