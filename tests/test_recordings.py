@@ -388,6 +388,24 @@ def test_a_highlight_of_the_tips_size_is_not_taken_for_it(tmp_path):
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 
+def _tracked_with_the_tip_hidden(rendered: dict, user: dict, hidden):
+    """The result of tracking a 200 fps phone render (tip alone) with the tip painted over in the ``hidden`` frames (a disc of 14 px
+    at the median level of the ring 14-20 px around it)."""
+    truth = pd.read_csv(rendered["truth"])
+    tip = truth[truth.marker == "tip"].set_index("frame")
+    with VideoFile(rendered["video"]).open() as source:
+        frames = [np.array(f) for f, _ in source]
+        t_s = np.arange(len(frames)) / 200.0
+        stored = {"levels": source.levels, "transfer": source.transfer}  # what the file says of its values
+    for k in hidden:
+        x, y = tip.loc[k, ["x_px", "y_px"]]
+        yy, xx = np.mgrid[0:frames[k].shape[0], 0:frames[k].shape[1]]
+        cover = np.hypot(xx - x, yy - y) < 14
+        frames[k][cover] = np.median(frames[k][(np.hypot(xx - x, yy - y) < 20) & ~cover])
+    return track(FrameArrays(frames, t_s, **stored), load_camera(rendered["camera"]), parse_protocol(user),
+                 frame_dots=False)
+
+
 def test_the_tip_is_found_again_after_it_was_hidden(tmp_path):
     """The tip hidden for 8 frames (painted over with the photograph's level around it) in a phone clip: the search
     that follows starts from frames without a candidate, and the tip, moving, is taken again once it shows (the
@@ -396,18 +414,7 @@ def test_the_tip_is_found_again_after_it_was_hidden(tmp_path):
     rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
                                                                    drop_fraction=0.0), seed=1)
     truth = pd.read_csv(rendered["truth"])
-    tip = truth[truth.marker == "tip"].set_index("frame")
-    with VideoFile(rendered["video"]).open() as source:
-        frames = [np.array(f) for f, _ in source]
-        t_s = np.arange(len(frames)) / 200.0
-        stored = {"levels": source.levels, "transfer": source.transfer}  # what the file says of its values
-    for k in range(40, 48):
-        x, y = tip.loc[k, ["x_px", "y_px"]]
-        yy, xx = np.mgrid[0:frames[k].shape[0], 0:frames[k].shape[1]]
-        cover = np.hypot(xx - x, yy - y) < 14
-        frames[k][cover] = np.median(frames[k][(np.hypot(xx - x, yy - y) < 20) & ~cover])
-    res = track(FrameArrays(frames, t_s, **stored), load_camera(rendered["camera"]), parse_protocol(user),
-                frame_dots=False)
+    res = _tracked_with_the_tip_hidden(rendered, user, range(40, 48))
     m, found, e_th, e_ph = _pulls(res, truth)
     after = m[m.frame >= 55]
     assert after.theta_rad.notna().mean() >= 0.9
@@ -429,18 +436,7 @@ def test_a_tip_lost_where_its_nod_turns_is_found_again_far_from_there(tmp_path):
     step = np.hypot(np.diff(tip.x_px), np.diff(tip.y_px))
     cusp = 50 + int(np.argmin(step[50:75]))  # the nod's third cusp
     hidden = range(cusp + 2, cusp + 92)  # the last steps seen: 0.6, 0.26, 0.06 px
-    with VideoFile(rendered["video"]).open() as source:
-        frames = [np.array(f) for f, _ in source]
-        t_s = np.arange(len(frames)) / 200.0
-        stored = {"levels": source.levels, "transfer": source.transfer}
-    for k in hidden:
-        x, y = tip.loc[k, ["x_px", "y_px"]]
-        yy, xx = np.mgrid[0:frames[k].shape[0], 0:frames[k].shape[1]]
-        cover = np.hypot(xx - x, yy - y) < 14
-        frames[k][cover] = np.median(frames[k][(np.hypot(xx - x, yy - y) < 20) & ~cover])
-    res = track(FrameArrays(frames, t_s, **stored), load_camera(rendered["camera"]), parse_protocol(user),
-                frame_dots=False)
-    m, found, e_th, e_ph = _pulls(res, truth)
+    m, found, e_th, e_ph = _pulls(_tracked_with_the_tip_hidden(rendered, user, hidden), truth)
     shown = m[(m.frame > hidden[-1]) & (m.frame <= hidden[-1] + 8)]
     assert shown.theta_rad.notna().all()
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
