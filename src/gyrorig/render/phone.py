@@ -347,9 +347,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     shake = _shake(style, rng)
     placed = rng.uniform(-style.photo_shift_px, style.photo_shift_px, 2)
     margin = int(math.ceil(abs(style.drift_px_per_s) * duration + style.photo_shift_px)) + 2
-    recording = None if style.background_video is None else _Recording(
-        style.background_video, cam.width_px, cam.height_px, margin, style.video_start_s)
-    photo = photo_background(style.photo, cam.width_px, cam.height_px, margin) if recording is None else None
+    photo = photo_background(style.photo, cam.width_px, cam.height_px, margin) if not style.background_video else None
     peak = _COVERAGE_E_PER_S * cam.exposure_s
     rgb = np.asarray(style.marker_rgb, np.float32)
     out = Path(out_dir)
@@ -359,8 +357,11 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     kept = set(int(k) for k in keep)
     stored = dict(zip((int(k) for k in keep), t_store))
     truths = []
+    recording = None
     container = av.open(str(tmp), "w", format="matroska" if style.codec == "ffv1" else "mp4")
     try:
+        if photo is None:
+            recording = _Recording(style.background_video, cam.width_px, cam.height_px, margin, style.video_start_s)
         stream = container.add_stream(style.codec, rate=Fraction(round(cam.fps * 1000), 1000))
         stream.width, stream.height = cam.width_px, cam.height_px
         ten = style.bit_depth == 10
