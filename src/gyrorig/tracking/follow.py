@@ -51,6 +51,7 @@ from .backward import follow_back
 from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .first_look import MAX_RECORDED, Candidate, FirstLook, Verdict
+from .light import RowLight
 from .rays import tip_from_pixel
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
@@ -62,12 +63,6 @@ SIZE_RANGE = {"sphere": (0.7, 1.4), "blob": (0.4, 2.5)}
 #: once followed, the fitted radius and amplitude must stay within these factors of their running medians
 RADIUS_CHANGE = (0.8, 1.25)
 AMPLITUDE_CHANGE = (0.6, 1.6)
-#: the tip's level is compared in the light of its frame: lamps rippling on the mains (an LED lamp's light, by up to
-#: its whole level at twice the mains frequency; in bands across the picture under a rolling shutter) change it from
-#: frame to frame; the light's change at the tip's rows (this many either side) is the change of their mean level
-#: (every this many-th pixel) from the frame before
-LIGHT_ROWS = 24
-LIGHT_STEP = 8
 #: once followed, the fit's reduced chi-square may exceed its running median by at most this factor (foreign
 #: light under the tip's own, which no mask can separate, makes the fit much worse than usual)
 CHI2_CHANGE = 2.0
@@ -208,9 +203,7 @@ class TipFollower:
         self.lost_at: tuple[float, float, float] | None = None  # where the tip was lost (x, y), its speed [px/frame]
         self.since_lost = 0  # frames since
         self.searched = 0  # frames searched so far
-        #: the light at the tip's rows relative to the first frame's, and the last frame's mean level per row
-        self.light = 1.0
-        self.profile: np.ndarray | None = None
+        self.light = RowLight()  # the light at the tip's rows relative to the first frame's
 
     # ------------------------------------------------------------------------------- checks
     def _appearance_ok(self, fit: SpotFit) -> bool:
@@ -239,8 +232,8 @@ class TipFollower:
         front of the scene) its own level, which does not change with what passes behind it; in the light of the
         first frame (:meth:`_see_light`)."""
         if self.shape == "sphere" and not self.camera.sensor_known:
-            return (fit.amplitude_adu + fit.background_adu) / self.light
-        return fit.amplitude_adu / self.light
+            return (fit.amplitude_adu + fit.background_adu) / self.light.index
+        return fit.amplitude_adu / self.light.index
 
     def _as_bright(self, fit: SpotFit) -> bool:
         """The fit's level (:meth:`_level`) within :data:`AMPLITUDE_CHANGE` of the tip's running median (True
@@ -251,19 +244,11 @@ class TipFollower:
         return AMPLITUDE_CHANGE[0] * a0 <= self._level(fit) <= AMPLITUDE_CHANGE[1] * a0
 
     def _see_light(self, frame: np.ndarray) -> None:
-        """Follow the light at the tip's rows (:data:`LIGHT_ROWS`): its running index times the change of their mean
-        level from the frame before.  A bright marker's only (a colour's or a dark marker's image is not light)."""
-        if self.tip.colour != "any" or self.tip.polarity != "bright":
-            return
-        profile = np.asarray(frame[:, ::LIGHT_STEP], np.float32).mean(axis=1)
-        at = self.last[-1] if self.last else self.lost_at
-        if self.profile is not None and at is not None:
-            y = min(max(int(round(at[1])), 0), len(profile) - 1)
-            rows = slice(max(y - LIGHT_ROWS, 0), y + LIGHT_ROWS + 1)
-            before, now = float(np.mean(self.profile[rows])), float(np.mean(profile[rows]))
-            if before > 0.0 and now > 0.0:
-                self.light *= now / before
-        self.profile = profile
+        """Follow the light at the tip's rows (:class:`~gyrorig.tracking.light.RowLight`).  A bright marker's only (a
+        colour's or a dark marker's image is not light)."""
+        if self.tip.colour == "any" and self.tip.polarity == "bright":
+            at = self.last[-1] if self.last else self.lost_at
+            self.light.see(frame, None if at is None else at[1])
 
     def _looks_like_tip(self, fit: SpotFit) -> bool:
         """The shape and size test for a fit whose position is already the tip's (see the module docstring)."""

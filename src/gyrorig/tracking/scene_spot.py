@@ -514,6 +514,16 @@ def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, i
     return _Solution(p, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
 
 
+def _joined(win, x_first, y_first, sol: "_Solution", sectors: np.ndarray) -> bool:
+    """Whether the light in any of the ``sectors`` joins the fitted disc: along its ray the image never falls
+    half-way from the disc's level to the scene's (the median of the other bins) before the ring: the disc is then
+    part of a larger bright shape (a band's middle), not a spot beside another light."""
+    scene = np.full(ANGLE_BINS, _median(sol.bins[~sectors]))
+    p = sol.p
+    radii = _edge_radii(win, p[0] - x_first, p[1] - y_first, p[2], p[4], p[3], scene)
+    return bool(np.any(np.isposinf(radii[sectors])))
+
+
 def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
                    iterations: int = 15) -> SpotFit | None:
     """Fit the opaque disc in front of the scene (module docstring) around ``(x0, y0)``, start radius ``r0``.
@@ -540,6 +550,12 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, dark)
     start = np.array([x0, y0, r0, background + amplitude, sigma])
     sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations)
+    bright = _foreign_bins(bins, background + amplitude) if ok and sol is None else np.zeros(ANGLE_BINS, np.bool_)
+    if bright.any():  # another light within the widest ring (a hand beside the tip) pulled the fit away: left out
+        allowed = _without_sectors(allowed, x_first, y_first, x0, y0, bright)
+        sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations)
+        if sol is not None and _joined(win, x_first, y_first, sol, bright):
+            return None
     if sol is None:
         return None
     kept = _fitted_bins(sol)  # all but a dark object's sectors
