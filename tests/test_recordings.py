@@ -321,10 +321,10 @@ def test_a_phone_recording_renders_from_a_protocol_as_from_its_dict(tmp_path):
         assert all(np.array_equal(x, y) for (x, _), (y, _) in zip(fa, fb))
 
 
-def _ramp_recording(path, frames: int, fps: int = 30) -> None:
+def _ramp_recording(path, frames: int, fps: int = 30, container: str | None = None) -> None:
     """A grey recording (H.264, 320 x 240) whose level rises by 4 per frame from 40, and a bright square moving
-    across it."""
-    with av.open(str(path), "w") as out:
+    across it; ``container="h264"``: a raw H.264 stream (no frame times)."""
+    with av.open(str(path), "w", format=container) as out:
         stream = out.add_stream("libx264", rate=fps)
         stream.width, stream.height, stream.pix_fmt = 320, 240, "yuv420p"
         for k in range(frames):
@@ -363,6 +363,23 @@ def test_a_real_recording_plays_behind_the_rig(tmp_path):
     assert not list((tmp_path / "short").glob("*video*"))
     with pytest.raises(ValueError, match="background_video"):
         render_phone_video(scene, tmp_path / "none", style=replace(style, background_video=str(tmp_path / "no.mp4")))
+
+
+def test_a_recording_without_frame_times_plays_at_its_streams_rate(tmp_path):
+    """A raw H.264 stream (an ``.h264`` file, as some cameras and converters write) holds no frame times: its frames
+    are timed by the stream's frame rate, and it plays behind the rig as the same recording in MP4 does (every frame
+    taken at time 0 made the recording seem to end at once, and the render was refused)."""
+    scene, _, _ = variant_protocols("sphere", 0.3)
+    style = PhoneStyle(photo=None, background_level=1.0, codec="ffv1", drift_px_per_s=0.0, photo_shift_px=0.0,
+                       flicker_fraction=0.0, drop_fraction=0.0)
+    levels = {}
+    for name, container in (("behind.mp4", None), ("behind.h264", "h264")):
+        _ramp_recording(tmp_path / name, 20, container=container)
+        rendered = render_phone_video(scene, tmp_path / name.replace(".", "-"),
+                                      style=replace(style, background_video=str(tmp_path / name)), seed=2)
+        with VideoFile(rendered["video"]).open() as frames:
+            levels[name] = np.array([np.median(np.asarray(f)[:60, :60]) for f, _ in frames])
+    np.testing.assert_allclose(levels["behind.h264"], levels["behind.mp4"], atol=2.0)
 
 
 def test_the_bench_plays_a_recording_behind_the_rig_only_when_given_one(tmp_path, capsys):

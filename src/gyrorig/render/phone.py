@@ -239,7 +239,10 @@ class _Recording:
         self._path, self._start = path, start_s
         self._size = (width_px + 2 * margin_px, height_px + 2 * margin_px)
         self._container = av.open(path)
-        self._frames = self._container.decode(video=0)
+        stream = self._container.streams.video[0]
+        rate = stream.guessed_rate or stream.average_rate  # for frames without times (a raw H.264 stream)
+        self._rate, self._count = float(rate) if rate else 0.0, 0
+        self._frames = self._container.decode(stream)
         self._t0: float | None = None
         self._before = self._after = self._next()
 
@@ -249,7 +252,14 @@ class _Recording:
         except StopIteration:
             raise ValueError(f"background_video = {self._path!r}: the recording ends before the render does "
                              f"(from video_start_s = {self._start} s)") from None
-        t = float(frame.time if frame.time is not None else 0.0)
+        if frame.time is not None:
+            t = float(frame.time)
+        elif self._rate > 0.0:
+            t = self._count / self._rate
+        else:
+            raise ValueError(f"background_video = {self._path!r}: its frames carry no times and its stream no frame "
+                             "rate")
+        self._count += 1
         self._t0 = t if self._t0 is None else self._t0
         img = frame.to_ndarray(format="rgb24").astype(np.float32) / 255.0
         return t - self._t0, _covering(img, *self._size)
