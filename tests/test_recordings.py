@@ -405,6 +405,16 @@ def test_a_highlight_of_the_tips_size_is_not_taken_for_it(tmp_path):
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 
+def _still_coffee_clip(tmp_path, duration_s: float) -> tuple[dict, dict, pd.DataFrame, pd.DataFrame]:
+    """The sphere variant as a 200 fps phone clip in front of a still ``coffee`` (seed 1, no frame dropped):
+    ``(user protocol, rendered, truth, the tip's truth by frame)``."""
+    scene, user, _ = variant_protocols("sphere", duration_s)
+    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
+                                                                   drop_fraction=0.0), seed=1)
+    truth = pd.read_csv(rendered["truth"])
+    return user, rendered, truth, truth[truth.marker == "tip"].set_index("frame")
+
+
 def _tracked_with(rendered: dict, user: dict, frames_painted, paint):
     """The result of tracking a 200 fps phone render (tip alone) with ``paint(frame, x, y, k)`` applied to the
     ``frames_painted`` (frame ``k``, the tip's true place ``x, y``)."""
@@ -436,10 +446,7 @@ def test_the_tip_is_found_again_after_it_was_hidden(tmp_path):
     """The tip hidden for 8 frames (painted over with the photograph's level around it) in a phone clip: the search
     that follows starts from frames without a candidate, and the tip, moving, is taken again once it shows (the
     search once held to its first frame's candidates, none, and never took it again)."""
-    scene, user, _ = variant_protocols("sphere", 0.5)
-    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
-                                                                   drop_fraction=0.0), seed=1)
-    truth = pd.read_csv(rendered["truth"])
+    user, rendered, truth, _ = _still_coffee_clip(tmp_path, 0.5)
     res = _tracked_with_the_tip_hidden(rendered, user, range(40, 48))
     m, found, e_th, e_ph = _pulls(res, truth)
     after = m[m.frame >= 55]
@@ -454,11 +461,7 @@ def test_a_tip_lost_where_its_nod_turns_is_found_again_far_from_there(tmp_path):
     reach per frame since), so the tip, plainly visible again, stayed out of reach for good; the reach now follows the
     speeds the tip was seen to move at: it is taken again as it shows (the first frames confirm it and are traced
     back), and none is beyond 5 sigma."""
-    scene, user, _ = variant_protocols("sphere", 1.2)
-    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
-                                                                   drop_fraction=0.0), seed=1)
-    truth = pd.read_csv(rendered["truth"])
-    tip = truth[truth.marker == "tip"].set_index("frame")
+    user, rendered, truth, tip = _still_coffee_clip(tmp_path, 1.2)
     step = np.hypot(np.diff(tip.x_px), np.diff(tip.y_px))
     cusp = 50 + int(np.argmin(step[50:75]))  # the nod's third cusp
     hidden = range(cusp + 2, cusp + 92)  # the last steps seen: 0.6, 0.26, 0.06 px
@@ -475,11 +478,7 @@ def test_a_missed_frame_is_not_a_step_of_the_tips_motion(tmp_path):
     speed per frame, and the motion gate after the next two misses (growing with the acceleration times the squared
     frames since) reached past the copy, which was taken for the tip.  The steps are now per frame: the copy is not
     taken, and no frame is beyond 5 sigma."""
-    scene, user, _ = variant_protocols("sphere", 0.5)
-    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
-                                                                   drop_fraction=0.0), seed=1)
-    truth = pd.read_csv(rendered["truth"])
-    tip = truth[truth.marker == "tip"].set_index("frame")
+    user, rendered, truth, tip = _still_coffee_clip(tmp_path, 0.5)
     step = np.hypot(np.diff(tip.x_px), np.diff(tip.y_px))
     k = 30 + int(np.argmax(step[30:70]))  # where the tip moves fastest (about 2 px per frame)
     direction = np.array([tip.y_px[k + 5] - tip.y_px[k + 4], tip.x_px[k + 4] - tip.x_px[k + 5]])
@@ -502,16 +501,14 @@ def test_a_bright_object_beside_the_tip_does_not_lose_it(tmp_path):
     the 50 frames were tracked.  The bar's sectors are left out when the fit fails with them, and the light is the
     median of the columns' changes: at least 90 % of those frames are tracked, none beyond 5 sigma (and none in the
     record flagged ok)."""
-    scene, user, _ = variant_protocols("sphere", 0.5)
-    rendered = render_phone_video(scene, tmp_path, style=PhoneStyle(photo="coffee", drift_px_per_s=0.0,
-                                                                   drop_fraction=0.0), seed=1)
+    user, rendered, truth, _ = _still_coffee_clip(tmp_path, 0.5)
     radius_px = 8.6  # the tip's image here
 
     def bar(frame, x, y, _):
         x0, y0 = int(round(x + radius_px + 2)), int(round(y - 40))
         frame[y0:y0 + 80, x0:x0 + 30] = 250
 
-    m, found, e_th, e_ph = _pulls(_tracked_with(rendered, user, range(20, 70), bar), pd.read_csv(rendered["truth"]))
+    m, found, e_th, e_ph = _pulls(_tracked_with(rendered, user, range(20, 70), bar), truth)
     wrong = (e_th.abs() > 5) | (e_ph.abs() > 5)
     assert m[(m.frame >= 20) & (m.frame < 70)].theta_rad.notna().mean() >= 0.9
     assert not (wrong & found.frame.between(20, 69)).any() and not (wrong & (found.quality == "ok")).any()
