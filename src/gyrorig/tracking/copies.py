@@ -4,8 +4,7 @@ An inter-coding codec (H.264, HEVC) copies a block from a picture it has already
 below what its quantizer keeps (a skipped block): a faint tip moving slowly, or standing still, then shows the same
 pixels in several frames while it moves.  Such a frame is not a measurement of where the tip is: its fit is the
 earlier frame's, off by the motion since.  :class:`RecentPictures` keeps the last frames seen and tells whether the
-pixels around a tip's fit are bit for bit those of one of them (a sensor's noise alone never repeats them), and
-:func:`copied_rows` which of such frames are no measurement.
+pixels around a tip's fit are bit for bit those of one of them (a sensor's noise alone never repeats them).
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["RecentPictures", "copied_rows", "COPY_FRAMES", "COPY_MARGIN_PX"]
+__all__ = ["RecentPictures", "COPY_FRAMES", "COPY_MARGIN_PX"]
 
 #: how many frames back a copy is looked for (a codec's run of B pictures and the reference pictures around it)
 COPY_FRAMES = 8
@@ -46,21 +45,3 @@ class RecentPictures:
                     not np.may_share_memory(seen, frame) and np.array_equal(seen[box], here)}
         self._frames.append((frame, row))
         return same | {row} if same else same
-
-
-def copied_rows(groups: list[set[int]], types: dict[int, str]) -> list[int]:
-    """The rows that are no measurement, from the ``groups`` of rows whose tip's pixels were alike
-    (:meth:`RecentPictures.see`; overlapping ones are one group): all of each group's, but its one reference
-    picture (``types``: row -> picture type, I, P or B) where it has exactly one and B pictures besides: the B
-    pictures copied their block from it, the reference it was coded for."""
-    merged: list[set[int]] = []
-    for g in filter(None, groups):
-        joined = [m for m in merged if m & g]
-        merged = [m for m in merged if not m & g] + [set(g).union(*joined)]
-    out = []
-    for g in merged:
-        refs = [r for r in g if types.get(r, "") in ("I", "P")]
-        bs = [r for r in g if types.get(r, "") == "B"]
-        keep = set(refs) if len(refs) == 1 and len(bs) == len(g) - 1 else set()
-        out += sorted(g - keep)
-    return sorted(out)

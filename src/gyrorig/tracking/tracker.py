@@ -39,7 +39,7 @@ from ..markers import Marker, MarkerSet, parse_markers
 from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_count, camera_mode_prior_column
 from ..camera import Camera
-from .copies import RecentPictures, copied_rows
+from .copies import RecentPictures
 from .detect import Detection, detection_threshold, opening_size_px
 from .appearance import MarkerImage, lab_marker_image
 from .transfer import settle_transfer
@@ -187,7 +187,7 @@ class _Tables:
         #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
         self.others: tuple | None = ()
         #: the last frames, and the angle rows whose tip's pixels a codec copied (no measurements: module copies)
-        self.recent, self.copies, self.tip_name = RecentPictures(), [], None
+        self.recent, self.copies, self.tip_name = RecentPictures(), set(), None
 
     def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
@@ -205,7 +205,7 @@ class _Tables:
             self.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "missing"))
             return
         self._tip_rows(camera, tip, follower, dots, frame, index, t_frame, threshold, located.fit, located.quality)
-        self.copies.append(self.recent.see(frame, len(self.angles) - 1, located.fit))
+        self.copies |= self.recent.see(frame, len(self.angles) - 1, located.fit)
 
     def _tip_rows(self, camera, tip, follower, dots, frame, index, t_frame, threshold, fit: SpotFit, quality: str,
                   row: int | None = None) -> None:
@@ -240,7 +240,7 @@ class _Tables:
                     self.markers.append(_marker_row(index, t_dot, name, dfit, "blended" if dfit.blended else "ok"))
         self.markers.append(_marker_row(index, t_mid, tip.name, fit, quality))
 
-    def tables(self, camera: Camera, with_dots: bool, frame_types: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
+    def tables(self, camera: Camera, with_dots: bool) -> tuple[pd.DataFrame, pd.DataFrame]:
         angles = pd.DataFrame(self.angles, columns=list(ANGLE_COLUMNS))
         angles["phi_rad"] = _unwrap_nan(angles.phi_rad.to_numpy())
         if with_dots:
@@ -256,8 +256,7 @@ class _Tables:
             angles["row_fraction"] = rows
         markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS)).sort_values("frame", kind="stable")
         markers = markers.reset_index(drop=True)
-        types = {r: frame_types.get(row[0], "") for r, row in enumerate(self.angles)}
-        _drop_tip(self, angles, markers, copied_rows(self.copies, types), "duplicate", tip_name=self.tip_name)
+        _drop_tip(self, angles, markers, sorted(self.copies), "duplicate", tip_name=self.tip_name)
         return angles, markers
 
 
@@ -537,7 +536,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         raise TrackingError(f"{source}: no frame could be decoded ({said})")
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
     motion = _steadied(rows, watch, camera, tip.position_m[2], source)
-    angles, markers = rows.tables(camera, dots is not None, frame_types)
+    angles, markers = rows.tables(camera, dots is not None)
     source_problems = _source_problems(frames, k, source, rows, angles, markers)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
