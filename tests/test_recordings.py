@@ -494,32 +494,6 @@ def test_a_missed_frame_is_not_a_step_of_the_tips_motion(tmp_path):
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 
-def test_a_tips_picture_copied_by_the_codec_is_no_measurement(tmp_path):
-    """A codec copies a block it has coded before when the change is below what it keeps (a faint tip moving
-    slowly): the tip's pixels in three frames are those of the frame before them, while the tip moves on by about
-    0.4 px per frame (near a cusp of its nod).  Their fits were the earlier frame's, up to 1.2 px off with errors of
-    about 0.05 px, flagged ok; a tip's picture bit for bit an earlier one's is now a ``duplicate``, with no angles
-    (the earlier one too: a run of B pictures copies from a reference that may come after it), and no frame is
-    beyond 5 sigma."""
-    user, rendered, truth, tip = _still_coffee_clip(tmp_path, 0.5)
-    step = np.hypot(np.diff(tip.x_px), np.diff(tip.y_px))
-    k = 30 + int(np.flatnonzero((step[30:70] > 0.3) & (step[30:70] < 0.5))[0])
-    xi, yi = int(round(tip.x_px[k])), int(round(tip.y_px[k]))
-    box = (slice(yi - 30, yi + 31), slice(xi - 30, xi + 31))
-    source = {}
-
-    def copy(frame, x, y, j):
-        if j == k:
-            source["pixels"] = frame[box].copy()
-        else:
-            frame[box] = source["pixels"]
-
-    m, found, e_th, e_ph = _pulls(_tracked_with(rendered, user, (k, k + 1, k + 2, k + 3), copy), truth)
-    copies = m[m.frame.isin([k + 1, k + 2, k + 3])]
-    assert copies.theta_rad.isna().all() and (copies.quality == "duplicate").all()
-    assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
-
-
 def test_a_bright_object_beside_the_tip_does_not_lose_it(tmp_path):
     """A bright object comes in beside the tip for 50 frames (a bar 30 px wide, 80 px tall, 2 px from the tip's edge,
     brighter than the tip: a hand or a sleeve under the lamp).  The scene fit's ring reached into it and the fit

@@ -39,7 +39,6 @@ from ..markers import Marker, MarkerSet, parse_markers
 from ..protocols import Protocol, ProtocolError
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_count, camera_mode_prior_column
 from ..camera import Camera
-from .copies import RecentPictures
 from .detect import Detection, detection_threshold, opening_size_px
 from .appearance import MarkerImage, lab_marker_image
 from .transfer import settle_transfer
@@ -186,13 +185,11 @@ class _Tables:
         self.seen: list[tuple[int, int, float, Detection]] = []
         #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
         self.others: tuple | None = ()
-        #: the last frames, and the angle rows whose tip's pixels a codec copied (no measurements: module copies)
-        self.recent, self.copies, self.tip_name = RecentPictures(), set(), None
 
     def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
-        located, self.tip_name = follower.locate(frame, threshold, self.others), tip.name
+        located = follower.locate(frame, threshold, self.others)
         self.others = () if dots is None else None
         for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
             # an acquisition, or the tip followed back: the frames before get the tip's positions back
@@ -201,11 +198,9 @@ class _Tables:
             self._tip_rows(camera, tip, follower, None, None, *seen, fit, located.quality, row=row)
         self.seen = self.seen[-ANCHOR_FRAMES:] + [(len(self.angles), index, t_frame, threshold)]
         if located.fit is None:
-            self.recent.see(frame, None)
             self.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "missing"))
             return
         self._tip_rows(camera, tip, follower, dots, frame, index, t_frame, threshold, located.fit, located.quality)
-        self.copies |= self.recent.see(frame, len(self.angles) - 1, located.fit)
 
     def _tip_rows(self, camera, tip, follower, dots, frame, index, t_frame, threshold, fit: SpotFit, quality: str,
                   row: int | None = None) -> None:
@@ -254,10 +249,8 @@ class _Tables:
             for r_, (_, y_) in self.tip_px.items():
                 rows[r_] = y_ / camera.height_px
             angles["row_fraction"] = rows
-        markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS)).sort_values("frame", kind="stable")
-        markers = markers.reset_index(drop=True)
-        _drop_tip(self, angles, markers, sorted(self.copies), "duplicate", tip_name=self.tip_name)
-        return angles, markers
+        markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS))
+        return angles, markers.sort_values("frame", kind="stable").reset_index(drop=True)
 
 
 def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, lossy: bool,
