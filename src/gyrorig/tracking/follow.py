@@ -172,8 +172,7 @@ class TipFollower:
         self.shape = "blob" if tip.shape == "disc" and not axial else tip.shape
         depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, self.length_m])))
         self.r_expected = camera.camera_matrix[0, 0] * tip.radius_m / depth  # tip upright [px]
-        #: accepted positions, latest last, each with the frames since the one before it (x, y, steps)
-        self.last: deque[tuple[float, float, int]] = deque(maxlen=4)
+        self.last: deque[tuple[float, float]] = deque(maxlen=4)  # accepted positions, latest last
         #: the tip's speed over each step between frames it was followed in [px/frame]
         self.speeds: deque[float] = deque(maxlen=SPEED_MEMORY)
         #: the speed the last two reacquisitions implied (from where the tip was lost, over the frames between)
@@ -275,17 +274,14 @@ class TipFollower:
         """The predicted position (constant velocity, coasting over missed frames) and the motion gate [px]: at least
         the tip's radius per frame while no acceleration has been seen (a top released from rest gathers speed)."""
         p = np.array(self.last)
-        g = p[1:, 2:]  # the frames between accepted positions: a missed frame is not a step
-        vel = np.diff(p[:, :2], axis=0) / g  # per frame, at the middle of each interval
-        v = vel[-1] if len(vel) else np.zeros(2)
-        acc = max((float(np.linalg.norm(vel[k + 1] - vel[k])) / (0.5 * float(g[k, 0] + g[k + 1, 0]))
-                   for k in range(len(vel) - 1)), default=0.0)
+        v = p[-1] - p[-2] if len(p) >= 2 else np.zeros(2)
+        acc = max((float(np.linalg.norm(p[k + 1] - 2 * p[k] + p[k - 1])) for k in range(1, len(p) - 1)), default=0.0)
         steps = 1 + self.misses
         gate = MIN_GATE_PX + 0.5 * float(np.linalg.norm(v)) * steps + 2.0 * acc * steps * steps
         if len(p) < 3:  # no acceleration seen yet
             gate = max(gate, MIN_GATE_PX + self.r_expected * steps)
         fast = self._fast_speed()
-        return p[-1, :2] + v * steps, max(gate, MIN_GATE_PX + 2.0 * fast * steps)
+        return p[-1] + v * steps, max(gate, MIN_GATE_PX + 2.0 * fast * steps)
 
     def _fast_speed(self) -> float:
         """The tip's second largest remembered speed [px/frame] (one step to a wrong spot is not a speed) when it
@@ -585,7 +581,7 @@ class TipFollower:
         """Forget the track; remember where it ended and how fast the tip moved (a reacquisition's reach)."""
         if self.last:
             p = np.array(self.last)
-            speed = max(float(np.median(np.hypot(*np.diff(p[:, :2], axis=0).T) / p[1:, 2])) if len(p) > 1 else 0.0,
+            speed = max(float(np.median(np.hypot(*np.diff(p, axis=0).T))) if len(p) > 1 else 0.0,
                         float(np.quantile(np.asarray(self.speeds), REACQUIRE_QUANTILE)) if self.speeds else 0.0)
             self.lost_at = (float(p[-1, 0]), float(p[-1, 1]), speed)
             self.since_lost = self.misses
@@ -595,7 +591,7 @@ class TipFollower:
         if self.last:
             self.speeds.append(math.hypot(fit.x_px - self.last[-1][0], fit.y_px - self.last[-1][1]) / (1 + self.misses))
             self.steps_since_gap += 1
-        self.last.append((fit.x_px, fit.y_px, 1 + self.misses))
+        self.last.append((fit.x_px, fit.y_px))
         self.last_r = fit.radius_px
         self.radii.append(fit.radius_px)
         self.amplitudes.append(self._level(fit))
