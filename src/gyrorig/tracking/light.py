@@ -30,7 +30,7 @@ class RowLight:
 
     def see(self, frame: np.ndarray, row: float | None) -> None:
         """Take the next frame, the tip at about ``row`` [px] (None: not known; the index is then kept)."""
-        now = np.asarray(frame[:, ::LIGHT_STEP], np.float32)
+        now = np.array(frame[:, ::LIGHT_STEP], np.float32)  # a copy: a source may reuse its frame buffer
         if self._before is not None and row is not None:
             y = min(max(int(round(row)), 0), len(now) - 1)
             rows = slice(max(y - LIGHT_ROWS, 0), y + LIGHT_ROWS + 1)
