@@ -471,6 +471,37 @@ def test_a_tip_lost_where_its_nod_turns_is_found_again_far_from_there(tmp_path):
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 
+def test_a_tips_picture_copied_by_the_codec_carries_the_motion_since_in_its_error(tmp_path):
+    """A codec copies a block it has coded before when the change is below what it keeps (a faint tip moving
+    slowly): the tip's pixels in three frames are those of the frame before them, while the tip moves on by about
+    0.4 px per frame.  Their fits were the earlier frame's, up to 1.2 px off with errors of about 0.05 px, flagged
+    ok (two beyond 5 sigma).  The four frames alike are kept, flagged ``copied``, with the tip's motion over them
+    in their errors: none beyond 5 sigma, and the copies' errors at least half the distance the tip moved
+    from the copied frame (the motion is the error; a test on the pulls alone would pass with any wide error)."""
+    user, rendered, truth, tip = _still_coffee_clip(tmp_path, 0.5)
+    step = np.hypot(np.diff(tip.x_px), np.diff(tip.y_px))
+    k = 30 + int(np.flatnonzero((step[30:70] > 0.3) & (step[30:70] < 0.5))[0])
+    xi, yi = int(round(tip.x_px[k])), int(round(tip.y_px[k]))
+    box = (slice(yi - 30, yi + 31), slice(xi - 30, xi + 31))
+    source = {}
+
+    def copy(frame, x, y, j):
+        if j == k:
+            source["pixels"] = frame[box].copy()
+        else:
+            frame[box] = source["pixels"]
+
+    res = _tracked_with(rendered, user, (k, k + 1, k + 2, k + 3), copy)
+    m, found, e_th, e_ph = _pulls(res, truth)
+    alike = m[m.frame.isin([k, k + 1, k + 2, k + 3])]
+    assert alike.theta_rad.notna().all() and alike.quality.str.contains("copied").all()
+    assert not m[~m.frame.isin(alike.frame)].quality.str.contains("copied").any()
+    assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
+    mk = res.markers[(res.markers.marker == "tip") & res.markers.frame.isin(alike.frame)].set_index("frame")
+    moved = np.hypot(tip.x_px[mk.index] - tip.x_px[k], tip.y_px[mk.index] - tip.y_px[k])
+    assert (np.hypot(mk.sigma_x_px, mk.sigma_y_px) >= 0.5 * moved).all()
+
+
 def test_a_bright_object_beside_the_tip_does_not_lose_it(tmp_path):
     """A bright object comes in beside the tip for 50 frames (a bar 30 px wide, 80 px tall, 2 px from the tip's edge,
     brighter than the tip: a hand or a sleeve under the lamp).  The scene fit's ring reached into it and the fit

@@ -15,7 +15,8 @@ Per frame (a sensor with gamma is linearised first):
 4. the frame's dots, if any (:mod:`gyrorig.tracking.dots`), give the frame angle ``psi``.
 
 After the loop the per-frame errors are checked against the tip's scatter about its path and
-scaled when needed, outliers removed (:mod:`gyrorig.tracking.scatter`), and the camera model's
+scaled when needed, outliers removed (:mod:`gyrorig.tracking.scatter`), a codec's copies of the tip's picture
+given the tip's motion over them (:mod:`gyrorig.tracking.copies`), and the camera model's
 uncertainty is propagated as angle modes (:func:`gyrorig.tracking.pose.camera_modes`); a pose
 found from this same recording's tip motion (``gyrorig pose --video``) marks its modes as found
 from the frames, not known beside them (``cam_k_prior`` 0).  The tables' columns are in :mod:`gyrorig.tables`.
@@ -37,23 +38,23 @@ import pandas as pd
 from .. import _io
 from ..markers import Marker, MarkerSet, parse_markers
 from ..protocols import Protocol, ProtocolError
-from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS, camera_mode_count, camera_mode_prior_column
+from ..tables import camera_mode_count, camera_mode_prior_column
 from ..camera import Camera
-from .detect import Detection, detection_threshold, opening_size_px
+from .detect import detection_threshold, opening_size_px
 from .appearance import MarkerImage, lab_marker_image
 from .transfer import settle_transfer
-from .follow import ANCHOR_FRAMES, MAX_SIGMA_RADII, SIZE_RANGE, TipFollower
+from .follow import MAX_SIGMA_RADII, SIZE_RANGE, TipFollower
 from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
-from .rays import angle_covariances, angles_with_covariance
+from .rays import angle_covariances
+from .rows import TrackRows, drop_tip, empty_angle_row
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
 from .timing import FrameClock, check_frame_rate, checked_frame_times, frame_interval_stats, settle_timing
 from .sources import as_source, fingerprint, prepended
 from .pace import off_pace_rows
-from .spot import SpotFit
 
 __all__ = ["TrackResult", "track", "track_video", "tip_marker", "frame_interval_stats", "check_frame_rate"]
 
@@ -153,107 +154,7 @@ def tip_marker(protocol: Protocol, markers: MarkerSet | None = None) -> Marker:
     return tip
 
 
-def _empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
-    nan = float("nan")
-    return (index, t_s, nan, nan, nan, nan, nan, nan, nan, nan, quality)
-
-
-def _marker_row(index: int, t_s: float, name: str, fit: SpotFit, quality: str) -> tuple:
-    return (index, t_s, name, fit.x_px, fit.y_px, math.sqrt(fit.cov_xy[0, 0]), math.sqrt(fit.cov_xy[1, 1]),
-            fit.radius_px, fit.amplitude_adu, fit.background_adu, fit.chi2_red, quality)
-
-
-def _unwrap_nan(phi: np.ndarray) -> np.ndarray:
-    """Unwrap the azimuth across the tracked frames, leaving gaps as NaN."""
-    ok = np.isfinite(phi)
-    out = phi.copy()
-    if ok.any():
-        out[ok] = np.unwrap(phi[ok])
-    return out
-
-
-class _Tables:
-    """Rows of the angle and marker tables as the loop produces them."""
-
-    def __init__(self):
-        self.angles: list[tuple] = []
-        self.markers: list[tuple] = []
-        self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
-        self.tip_cov: dict[int, np.ndarray] = {}  # angle row -> its covariance in (x, y) [px^2]
-        self.psi: dict[int, tuple[float, float]] = {}
-        #: the frames the follower saw since the last duplicate, latest last: (row, index, t_frame, threshold)
-        self.seen: list[tuple[int, int, float, Detection]] = []
-        #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
-        self.others: tuple | None = ()
-
-    def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
-              frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
-        """Track one (new) frame and add its rows."""
-        located = follower.locate(frame, threshold, self.others)
-        self.others = () if dots is None else None
-        for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
-            # an acquisition, or the tip followed back: the frames before get the tip's positions back
-            if fit is None:  # taken in that frame, or not found in it
-                continue
-            self._tip_rows(camera, tip, follower, None, None, *seen, fit, located.quality, row=row)
-        self.seen = self.seen[-ANCHOR_FRAMES:] + [(len(self.angles), index, t_frame, threshold)]
-        if located.fit is None:
-            self.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "missing"))
-            return
-        self._tip_rows(camera, tip, follower, dots, frame, index, t_frame, threshold, located.fit, located.quality)
-
-    def _tip_rows(self, camera, tip, follower, dots, frame, index, t_frame, threshold, fit: SpotFit, quality: str,
-                  row: int | None = None) -> None:
-        """The angle row (appended, or put in place of ``row``) and the marker rows of a tip fit."""
-        t_mid = t_frame + camera.exposure_s / 2 + camera.row_delay_s(fit.y_px)
-        for flag, on in (("saturated", fit.saturated), ("blended", fit.blended)):
-            if on:
-                quality = flag if quality == "ok" else quality + "," + flag
-        geo = angles_with_covariance(fit.x_px, fit.y_px, fit.cov_xy, camera, tip.position_m[2])
-        if geo is None:
-            angle_row = _empty_angle_row(index, t_mid, "off-sphere")
-            follower.lost()
-        else:
-            th, ph, n, cov = geo
-            sth, sph = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
-            angle_row = (index, t_mid, th, ph, sth, sph, cov[0, 1] / (sth * sph), n[0], n[1], n[2], quality)
-        if row is None:
-            self.angles.append(angle_row)
-            row = len(self.angles) - 1
-        else:
-            self.angles[row] = angle_row
-        if geo is not None:
-            self.tip_px[row] = (fit.x_px, fit.y_px)
-            self.tip_cov[row] = np.asarray(fit.cov_xy, float)
-            if dots is not None:
-                psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
-                self.psi[row] = (psi, psi_sigma)
-                if len(found) == len(dots.dots):
-                    self.others = tuple((f.x_px, f.y_px, f.radius_px) for _, f in found)
-                for name, dfit in found:
-                    t_dot = t_frame + camera.exposure_s / 2 + camera.row_delay_s(dfit.y_px)
-                    self.markers.append(_marker_row(index, t_dot, name, dfit, "blended" if dfit.blended else "ok"))
-        self.markers.append(_marker_row(index, t_mid, tip.name, fit, quality))
-
-    def tables(self, camera: Camera, with_dots: bool) -> tuple[pd.DataFrame, pd.DataFrame]:
-        angles = pd.DataFrame(self.angles, columns=list(ANGLE_COLUMNS))
-        angles["phi_rad"] = _unwrap_nan(angles.phi_rad.to_numpy())
-        if with_dots:
-            psi_col = np.full((len(angles), 2), np.nan)
-            for r_, v_ in self.psi.items():
-                psi_col[r_] = v_
-            angles["psi_rad"], angles["psi_sigma_rad"] = psi_col[:, 0], psi_col[:, 1]
-        angles["exposure_s"] = float(camera.exposure_s)
-        if camera.readout_unknown:  # where in the frame each tip was read out: the fit finds the readout time
-            rows = np.full(len(angles), np.nan)
-            for r_, (_, y_) in self.tip_px.items():
-                rows[r_] = y_ / camera.height_px
-            angles["row_fraction"] = rows
-        markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS))
-        return angles, markers.sort_values("frame", kind="stable").reset_index(drop=True)
-
-
-def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables, doubts: str, lossy: bool,
+def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRows, doubts: str, lossy: bool,
                      tip_name: str, camera: Camera, length_m: float, largest_error_px: float) -> SigmaCheck:
     """Check the tip's errors against its scatter about its path (:mod:`gyrorig.tracking.scatter`), for
     blended frames and the rest apart, and correct them where the check shows them wrong; turn the outliers into
@@ -330,7 +231,7 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: _Tables,
             markers.loc[sel, col] = np.sqrt(f_row * f_row * markers.loc[sel, col] ** 2 + extra)
     bad = index[list(check.outliers)]
     if len(bad):
-        _drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
+        drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
 
 
@@ -357,29 +258,13 @@ def _error_terms(check: SigmaCheck, classes: np.ndarray, in_run: np.ndarray, dou
     return factors, scale, added
 
 
-def _drop_tip(rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame, positions, quality: str, *,
-              tip_name: str | None = None) -> None:
-    """The angle rows at ``positions`` lose their tip (angles NaN, ``quality``); with ``tip_name`` its marker rows
-    in those frames are marked so, without it every marker row of those frames."""
-    positions = np.asarray(positions, int)
-    cols = [c for c in ("theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
-                        "tip_x", "tip_y", "tip_z", "psi_rad", "psi_sigma_rad") if c in angles]
-    angles.loc[positions, cols] = np.nan
-    angles.loc[positions, "quality"] = quality
-    at = markers.frame.isin(angles.frame.to_numpy()[positions])
-    markers.loc[at & (markers.marker == tip_name) if tip_name is not None else at, "quality"] = quality
-    for r in positions:
-        rows.tip_px.pop(int(r), None)
-        rows.tip_cov.pop(int(r), None)
-
-
-def _off_pace_left_out(rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame, tip_name: str, ratio: float,
+def _off_pace_left_out(rows: "TrackRows", angles: pd.DataFrame, markers: pd.DataFrame, tip_name: str, ratio: float,
                        source) -> tuple[str, ...]:
     """A slow-motion record's ends at another pace (a gallery's copy: normal-speed ends, their times unknown) lose
     their tip (:mod:`gyrorig.tracking.pace`); what to tell the user, as a source problem."""
     positions, note = off_pace_rows(angles, ratio)
     if len(positions):
-        _drop_tip(rows, angles, markers, positions, "off-pace", tip_name=tip_name)
+        drop_tip(rows, angles, markers, positions, "off-pace", tip_name=tip_name)
     return _said(source, note)
 
 
@@ -436,7 +321,7 @@ def _matched(camera: Camera, frames, source) -> Camera:
     return camera
 
 
-def _steadied(rows: _Tables, watch: CameraWatch, camera: Camera, length_m: float,
+def _steadied(rows: TrackRows, watch: CameraWatch, camera: Camera, length_m: float,
               source) -> CameraMotion | None:
     """The camera's motion seen on the fiducials; where it moved, the tip's rows steadied (and a warning)."""
     motion = watch.motion()
@@ -489,7 +374,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
         scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
-        rows = _Tables()
+        rows = TrackRows()
         frame_types: dict[int, str] = {}  # frame number -> picture type (video files)
         prev_hash = None
         clock = FrameClock(camera.fps, time_scale, source)
@@ -509,7 +394,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
                 frame_types[index] = frames.frame_types[k]
             digest = hash(frame[::7, ::7].tobytes())
             if digest == prev_hash:
-                rows.angles.append(_empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
+                rows.angles.append(empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
                 rows.seen = []
                 k += 1
                 continue
@@ -529,7 +414,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         raise TrackingError(f"{source}: no frame could be decoded ({said})")
     check_frame_rate(np.asarray(clock.times), camera.fps, source)
     motion = _steadied(rows, watch, camera, tip.position_m[2], source)
-    angles, markers = rows.tables(camera, dots is not None)
+    angles, markers = rows.tables(camera, dots is not None, tip)
     source_problems = _source_problems(frames, k, source, rows, angles, markers)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
@@ -540,9 +425,8 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     if again:
         return track(video, replace(given, interlace=again), protocol, progress=progress, frame_dots=frame_dots,
                      watch_camera=watch_camera)
-    doubts = appearance.doubts(camera, lossy, follower.shape, tip)
-    check = _check_and_scale(angles, markers, rows, doubts, lossy, tip.name, camera, tip.position_m[2],
-                             MAX_SIGMA_RADII * follower.r_expected)
+    check = _check_and_scale(angles, markers, rows, appearance.doubts(camera, lossy, follower.shape, tip), lossy,
+                             tip.name, camera, tip.position_m[2], MAX_SIGMA_RADII * follower.r_expected)
     source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source) + said
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
@@ -563,7 +447,7 @@ def _never_found(follower: TipFollower, source, decoded: int) -> TrackingError:
     return TrackingError(f"{source}: the tip marker was never found in {decoded} frames{why}", first_look=look)
 
 
-def _source_problems(frames, decoded: int, source, rows: "_Tables", angles: pd.DataFrame, markers: pd.DataFrame
+def _source_problems(frames, decoded: int, source, rows: "TrackRows", angles: pd.DataFrame, markers: pd.DataFrame
                      ) -> tuple[str, ...]:
     """What went wrong reading (damaged data, a decoder that stopped on it, a video that ended before its header
     said it would), each logged as a warning.  The pictures damaged data reaches (``frames.damaged``) lose their
@@ -571,7 +455,7 @@ def _source_problems(frames, decoded: int, source, rows: "_Tables", angles: pd.D
     spot where no marker was."""
     problems = [f"{problem} (the {decoded} frames decoded are tracked)" for problem in frames.problems]
     for first, end, message in frames.damaged:
-        _drop_tip(rows, angles, markers, np.arange(first, min(end, len(angles))), "damaged")
+        drop_tip(rows, angles, markers, np.arange(first, min(end, len(angles))), "damaged")
         problems.append(f"the decoder reported damaged data ({message!r}); frames {angles.frame.iloc[first]}-"
                         f"{angles.frame.iloc[min(end, len(angles)) - 1]} (up to the next key picture) are left out")
     if frames.count and decoded < CUT_SHORT * frames.count and not frames.problems:  # else said why

@@ -1,0 +1,123 @@
+"""The tip's picture copied by the codec from another picture.
+
+An inter-coding codec (H.264, HEVC) copies a block from a picture it has already coded when the block's change is
+below what its quantizer keeps (a skipped block): a faint tip moving slowly then shows the same pixels in several
+frames while it moves.  Such a frame's fit is the other frame's, off by the tip's motion between the two; which of
+the frames alike holds the tip's own picture is unknown (a run of B pictures copies from a reference picture that
+comes after it).  :class:`RecentPictures` keeps the last frames seen and tells whether the pixels around a tip's fit
+are bit for bit those of one of them (a sensor's noise alone never repeats them); :func:`copy_groups` joins such
+frames into groups, and :func:`path_extent_px` says how far the tip moved over a group's frames, from the tracked
+frames around it: that motion is added to each copy's error.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+import pandas as pd
+
+from .rays import angle_covariances
+
+__all__ = ["RecentPictures", "copy_groups", "path_extent_px", "widen_copies", "COPY_FRAMES", "COPY_MARGIN_PX", "PATH_FRAMES"]
+
+#: how many frames back a copy is looked for (a codec's run of B pictures and the reference pictures around it)
+COPY_FRAMES = 8
+#: the pixels compared: the tip's disc and this much around it [px]
+COPY_MARGIN_PX = 4
+#: tracked frames on each side of a group of copies that the tip's path over the group is drawn through
+PATH_FRAMES = 3
+
+
+class RecentPictures:
+    """The last :data:`COPY_FRAMES` frames seen, each with its angle table row (held, not copied: each decoded frame
+    is an array of its own)."""
+
+    def __init__(self) -> None:
+        self._frames: deque[tuple[np.ndarray, int | None]] = deque(maxlen=COPY_FRAMES)
+
+    def see(self, frame: np.ndarray, row: int | None, fit=None) -> set[int]:
+        """Take the next frame (its tip's fit in angle table row ``row``; None: no fit) and return the rows whose
+        frames hold the same pixels within the tip's radius plus :data:`COPY_MARGIN_PX` of the fit's centre as
+        this one, with this one's row; empty when none does.  A frame sharing this one's memory (a source reusing
+        its buffer) is not compared."""
+        same: set[int] = set()
+        if fit is not None:
+            half = int(math.ceil(fit.radius_px)) + COPY_MARGIN_PX
+            xi, yi = int(round(fit.x_px)), int(round(fit.y_px))
+            box = (slice(max(yi - half, 0), yi + half + 1), slice(max(xi - half, 0), xi + half + 1))
+            here = frame[box]
+            same = {r for seen, r in self._frames if r is not None and here.size and
+                    not np.may_share_memory(seen, frame) and np.array_equal(seen[box], here)}
+        self._frames.append((frame, row))
+        return same | {row} if same else same
+
+
+def copy_groups(found: list[set[int]]) -> list[list[int]]:
+    """The rows of frames alike (each set one frame's :meth:`RecentPictures.see`), overlapping sets joined: one
+    sorted list of rows per group."""
+    merged: list[set[int]] = []
+    for g in filter(None, found):
+        joined = [m for m in merged if m & g]
+        merged = [m for m in merged if not m & g] + [set(g).union(*joined)]
+    return sorted(sorted(m) for m in merged)
+
+
+def path_extent_px(frames: np.ndarray, xy_px: np.ndarray, group_frames: np.ndarray) -> np.ndarray | None:
+    """How far the tip moved along x and y over a group of copies' frames [px] (2,): the range of a path through
+    the :data:`PATH_FRAMES` nearest tracked frames on each side (``frames`` (n,) with their positions ``xy_px``
+    (n, 2), the copies not among them) within :data:`COPY_FRAMES` of the group, quadratic in the frame number
+    (straight with frames on one side only), taken at each frame from the group's first to its last.  None when
+    fewer than three frames are there to draw it through: the motion is then unknown."""
+    first, last = int(np.min(group_frames)), int(np.max(group_frames))
+    before = np.flatnonzero((frames < first) & (frames >= first - COPY_FRAMES))[-PATH_FRAMES:]
+    after = np.flatnonzero((frames > last) & (frames <= last + COPY_FRAMES))[:PATH_FRAMES]
+    near = np.concatenate([before, after])
+    if len(near) < 3:
+        return None
+    degree = 2 if len(before) and len(after) else 1
+    f = frames[near].astype(float) - first
+    span = np.arange(0, last - first + 1, dtype=float)
+    path = np.array([np.polyval(np.polyfit(f, xy_px[near, axis], degree), span) for axis in range(2)])
+    return np.ptp(path, axis=1)
+
+
+def widen_copies(groups: list[list[int]], angles: pd.DataFrame, markers: pd.DataFrame, tip_px: dict, tip_cov: dict,
+                 camera, length_m: float, tip_name: str) -> list[int]:
+    """Each group's (:func:`copy_groups`) tip errors widened by the tip's motion over its frames
+    (:func:`path_extent_px`, added in quadrature along x and y), in ``tip_cov``, the angle rows' errors and the tip's
+    marker rows, whose quality gains ``copied``.  Returns the rows of groups whose motion is unknown (too few
+    tracked frames around them): they are no measurement."""
+    alike = set().union(*groups) if groups else set()
+    tracked = np.array(sorted(r for r in tip_px if r not in alike), int)
+    frames = angles.frame.to_numpy()
+    xy = np.array([tip_px[r] for r in tracked], float).reshape(-1, 2)
+    unknown, widened = [], []
+    for group in groups:
+        group = [r for r in group if r in tip_px]
+        if len(group) < 2:
+            continue
+        extent = path_extent_px(frames[tracked], xy, frames[group])
+        if extent is None:
+            unknown += group
+            continue
+        for r in group:
+            tip_cov[r] = np.asarray(tip_cov[r], float) + np.diag(extent**2)
+        widened += group
+    if widened:
+        covs = np.array([tip_cov[r] for r in widened])
+        c = angle_covariances(np.array([tip_px[r] for r in widened]), covs, camera, length_m)[3]
+        sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
+        angles.loc[widened, ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]] = np.column_stack(
+            [sth, sph, c[:, 0, 1] / (sth * sph)])
+        angles.loc[widened, "quality"] = angles.quality[widened].map(_copied)
+        sel = (markers.marker == tip_name) & markers.frame.isin(frames[widened])
+        sd = dict(zip(frames[widened], np.sqrt(covs[:, [0, 1], [0, 1]])))
+        markers.loc[sel, ["sigma_x_px", "sigma_y_px"]] = np.array([sd[f] for f in markers.frame[sel]]).reshape(-1, 2)
+        markers.loc[sel, "quality"] = markers.quality[sel].map(_copied)
+    return unknown
+
+
+def _copied(quality: str) -> str:
+    return "copied" if quality == "ok" else quality + ",copied"

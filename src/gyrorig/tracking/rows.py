@@ -1,0 +1,151 @@
+"""The rows of the angle and marker tables as the tracking loop produces them (:class:`TrackRows`), and a tip taken
+out of them again (:func:`drop_tip`).  The tables' columns are in :mod:`gyrorig.tables`."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from ..camera import Camera
+from ..markers import Marker
+from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS
+from .copies import RecentPictures, copy_groups, widen_copies
+from .detect import Detection
+from .dots import DotTracker
+from .follow import ANCHOR_FRAMES, TipFollower
+from .rays import angles_with_covariance
+from .spot import SpotFit
+
+__all__ = ["TrackRows", "drop_tip", "empty_angle_row", "marker_row", "unwrap_nan"]
+
+
+def empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
+    nan = float("nan")
+    return (index, t_s, nan, nan, nan, nan, nan, nan, nan, nan, quality)
+
+
+def marker_row(index: int, t_s: float, name: str, fit: SpotFit, quality: str) -> tuple:
+    return (index, t_s, name, fit.x_px, fit.y_px, math.sqrt(fit.cov_xy[0, 0]), math.sqrt(fit.cov_xy[1, 1]),
+            fit.radius_px, fit.amplitude_adu, fit.background_adu, fit.chi2_red, quality)
+
+
+def unwrap_nan(phi: np.ndarray) -> np.ndarray:
+    """Unwrap the azimuth across the tracked frames, leaving gaps as NaN."""
+    ok = np.isfinite(phi)
+    out = phi.copy()
+    if ok.any():
+        out[ok] = np.unwrap(phi[ok])
+    return out
+
+
+class TrackRows:
+    """Rows of the angle and marker tables as the loop produces them."""
+
+    def __init__(self):
+        self.angles: list[tuple] = []
+        self.markers: list[tuple] = []
+        self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
+        self.tip_cov: dict[int, np.ndarray] = {}  # angle row -> its covariance in (x, y) [px^2]
+        self.psi: dict[int, tuple[float, float]] = {}
+        #: the frames the follower saw since the last duplicate, latest last: (row, index, t_frame, threshold)
+        self.seen: list[tuple[int, int, float, Detection]] = []
+        #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
+        self.others: tuple | None = ()
+        self.recent, self.alike = RecentPictures(), []  # the last frames; rows alike (a codec's copies: module copies)
+
+    def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
+              frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
+        """Track one (new) frame and add its rows."""
+        located = follower.locate(frame, threshold, self.others)
+        self.others = () if dots is None else None
+        for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
+            # an acquisition, or the tip followed back: the frames before get the tip's positions back
+            if fit is None:  # taken in that frame, or not found in it
+                continue
+            self._tip_rows(camera, tip, follower, None, None, *seen, fit, located.quality, row=row)
+        self.seen = self.seen[-ANCHOR_FRAMES:] + [(len(self.angles), index, t_frame, threshold)]
+        if located.fit is None:
+            self.recent.see(frame, None)
+            self.angles.append(empty_angle_row(index, t_frame + camera.exposure_s / 2, "missing"))
+            return
+        self._tip_rows(camera, tip, follower, dots, frame, index, t_frame, threshold, located.fit, located.quality)
+        self.alike.append(self.recent.see(frame, len(self.angles) - 1, located.fit))
+
+    def _tip_rows(self, camera, tip, follower, dots, frame, index, t_frame, threshold, fit: SpotFit, quality: str,
+                  row: int | None = None) -> None:
+        """The angle row (appended, or put in place of ``row``) and the marker rows of a tip fit."""
+        t_mid = t_frame + camera.exposure_s / 2 + camera.row_delay_s(fit.y_px)
+        for flag, on in (("saturated", fit.saturated), ("blended", fit.blended)):
+            if on:
+                quality = flag if quality == "ok" else quality + "," + flag
+        geo = angles_with_covariance(fit.x_px, fit.y_px, fit.cov_xy, camera, tip.position_m[2])
+        if geo is None:
+            angle_row = empty_angle_row(index, t_mid, "off-sphere")
+            follower.lost()
+        else:
+            th, ph, n, cov = geo
+            sth, sph = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+            angle_row = (index, t_mid, th, ph, sth, sph, cov[0, 1] / (sth * sph), n[0], n[1], n[2], quality)
+        if row is None:
+            self.angles.append(angle_row)
+            row = len(self.angles) - 1
+        else:
+            self.angles[row] = angle_row
+        if geo is not None:
+            self.tip_px[row] = (fit.x_px, fit.y_px)
+            self.tip_cov[row] = np.asarray(fit.cov_xy, float)
+            if dots is not None:
+                psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
+                self.psi[row] = (psi, psi_sigma)
+                if len(found) == len(dots.dots):
+                    self.others = tuple((f.x_px, f.y_px, f.radius_px) for _, f in found)
+                for name, dfit in found:
+                    t_dot = t_frame + camera.exposure_s / 2 + camera.row_delay_s(dfit.y_px)
+                    self.markers.append(marker_row(index, t_dot, name, dfit, "blended" if dfit.blended else "ok"))
+        self.markers.append(marker_row(index, t_mid, tip.name, fit, quality))
+
+    def tables(self, camera: Camera, with_dots: bool, tip: Marker) -> tuple[pd.DataFrame, pd.DataFrame]:
+        """The angle and marker tables, a codec's copies of the tip's picture given the tip's motion over them
+        (:meth:`widen_copies`)."""
+        angles = pd.DataFrame(self.angles, columns=list(ANGLE_COLUMNS))
+        angles["phi_rad"] = unwrap_nan(angles.phi_rad.to_numpy())
+        if with_dots:
+            psi_col = np.full((len(angles), 2), np.nan)
+            for r_, v_ in self.psi.items():
+                psi_col[r_] = v_
+            angles["psi_rad"], angles["psi_sigma_rad"] = psi_col[:, 0], psi_col[:, 1]
+        angles["exposure_s"] = float(camera.exposure_s)
+        if camera.readout_unknown:  # where in the frame each tip was read out: the fit finds the readout time
+            rows = np.full(len(angles), np.nan)
+            for r_, (_, y_) in self.tip_px.items():
+                rows[r_] = y_ / camera.height_px
+            angles["row_fraction"] = rows
+        markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS)).sort_values("frame", kind="stable")
+        markers = markers.reset_index(drop=True)
+        self.widen_copies(angles, markers, camera, tip)
+        return angles, markers
+
+    def widen_copies(self, angles: pd.DataFrame, markers: pd.DataFrame, camera: Camera, tip: Marker) -> None:
+        """The frames whose tip's pixels a codec copied (:mod:`gyrorig.tracking.copies`): the tip's motion over each
+        group added to their errors, or, where it is unknown, their tip dropped (``duplicate``)."""
+        unknown = widen_copies(copy_groups(self.alike), angles, markers, self.tip_px, self.tip_cov, camera,
+                               tip.position_m[2], tip.name)
+        drop_tip(self, angles, markers, unknown, "duplicate", tip_name=tip.name)
+
+
+def drop_tip(rows: "TrackRows", angles: pd.DataFrame, markers: pd.DataFrame, positions, quality: str, *,
+            tip_name: str | None = None) -> None:
+    """The angle rows at ``positions`` lose their tip (angles NaN, ``quality``); with ``tip_name`` its marker rows
+    in those frames are marked so, without it every marker row of those frames."""
+    positions = np.asarray(positions, int)
+    cols = [c for c in ("theta_rad", "phi_rad", "theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr",
+                        "tip_x", "tip_y", "tip_z", "psi_rad", "psi_sigma_rad") if c in angles]
+    angles.loc[positions, cols] = np.nan
+    angles.loc[positions, "quality"] = quality
+    at = markers.frame.isin(angles.frame.to_numpy()[positions])
+    markers.loc[at & (markers.marker == tip_name) if tip_name is not None else at, "quality"] = quality
+    for r in positions:
+        rows.tip_px.pop(int(r), None)
+        rows.tip_cov.pop(int(r), None)
