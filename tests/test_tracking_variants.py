@@ -27,6 +27,7 @@ from gyrorig.render import render_video
 from gyrorig.camera import Camera, Sensor
 from gyrorig.tracking import FrameArrays, load_camera, track
 from gyrorig.tracking.ellipse import DiscGeometry, disc_image, fit_ellipse_spot
+from gyrorig.tracking.harmonic import harmonic_check
 from gyrorig.tracking.scatter import LOCAL_FRAMES, NOISE_ACF, check_sigmas, local_factors, motion_frequency
 
 
@@ -44,6 +45,17 @@ def test_variant_round_trip(name):
 def test_lossy_gamma_footage_takes_its_errors_from_the_data():
     r = track_variant("disc-mp4", duration_s=0.5, seed=1)
     assert r["sigma_scaled"] and r["sigma_factor"] > 1.0
+
+
+def test_a_phone_at_30_frames_per_second_has_its_errors_checked_on_the_record():
+    """At a phone's 30 frames/s (HEVC, coffee, 8 s) the nod moves the tip by up to three radii between frames: no
+    path through a frame's neighbours follows it, and the errors were the spot fits' own, too small for the codec
+    (pull SDs 1.26/1.44 at seed 0).  A path of sinusoids over the record checks them: the pulls' SDs within the
+    chi band of their frames (4 sigma), nothing beyond 5 sigma flagged ok."""
+    r = track_variant("phone-30fps", duration_s=1.0, seed=2)
+    assert r["sigma_scaled"] and r["wrong_ok"] == 0 and r["tracked_clear_fraction"] >= 0.99
+    lo, hi = sd_ratio_band(int(r["tracked_fraction"] * r["tip_visible"]))
+    assert lo <= r["pull_sd_theta"] <= hi and lo <= r["pull_sd_phi"] <= hi, r
 
 
 def _path(n=400, fps=240.0):
@@ -170,6 +182,50 @@ def test_scatter_check_knows_when_the_path_cannot_follow_the_motion():
         noise[k] = 0.6 * noise[k - 1] + rng.normal(0, 0.05, 2)
     fine = check_sigmas(t, frames, xy + noise, np.full(xy.shape, 0.05**2))
     assert fine.smooth_path, fine.residual_acf
+
+
+def _nod_at_30_frames_per_second(rng, n: int = 240) -> tuple[np.ndarray, np.ndarray]:
+    """A top's tip seen at 30 frames/s (5 % jitter): a precession of 1.7 rad/s and a 9.5 Hz nod (2 rad per frame)
+    with cusps (its second harmonic), decaying with a time constant of 20 s, in pixels: ``(t_s, xy)``."""
+    t = (np.arange(n) + rng.normal(0, 0.05, n)) / 30.0
+    nod = 6 * np.exp(-t / 20.0)
+    return t, np.column_stack([300 + 40 * np.cos(1.7 * t) + nod * (np.sin(59.5 * t) + 0.4 * np.cos(119.0 * t)),
+                               200 + 30 * np.sin(1.7 * t) + nod * (np.cos(59.5 * t) + 0.4 * np.sin(119.0 * t))])
+
+
+def test_a_path_of_sinusoids_checks_the_errors_where_the_neighbours_cannot_follow():
+    """At 30 frames/s a 9.5 Hz nod turns by 2 rad between frames: no path through six neighbours follows it, and
+    the errors went unchecked (on the phone-30fps variant pull SDs 1.26/1.44).  A path of sinusoids over the whole
+    record follows it: 0.1 px of noise against 0.05 reported gives the factor 2, and against 0.1 the factor 1,
+    each within 4 of its standard errors (1 / sqrt(2 N), N coordinates); a frame 1.5 px off (15 sigma) is an
+    outlier and no other frame is.  B pictures with twice the noise of the rest are told apart by class."""
+    rng = np.random.default_rng(21)
+    t, xy = _nod_at_30_frames_per_second(rng)
+    frames = np.round(t * 30).astype(int)
+    noisy = xy + rng.normal(0, 0.1, xy.shape)
+    noisy[100] += [1.2, -0.9]
+    assert not check_sigmas(t, frames, noisy, np.full(xy.shape, 0.01), follow_motion=True).smooth_path
+    for reported, expected in ((0.05, 2.0), (0.1, 1.0)):
+        h = harmonic_check(t, frames, noisy, np.full(xy.shape, reported**2))
+        assert h.follows and h.outliers == (100,), (h.residual_acf, h.outliers)
+        assert abs(h.factor - expected) < 4 * h.factor_se, (h.factor, h.factor_se)
+    b = np.arange(len(t)) % 4 != 0  # three B pictures to a reference picture
+    noisy = xy + rng.normal(0, 1, xy.shape) * np.where(b, 0.2, 0.1)[:, None]
+    h = harmonic_check(t, frames, noisy, np.full(xy.shape, 0.01), np.where(b, "B", "ref"))
+    for label, expected in (("B", 2.0), ("ref", 1.0)):
+        f, se, _ = h.by_class[label]
+        assert abs(f - expected) < 4 * se, (label, f, se)
+
+
+def test_a_path_of_sinusoids_that_cannot_follow_says_so():
+    """A tip wandering at random (a random walk of 2 px per frame) is no sum of a few sinusoids: the path's
+    residuals stay correlated from frame to frame and the check says it does not follow, rather than take them for
+    errors."""
+    rng = np.random.default_rng(22)
+    t = np.arange(240) / 30.0
+    xy = 300 + np.cumsum(rng.normal(0, 2.0, (240, 2)), axis=0) + rng.normal(0, 0.1, (240, 2))
+    h = harmonic_check(t, np.arange(240), xy, np.full(xy.shape, 0.01))
+    assert not h.follows, h.residual_acf
 
 
 def test_a_nod_too_fast_for_the_polynomial_path_is_followed_by_its_own_frequency():

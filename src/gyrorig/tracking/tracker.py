@@ -50,6 +50,7 @@ from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
 from .rays import angle_covariances
 from .rows import TrackRows, drop_tip, empty_angle_row
+from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
 from .timing import FrameClock, check_frame_rate, checked_frame_times, frame_interval_stats, settle_timing
@@ -171,7 +172,8 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
     errors (the returned check is the solve most frames took).  Otherwise a
     class's errors are scaled only when evidently too small (by :data:`SIGMA_CHECK_Z` of the check's standard
     errors).  A class whose factor is not known well enough (:data:`MIN_CLASS_COORDINATES`,
-    :data:`MAX_CLASS_RELATIVE_SE`) takes the overall factor."""
+    :data:`MAX_CLASS_RELATIVE_SE`) takes the overall factor.  Where that path cannot follow the tip (a low frame
+    rate for its motion), a path of sinusoids over the whole record checks them (:func:`_harmonic_scaled`)."""
     index = np.array(sorted(rows.tip_px))
     if len(index) == 0:
         return SigmaCheck(math.nan, math.nan, 0, ())
@@ -188,11 +190,9 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
     if not math.isfinite(check.factor):
         return replace(check, reason="too few runs of 7 nearby tracked frames to check")
     if not check.smooth_path:
-        why = (f"the tip moves too far between frames for a path through its neighbours to predict it (their "
-               f"residuals' correlations 1-4 frames apart {_rounded(check.residual_acf)}, "
-               f"{_rounded(NOISE_ACF)} for noise): the errors are the spot fits' own, unchecked")
-        logger.warning("%s; a higher frame rate lets the record check them", why)
-        return replace(check, outliers=(), reason=why)
+        b_run = np.where(runs >= 0, "B pictures", "others") if runs is not None else None
+        return _harmonic_scaled(angles, markers, rows, index, path, var, b_run, check, doubts, camera, length_m,
+                                tip_name)
     in_run = np.zeros(len(index), bool) if runs is None else runs >= 0
     own = np.array([rows.tip_cov[r] for r in index]).reshape(-1, 2, 2)
     factors, scale, added = _error_terms(check, classes, in_run, doubts, floor)
@@ -215,24 +215,68 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
     reason = doubts or "; ".join(reasons) or "sensor and spot models hold"
     changed = np.isin(classes, list(factors))
     if changed.any():
-        rows_c = index[changed]
-        covs = scale[changed, None, None] ** 2 * own[changed] + added[changed, None, None] * np.eye(2)
-        c = angle_covariances(np.array([rows.tip_px[r] for r in rows_c]).reshape(-1, 2), covs, camera, length_m)[3]
-        sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
-        angles.loc[rows_c, ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]] = np.column_stack(
-            [sth, sph, c[:, 0, 1] / (sth * sph)])
-        for r, cov in zip(rows_c, covs):
-            rows.tip_cov[r] = cov
-        frames_c = angles.frame.to_numpy()[rows_c]
-        sel = (markers.marker == tip_name) & markers.frame.isin(frames_c)
-        extra = markers.loc[sel, "frame"].map(dict(zip(frames_c, added[changed]))).to_numpy(float)
-        f_row = markers.loc[sel, "frame"].map(dict(zip(frames_c, scale[changed]))).to_numpy(float)
-        for col in ("sigma_x_px", "sigma_y_px"):
-            markers.loc[sel, col] = np.sqrt(f_row * f_row * markers.loc[sel, col] ** 2 + extra)
+        _scaled_errors(angles, markers, rows, index[changed], scale[changed], added[changed], camera, length_m,
+                       tip_name)
     bad = index[list(check.outliers)]
     if len(bad):
         drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
+
+
+def _scaled_errors(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRows, rows_c: np.ndarray, scale: np.ndarray,
+                   added: np.ndarray, camera: Camera, length_m: float, tip_name: str) -> None:
+    """The tip's errors in angle rows ``rows_c`` multiplied by ``scale`` and widened by the variance ``added`` [px^2]
+    (per row): its pixel covariance, its angles' errors and its marker rows."""
+    covs = scale[:, None, None] ** 2 * np.array([rows.tip_cov[r] for r in rows_c]) + added[:, None, None] * np.eye(2)
+    c = angle_covariances(np.array([rows.tip_px[r] for r in rows_c]).reshape(-1, 2), covs, camera, length_m)[3]
+    sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
+    angles.loc[rows_c, ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]] = np.column_stack(
+        [sth, sph, c[:, 0, 1] / (sth * sph)])
+    for r, cov in zip(rows_c, covs):
+        rows.tip_cov[r] = cov
+    frames_c = angles.frame.to_numpy()[rows_c]
+    sel = (markers.marker == tip_name) & markers.frame.isin(frames_c)
+    extra = markers.loc[sel, "frame"].map(dict(zip(frames_c, added))).to_numpy(float)
+    f_row = markers.loc[sel, "frame"].map(dict(zip(frames_c, scale))).to_numpy(float)
+    for col in ("sigma_x_px", "sigma_y_px"):
+        markers.loc[sel, col] = np.sqrt(f_row * f_row * markers.loc[sel, col] ** 2 + extra)
+
+
+def _harmonic_scaled(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRows, index: np.ndarray, path: tuple,
+                     var: np.ndarray, b_run: np.ndarray | None, check: SigmaCheck, doubts: str, camera: Camera,
+                     length_m: float, tip_name: str) -> SigmaCheck:
+    """Where the path through a frame's neighbours cannot follow the tip: its errors checked against a path of
+    sinusoids over the whole record (:mod:`gyrorig.tracking.harmonic`) and scaled as the record's check would
+    (never down when the models are in doubt, else only when evidently too small; a lossy codec's B pictures,
+    ``b_run``, apart from the rest when each class's factor is known well enough), its outliers dropped; left
+    the spot fits' own, unchecked, when that path does not follow either."""
+    why = (f"the tip moves too far between frames for a path through its neighbours to predict it (their residuals' "
+           f"correlations 1-4 frames apart {_rounded(check.residual_acf)}, {_rounded(NOISE_ACF)} for noise)")
+    h = harmonic_check(*path, var, b_run)
+    if h is None or not h.follows:
+        why += ": the errors are the spot fits' own, unchecked" + ("" if h is None else (
+            f" (nor does a path of {len(h.omegas_rad_s)} sinusoids over the record follow it: "
+            + ("" if h.converged else f"{h.coordinates // 2} frames are too few for the sinusoids it needs; ")
+            + f"its residuals' correlations 1-3 frames apart {_rounded(h.residual_acf)})"))
+        logger.warning("%s; a higher frame rate lets the record check them", why)
+        return replace(check, outliers=(), reason=why)
+    factors = {}
+    for label, (f, se, n) in (h.by_class or {"all": (h.factor, h.factor_se, h.coordinates)}).items():
+        if n < MIN_CLASS_COORDINATES or not se < MAX_CLASS_RELATIVE_SE * f:
+            f, se = h.factor, h.factor_se
+        f = max(f, 1.0) if doubts else (f if f > 1.0 + SIGMA_CHECK_Z * se else 1.0)
+        if f != 1.0:
+            factors[label] = f
+    scale = np.array([factors.get(label, 1.0) for label in (b_run if h.by_class else ["all"] * len(index))])
+    if factors:
+        _scaled_errors(angles, markers, rows, index, scale, np.zeros(len(index)), camera, length_m, tip_name)
+    if h.outliers:
+        drop_tip(rows, angles, markers, index[list(h.outliers)], "outlier", tip_name=tip_name)
+    reason = f"{why}: checked against a path of {len(h.omegas_rad_s)} sinusoids over the record" + (
+        f"; {doubts}" if doubts else "")
+    return replace(check, factor=h.factor, factor_se=h.factor_se, coordinates=h.coordinates, outliers=h.outliers,
+                   by_class=h.by_class, floor_px=0.0, floor_px_se=0.0, shared_px=0.0, shared_px_se=0.0,
+                   applied=bool(factors), applied_factors=factors, reason=reason)
 
 
 def _error_terms(check: SigmaCheck, classes: np.ndarray, in_run: np.ndarray, doubts: str, floor: bool, *,
