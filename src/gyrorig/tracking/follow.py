@@ -99,9 +99,10 @@ REACQUIRE_QUANTILE = 0.9
 #: a spot whose centre is known worse than this fraction of the tip's expected radius is not a clean image of it
 #: (a texture's blob, a tip partly hidden)
 MAX_SIGMA_RADII = 0.25
-#: when searching, the candidates of highest contrast considered, and how many of them are fitted
-ACQUIRE_CANDIDATES = 16
-ACQUIRE_FITS = 8
+#: when searching, the candidates of highest contrast considered, and how many of them (the nearest the tip's size)
+#: are fitted: a faint tip on a pale road ranks 16th-21st by contrast among people walking past
+ACQUIRE_CANDIDATES = 32
+ACQUIRE_FITS = 12
 #: frames the follower coasts on its prediction after a rejected frame before it searches anew
 COAST_FRAMES = 3
 #: a spot within this tilt of the vertical is a sleeping top's tip, taken without moving [rad]
