@@ -34,6 +34,7 @@ from ..protocols import Protocol
 from ..camera import Camera
 from .errors import BadInputError
 from .rays import angle_covariances
+from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, check_sigmas
 from .pose import add_camera_modes
 from .tracker import SIGMA_CHECK_Z, tip_marker
@@ -195,7 +196,14 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
     if not math.isfinite(check.factor):
         raise BadInputError("the pixel track has too few runs of 7 nearby frames to find its errors from its scatter "
                             "(give sigma_px)")
-    if not check.smooth_path:
+    sinusoids = None if check.smooth_path else harmonic_check(t, frames, xy, var)
+    followed = check.smooth_path or (sinusoids is not None and sinusoids.follows)
+    if sinusoids is not None and followed:  # a path of sinusoids over the record follows where none local did
+        check = replace(check, factor=sinusoids.factor, factor_se=sinusoids.factor_se,
+                        coordinates=sinusoids.coordinates, outliers=sinusoids.outliers, floor_px=0.0, floor_px_se=0.0,
+                        reason=f"a path of {len(sinusoids.omegas_rad_s)} sinusoids over the track (none through a "
+                               "frame's neighbours follows it)")
+    if not followed:
         if not given.all():
             raise BadInputError(
                 f"the tip moves too far between the track's frames for its errors to come from its scatter (the "
