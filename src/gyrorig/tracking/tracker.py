@@ -14,12 +14,13 @@ Per frame (a sensor with gamma is linearised first):
    about the pivot (the nearer intersection); ``theta, phi`` follow, with their covariance.
 4. the frame's dots, if any (:mod:`gyrorig.tracking.dots`), give the frame angle ``psi``.
 
-After the loop the per-frame errors are checked against the tip's scatter about its path and
-scaled when needed, outliers removed (:mod:`gyrorig.tracking.scatter`), a codec's copies of the tip's picture
-given the tip's motion over them (:mod:`gyrorig.tracking.copies`), and the camera model's
-uncertainty is propagated as angle modes (:func:`gyrorig.tracking.pose.camera_modes`); a pose
-found from this same recording's tip motion (``gyrorig pose --video``) marks its modes as found
-from the frames, not known beside them (``cam_k_prior`` 0).  The tables' columns are in :mod:`gyrorig.tables`.
+After the loop a codec's copies of the tip's picture get the tip's motion over them in their errors
+(:mod:`gyrorig.tracking.copies`), the per-frame errors are checked against the tip's scatter about its path
+(through each frame's neighbours, or where that cannot follow, sinusoids over the whole record:
+:mod:`gyrorig.tracking.harmonic`) and scaled when needed, outliers removed (:mod:`gyrorig.tracking.scatter`), and
+the camera model's uncertainty is propagated as angle modes (:func:`gyrorig.tracking.pose.camera_modes`); a pose
+found from this same recording's tip motion (``gyrorig pose --video``) marks its modes as found from the frames, not
+known beside them (``cam_k_prior`` 0).  The tables' columns are in :mod:`gyrorig.tables`.
 """
 
 from __future__ import annotations
