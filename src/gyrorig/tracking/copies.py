@@ -16,11 +16,9 @@ import math
 from collections import deque
 
 import numpy as np
-import pandas as pd
 
-from .rays import angle_covariances
-
-__all__ = ["RecentPictures", "copy_groups", "path_extent_px", "widen_copies", "COPY_FRAMES", "COPY_MARGIN_PX", "PATH_FRAMES"]
+__all__ = ["RecentPictures", "copy_groups", "path_extent_px", "copy_extents", "COPY_FRAMES", "COPY_MARGIN_PX",
+           "PATH_FRAMES"]
 
 #: how many frames back a copy is looked for (a codec's run of B pictures and the reference pictures around it)
 COPY_FRAMES = 8
@@ -83,17 +81,15 @@ def path_extent_px(frames: np.ndarray, xy_px: np.ndarray, group_frames: np.ndarr
     return np.ptp(path, axis=1)
 
 
-def widen_copies(groups: list[list[int]], angles: pd.DataFrame, markers: pd.DataFrame, tip_px: dict, tip_cov: dict,
-                 camera, length_m: float, tip_name: str) -> list[int]:
-    """Each group's (:func:`copy_groups`) tip errors widened by the tip's motion over its frames
-    (:func:`path_extent_px`, added in quadrature along x and y), in ``tip_cov``, the angle rows' errors and the tip's
-    marker rows, whose quality gains ``copied``.  Returns the rows of groups whose motion is unknown (too few
-    tracked frames around them): they are no measurement."""
+def copy_extents(groups: list[list[int]], frames: np.ndarray, tip_px: dict) -> tuple[list[int], np.ndarray, list[int]]:
+    """The tip's motion over each group of copies (:func:`copy_groups`; angle table rows, ``frames`` the rows' frame
+    numbers, ``tip_px`` row -> the tip's position of the rows that have one): ``(rows, extents, unknown)``, the rows
+    of the groups whose motion is known with their group's :func:`path_extent_px` (n, 2) [px], and the rows of the
+    groups whose motion is unknown (too few tracked frames around them)."""
     alike = set().union(*groups) if groups else set()
     tracked = np.array(sorted(r for r in tip_px if r not in alike), int)
-    frames = angles.frame.to_numpy()
     xy = np.array([tip_px[r] for r in tracked], float).reshape(-1, 2)
-    unknown, widened = [], []
+    rows, extents, unknown = [], [], []
     for group in groups:
         group = [r for r in group if r in tip_px]
         if len(group) < 2:
@@ -101,23 +97,7 @@ def widen_copies(groups: list[list[int]], angles: pd.DataFrame, markers: pd.Data
         extent = path_extent_px(frames[tracked], xy, frames[group])
         if extent is None:
             unknown += group
-            continue
-        for r in group:
-            tip_cov[r] = np.asarray(tip_cov[r], float) + np.diag(extent**2)
-        widened += group
-    if widened:
-        covs = np.array([tip_cov[r] for r in widened])
-        c = angle_covariances(np.array([tip_px[r] for r in widened]), covs, camera, length_m)[3]
-        sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
-        angles.loc[widened, ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]] = np.column_stack(
-            [sth, sph, c[:, 0, 1] / (sth * sph)])
-        angles.loc[widened, "quality"] = angles.quality[widened].map(_copied)
-        sel = (markers.marker == tip_name) & markers.frame.isin(frames[widened])
-        sd = dict(zip(frames[widened], np.sqrt(covs[:, [0, 1], [0, 1]])))
-        markers.loc[sel, ["sigma_x_px", "sigma_y_px"]] = np.array([sd[f] for f in markers.frame[sel]]).reshape(-1, 2)
-        markers.loc[sel, "quality"] = markers.quality[sel].map(_copied)
-    return unknown
-
-
-def _copied(quality: str) -> str:
-    return "copied" if quality == "ok" else quality + ",copied"
+        else:
+            rows += group
+            extents += [extent] * len(group)
+    return rows, np.array(extents, float).reshape(-1, 2), unknown

@@ -11,14 +11,14 @@ import pandas as pd
 from ..camera import Camera
 from ..markers import Marker
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS
-from .copies import RecentPictures, copy_groups, widen_copies
+from .copies import RecentPictures, copy_extents, copy_groups
 from .detect import Detection
 from .dots import DotTracker
 from .follow import ANCHOR_FRAMES, TipFollower
-from .rays import angles_with_covariance
+from .rays import angle_covariances, angles_with_covariance
 from .spot import SpotFit
 
-__all__ = ["TrackRows", "drop_tip", "empty_angle_row", "marker_row", "unwrap_nan"]
+__all__ = ["TrackRows", "drop_tip", "empty_angle_row", "marker_row", "unwrap_nan", "with_flag"]
 
 
 def empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
@@ -29,6 +29,11 @@ def empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
 def marker_row(index: int, t_s: float, name: str, fit: SpotFit, quality: str) -> tuple:
     return (index, t_s, name, fit.x_px, fit.y_px, math.sqrt(fit.cov_xy[0, 0]), math.sqrt(fit.cov_xy[1, 1]),
             fit.radius_px, fit.amplitude_adu, fit.background_adu, fit.chi2_red, quality)
+
+
+def with_flag(quality: str, flag: str) -> str:
+    """A quality (:data:`gyrorig.tables.QUALITY_FLAGS`, comma-separated) with ``flag`` added (``ok`` gives way)."""
+    return flag if quality == "ok" else quality + "," + flag
 
 
 def unwrap_nan(phi: np.ndarray) -> np.ndarray:
@@ -79,7 +84,7 @@ class TrackRows:
         t_mid = t_frame + camera.exposure_s / 2 + camera.row_delay_s(fit.y_px)
         for flag, on in (("saturated", fit.saturated), ("blended", fit.blended)):
             if on:
-                quality = flag if quality == "ok" else quality + "," + flag
+                quality = with_flag(quality, flag)
         geo = angles_with_covariance(fit.x_px, fit.y_px, fit.cov_xy, camera, tip.position_m[2])
         if geo is None:
             angle_row = empty_angle_row(index, t_mid, "off-sphere")
@@ -129,10 +134,34 @@ class TrackRows:
 
     def widen_copies(self, angles: pd.DataFrame, markers: pd.DataFrame, camera: Camera, tip: Marker) -> None:
         """The frames whose tip's pixels a codec copied (:mod:`gyrorig.tracking.copies`): the tip's motion over each
-        group added to their errors, or, where it is unknown, their tip dropped (``duplicate``)."""
-        unknown = widen_copies(copy_groups(self.alike), angles, markers, self.tip_px, self.tip_cov, camera,
-                               tip.position_m[2], tip.name)
+        group added to their errors along x and y, their quality flagged ``copied``; where the motion is unknown,
+        their tip dropped (``duplicate``)."""
+        copied, extents, unknown = copy_extents(copy_groups(self.alike), angles.frame.to_numpy(), self.tip_px)
+        if copied:
+            self.scale_tip_errors(angles, markers, np.array(copied), np.ones(len(copied)), extents**2, camera,
+                                  tip.position_m[2], tip.name)
+            angles.loc[copied, "quality"] = angles.quality[copied].map(lambda q: with_flag(q, "copied"))
+            sel = (markers.marker == tip.name) & markers.frame.isin(angles.frame.to_numpy()[copied])
+            markers.loc[sel, "quality"] = markers.quality[sel].map(lambda q: with_flag(q, "copied"))
         drop_tip(self, angles, markers, unknown, "duplicate", tip_name=tip.name)
+
+    def scale_tip_errors(self, angles: pd.DataFrame, markers: pd.DataFrame, rows: np.ndarray, scale: np.ndarray,
+                         added: np.ndarray, camera: Camera, length_m: float, tip_name: str) -> None:
+        """The tip's errors in angle table ``rows`` multiplied by ``scale`` (n,) and widened by the variances
+        ``added`` (n, 2) along x and y [px^2]: its pixel covariance, its angles' errors and its marker rows."""
+        covs = (scale[:, None, None] ** 2 * np.array([self.tip_cov[r] for r in rows])
+                + added[:, :, None] * np.eye(2))
+        c = angle_covariances(np.array([self.tip_px[r] for r in rows]).reshape(-1, 2), covs, camera, length_m)[3]
+        sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
+        angles.loc[rows, ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]] = np.column_stack(
+            [sth, sph, c[:, 0, 1] / (sth * sph)])
+        for r, cov in zip(rows, covs):
+            self.tip_cov[r] = cov
+        frames = angles.frame.to_numpy()[rows]
+        sel = (markers.marker == tip_name) & markers.frame.isin(frames)
+        at = markers.loc[sel, "frame"].map(dict(zip(frames, range(len(frames))))).to_numpy(int)
+        for axis, col in enumerate(("sigma_x_px", "sigma_y_px")):
+            markers.loc[sel, col] = np.sqrt(scale[at] ** 2 * markers.loc[sel, col] ** 2 + added[at, axis])
 
 
 def drop_tip(rows: "TrackRows", angles: pd.DataFrame, markers: pd.DataFrame, positions, quality: str, *,

@@ -49,7 +49,6 @@ from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
-from .rays import angle_covariances
 from .rows import TrackRows, drop_tip, empty_angle_row
 from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
@@ -216,31 +215,12 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
     reason = doubts or "; ".join(reasons) or "sensor and spot models hold"
     changed = np.isin(classes, list(factors))
     if changed.any():
-        _scaled_errors(angles, markers, rows, index[changed], scale[changed], added[changed], camera, length_m,
-                       tip_name)
+        rows.scale_tip_errors(angles, markers, index[changed], scale[changed], np.repeat(added[changed, None], 2, 1),
+                              camera, length_m, tip_name)
     bad = index[list(check.outliers)]
     if len(bad):
         drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
     return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
-
-
-def _scaled_errors(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRows, rows_c: np.ndarray, scale: np.ndarray,
-                   added: np.ndarray, camera: Camera, length_m: float, tip_name: str) -> None:
-    """The tip's errors in angle rows ``rows_c`` multiplied by ``scale`` and widened by the variance ``added`` [px^2]
-    (per row): its pixel covariance, its angles' errors and its marker rows."""
-    covs = scale[:, None, None] ** 2 * np.array([rows.tip_cov[r] for r in rows_c]) + added[:, None, None] * np.eye(2)
-    c = angle_covariances(np.array([rows.tip_px[r] for r in rows_c]).reshape(-1, 2), covs, camera, length_m)[3]
-    sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
-    angles.loc[rows_c, ["theta_sigma_rad", "phi_sigma_rad", "theta_phi_corr"]] = np.column_stack(
-        [sth, sph, c[:, 0, 1] / (sth * sph)])
-    for r, cov in zip(rows_c, covs):
-        rows.tip_cov[r] = cov
-    frames_c = angles.frame.to_numpy()[rows_c]
-    sel = (markers.marker == tip_name) & markers.frame.isin(frames_c)
-    extra = markers.loc[sel, "frame"].map(dict(zip(frames_c, added))).to_numpy(float)
-    f_row = markers.loc[sel, "frame"].map(dict(zip(frames_c, scale))).to_numpy(float)
-    for col in ("sigma_x_px", "sigma_y_px"):
-        markers.loc[sel, col] = np.sqrt(f_row * f_row * markers.loc[sel, col] ** 2 + extra)
 
 
 def _harmonic_scaled(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRows, index: np.ndarray, path: tuple,
@@ -270,7 +250,7 @@ def _harmonic_scaled(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
             factors[label] = f
     scale = np.array([factors.get(label, 1.0) for label in (b_run if h.by_class else ["all"] * len(index))])
     if factors:
-        _scaled_errors(angles, markers, rows, index, scale, np.zeros(len(index)), camera, length_m, tip_name)
+        rows.scale_tip_errors(angles, markers, index, scale, np.zeros((len(index), 2)), camera, length_m, tip_name)
     if h.outliers:
         drop_tip(rows, angles, markers, index[list(h.outliers)], "outlier", tip_name=tip_name)
     reason = f"{why}: checked against a path of {len(h.omegas_rad_s)} sinusoids over the record" + (
