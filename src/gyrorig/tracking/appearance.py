@@ -50,6 +50,8 @@ class MarkerImage:
         self.keeps_sensor_model = not (self.colour or self.dark or self.rgb)
         self.top = float(camera.max_adu)
         self.channel = _CHANNEL.get(marker.colour)
+        #: the colour's excess over the mean of the other two channels (a 1 x 3 matrix for ``cv2.transform``)
+        self._excess = np.array([[1.0 if c == self.channel else -0.5 for c in range(3)]], np.float32)
         self._linear = _linearizer(camera, None if self.rgb else levels)
 
     def doubts(self, camera: Camera, lossy: bool, shape: str, marker: Marker) -> str:
@@ -91,10 +93,8 @@ class MarkerImage:
         if self.rgb and not self.colour:
             frame = cv2.transform(frame, _LUMA)
         image = frame if self._linear is None else self._linear(frame)
-        if self.colour:
-            rgb = np.asarray(image, np.float32)
-            others = [c for c in range(3) if c != self.channel]
-            image = rgb[:, :, self.channel] - 0.5 * (rgb[:, :, others[0]] + rgb[:, :, others[1]])
+        if self.colour:  # the channel minus the mean of the other two, in one pass
+            image = cv2.transform(np.asarray(image, np.float32), self._excess)
         if self.dark:
             image = (self.top if not self.colour else 0.0) - np.asarray(image, np.float32)
         return image

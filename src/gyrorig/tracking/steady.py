@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -151,20 +151,43 @@ class CameraWatch:
             return None
         return float(np.median(self.turn_steps)) / 1.1774
 
-    def _moves(self, frame: np.ndarray) -> np.ndarray:
-        """Each fiducial found in ``frame`` near where it is expected: (rx, ry, dx, dy, variance) rows, ``rx, ry`` its
-        place about the fiducials' centre, ``dx, dy`` its displacement, ``variance`` its fit's per axis."""
-        moves = []
+    def _starts(self) -> list[tuple[float, float, float, float, float, float, float]]:
+        """Where each fiducial is looked for: ``(x, y, r, rx, ry, x0, y0)``, its place in the pose ``x, y``, radius
+        ``r``, place about the fiducials' centre ``rx, ry`` and where the last fit puts it ``x0, y0`` [px]."""
+        out = []
+        a, b = self.turn
         for x, y, r in self.spots:
             rx, ry = x - self.centre[0], y - self.centre[1]
-            a, b = self.turn
-            x0, y0 = x + self.last[0] + a * rx - b * ry, y + self.last[1] + b * rx + a * ry
-            fit = fit_round_spot(frame, x0, y0, r, self.camera)
+            out.append((x, y, r, rx, ry, x + self.last[0] + a * rx - b * ry, y + self.last[1] + b * rx + a * ry))
+        return out
+
+    def _moves(self, frame: np.ndarray, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+        """Each fiducial found in ``frame`` (a part of the picture whose first pixel is ``origin`` [px]) near where it
+        is expected: (rx, ry, dx, dy, variance) rows, ``rx, ry`` its place about the fiducials' centre, ``dx, dy``
+        its displacement, ``variance`` its fit's per axis."""
+        moves = []
+        ox, oy = origin
+        for x, y, r, rx, ry, x0, y0 in self._starts():
+            fit = fit_round_spot(frame, x0 - ox, y0 - oy, r, self.camera)
+            if fit is not None:
+                fit = replace(fit, x_px=fit.x_px + ox, y_px=fit.y_px + oy)
             if (fit is None or not 0.6 * r <= fit.radius_px <= 1.6 * r
                     or math.hypot(fit.x_px - x0, fit.y_px - y0) > max(3.0, REACH_RADII * r)):
                 continue
             moves.append((rx, ry, fit.x_px - x, fit.y_px - y, max(float(np.trace(fit.cov_xy)) / 2, 1e-8)))
         return np.array(moves).reshape(-1, 5)
+
+    def _own_image(self, decoded: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
+        """The fiducials' own image over the part of the picture their fits can reach (each fit's window about where
+        it is looked for, and as far again), and that part's first pixel."""
+        h, w = decoded.shape[:2]
+        starts = np.array([(x0, y0, r) for _x, _y, r, _rx, _ry, x0, y0 in self._starts()])
+        reach = 2 * (4.0 * starts[:, 2] + 10.0 * self.camera.psf_sigma_px + 20.0)
+        x0 = max(int(np.min(starts[:, 0] - reach)), 0)
+        y0 = max(int(np.min(starts[:, 1] - reach)), 0)
+        x1 = min(int(np.max(starts[:, 0] + reach)) + 1, w)
+        y1 = min(int(np.max(starts[:, 1] + reach)) + 1, h)
+        return self.image(decoded[y0:y1, x0:x1]), (x0, y0)
 
     def observe(self, frame: np.ndarray, count: int, index: int, decoded: np.ndarray | None = None) -> None:
         """Fit the fiducials in every :data:`CHECK_EVERY`-th frame (``count`` the frames seen before this one), and
@@ -173,12 +196,13 @@ class CameraWatch:
         ``frame`` the tip's image, ``decoded`` the frame as decoded (for the fiducials' own image)."""
         if len(self.spots) < 2 or count % self.every:
             return
+        origin = (0, 0)  # where the image the fiducials are fitted in starts
         if self.image is not None and decoded is not None and self.own_image is not False:
-            own = self.image(decoded)
+            own, origin = self._own_image(decoded)
             if self.own_image is None:  # the first check: their own image, unless the tip's shows them better
-                self.own_image = _score(self._moves(own)) >= _score(self._moves(frame))
-            frame = own if self.own_image else frame
-        m = self._moves(frame)
+                self.own_image = _score(self._moves(own, origin)) >= _score(self._moves(frame))
+            frame, origin = (own, origin) if self.own_image else (frame, (0, 0))
+        m = self._moves(frame, origin)
         if len(self.variances) >= TURN_OUTLIER_SAMPLES:  # a fit far less sure than the fiducials' usual is not clean
             m = m[m[:, 4] <= MAX_SIGMA_RATIO ** 2 * float(np.median(self.variances))]
         self.variances.extend(m[:, 4].tolist())
