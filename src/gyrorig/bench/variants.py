@@ -282,7 +282,7 @@ def track_variant(name: str, *, duration_s: float = 1.0, seed: int = 0, protocol
             "wrong_ok": int((wrong & (found.quality == "ok")).sum()),
             "pull_sd_theta": float(e_th[ok].std()), "pull_sd_phi": float(e_ph[ok].std()),
             "rms_error_px": float(err_px), "centroid_rms_px": centroid, "frames_per_s": res.frames / wall,
-            "decode_frames_per_s": decoded / decode_wall,
+            "loop_frames_per_s": res.frames / res.track_s, "decode_frames_per_s": decoded / decode_wall,
             "sigma_factor": res.sigma_check.factor if res.sigma_check else math.nan,
             "sigma_scaled": bool(res.sigma_check.applied) if res.sigma_check else False}
 

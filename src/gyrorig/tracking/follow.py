@@ -52,7 +52,7 @@ from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .first_look import MAX_RECORDED, Candidate, FirstLook, Verdict
 from .light import RowLight
-from .rays import sphere_box, tip_from_pixel
+from .rays import sphere_box, tip_from_pixel, tips_from_pixels
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
 
@@ -329,8 +329,10 @@ class TipFollower:
             x0, y0, x1, y1 = 0, 0, w, h
         blobs = find_blobs(frame, x0, y0, x1, y1, threshold, min_radius_px=smallest, max_radius_px=widest)
         out = []
-        for c in blobs:
-            why = Verdict.SIZE if not lo <= c.r <= widest else self._verdict(c.x, c.y, c.r)
+        meets = np.isfinite(tips_from_pixels(np.array([(c.x, c.y) for c in blobs]).reshape(-1, 2), self.camera,
+                                             self.length_m)[:, 0])
+        for c, on_sphere in zip(blobs, meets):
+            why = Verdict.SIZE if not lo <= c.r <= widest else self._verdict(c.x, c.y, c.r, on_sphere)
             if why is None:
                 out.append(c)
             elif refused is not None and len(refused) < MAX_RECORDED:
@@ -342,13 +344,13 @@ class TipFollower:
         sx, sy = self.shift_px
         return [(x + sx, y + sy, r) for x, y, r in self.lab_px]
 
-    def _verdict(self, x: float, y: float, r: float) -> Verdict | None:
+    def _verdict(self, x: float, y: float, r: float, on_sphere: bool | None = None) -> Verdict | None:
         """Why a spot at ``(x, y)`` of radius ``r`` [px] cannot be the tip whatever its size: where a lab marker
-        appears and nearer its size (the tip may pass in front of one, visible or not), or off the tip's sphere;
-        None when it can be."""
+        appears and nearer its size (the tip may pass in front of one, visible or not), or off the tip's sphere
+        (``on_sphere``: whether its ray meets the sphere, if already known); None when it can be."""
         if any(math.hypot(x - lx, y - ly) <= lr + 2.0 and self._nearer_size(r, lr) for lx, ly, lr in self._lab_now()):
             return Verdict.LAB_MARKER
-        if tip_from_pixel(x, y, self.camera, self.length_m) is None:
+        if not (on_sphere if on_sphere is not None else tip_from_pixel(x, y, self.camera, self.length_m) is not None):
             return Verdict.OFF_SPHERE
         return None
 
