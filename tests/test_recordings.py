@@ -405,6 +405,31 @@ def test_a_highlight_of_the_tips_size_is_not_taken_for_it(tmp_path):
     assert not ((e_th.abs() > 5) | (e_ph.abs() > 5)).any()
 
 
+def test_a_still_spot_that_jumps_once_is_not_taken_for_the_tip(tmp_path):
+    """The tip hidden from frame 40 on (a hand over it) and lost, then from frame 50 a copy of its picture stuck 16 px
+    from where it was lost (a highlight as large and as bright), which in one frame (60) shows 9 px off its place and is back in the next (a
+    codec's or a fit's slip): the slip looked like the tip moving since the spot was first seen, and the still spot was
+    taken for the tip and followed for the rest of the clip.  A spot is now taken only when its place in the frame
+    before had moved too: no frame after the tip was hidden has a tip."""
+    user, rendered, truth, tip = _still_coffee_clip(tmp_path, 0.5)
+    x40, y40 = tip.loc[40, ["x_px", "y_px"]]
+    with VideoFile(rendered["video"]).open() as source:
+        shown = np.array(list(source)[39][0])
+    xi, yi = int(round(tip.loc[39, "x_px"])), int(round(tip.loc[39, "y_px"]))
+    patch = shown[yi - 10:yi + 11, xi - 10:xi + 11].copy()  # the tip's picture, with the scene just around it
+
+    def paint(frame, x, y, k):
+        _hide_tip(frame, x, y)
+        if k < 50:
+            return
+        hx, hy = int(round(x40)) + 16 + (9 if k == 60 else 0), int(round(y40))
+        frame[hy - 10:hy + 11, hx - 10:hx + 11] = patch
+
+    res = _tracked_with(rendered, user, range(40, len(tip)), paint)
+    hidden = res.angles[res.angles.frame >= 40]
+    assert len(hidden) > 50 and hidden.theta_rad.isna().all()
+
+
 def _still_coffee_clip(tmp_path, duration_s: float) -> tuple[dict, dict, pd.DataFrame, pd.DataFrame]:
     """The sphere variant as a 200 fps phone clip in front of a still ``coffee`` (seed 1, no frame dropped):
     ``(user protocol, rendered, truth, the tip's truth by frame)``."""

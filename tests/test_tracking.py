@@ -362,3 +362,41 @@ def test_the_views_choose_the_lens_model(tmp_path, distortion, expected):
     path = tmp_path / "camera.json"
     path.write_text(json.dumps(res.to_json()))
     assert load_camera(path, require_pose=False).intrinsics_parameters == tuple(res.intrinsics_parameters)
+
+
+@pytest.mark.parametrize("shift_m, depth_scale, expect", [
+    ((0.0, 0.0), 1.0, "part"),     # the bundled camera above the rig
+    ((0.1, 0.05), 1.0, "part"),    # the rig near the picture's corner, its sphere cut by the edges
+    ((0.0, 0.0), 0.15, "all"),     # the camera inside the tip's sphere: every ray meets it
+    ((3.0, 0.0), 1.0, "none"),     # the rig out of view
+])
+def test_a_search_anywhere_looks_only_where_the_tips_sphere_appears(shift_m, depth_scale, expect):
+    """The part of the image a search for the tip covers holds every pixel whose ray meets the tip's sphere (50,000
+    random pixels, through the same ray test the candidates are judged by) and reaches at most two grid steps (16 px)
+    beyond them; None when no ray meets it."""
+    from dataclasses import replace
+    from gyrorig.camera import camera_setup
+    from gyrorig.protocols import load_protocol
+    from gyrorig.tracking import sphere_box, tips_from_pixels
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    cam = camera_setup(p).camera
+    tvec = np.asarray(cam.tvec, float).ravel().copy()
+    tvec[:2] += shift_m
+    tvec[2] *= depth_scale
+    cam = replace(cam, tvec=tvec.reshape(np.shape(cam.tvec)))
+    length_m = float(p.extra["markers"]["tip"]["position_m"][2])
+    w, h = cam.width_px, cam.height_px
+    px = np.random.default_rng(0).uniform([0.0, 0.0], [w - 1.0, h - 1.0], size=(50_000, 2))
+    meets = np.isfinite(tips_from_pixels(px, cam, length_m)[:, 0])
+    box = sphere_box(cam, length_m)
+    if expect == "none":
+        assert not meets.any() and box is None
+        return
+    x0, y0, x1, y1 = box
+    inside = (px[:, 0] >= x0) & (px[:, 0] < x1) & (px[:, 1] >= y0) & (px[:, 1] < y1)
+    assert inside[meets].all()
+    assert 0 <= x0 and 0 <= y0 and x1 <= w and y1 <= h
+    assert x0 >= px[meets, 0].min() - 16 and x1 <= px[meets, 0].max() + 17
+    assert y0 >= px[meets, 1].min() - 16 and y1 <= px[meets, 1].max() + 17
+    area = (x1 - x0) * (y1 - y0)
+    assert (area == w * h) if expect == "all" else (area < 0.9 * w * h)

@@ -23,7 +23,7 @@ from ..camera import INTRINSIC_PARAMETERS, Camera
 from .camera_file import load_camera
 from .errors import BadInputError, CameraFileError, TrackingError
 from .pose import camera_modes, estimate_pose
-from .rays import tip_from_pixel, tips_from_pixels
+from .rays import sphere_box, tip_from_pixel, tips_from_pixels
 from .sources import FrameArrays, ImageFolder, VideoFile
 from .scatter import SigmaCheck, check_sigmas
 from .scene_spot import warm_up
@@ -32,4 +32,4 @@ from .tracker import TrackResult, track, track_video
 
 __all__ = ["Camera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
            "tip_from_pixel", "tips_from_pixels", "camera_modes", "track", "track_video", "TrackResult",
-           "TrackingError", "BadInputError", "CameraFileError", "VideoFile", "ImageFolder", "FrameArrays", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]
+           "TrackingError", "BadInputError", "CameraFileError", "VideoFile", "ImageFolder", "FrameArrays", "sphere_box", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]

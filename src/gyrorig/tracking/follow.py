@@ -52,7 +52,7 @@ from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .first_look import MAX_RECORDED, Candidate, FirstLook, Verdict
 from .light import RowLight
-from .rays import tip_from_pixel, tips_from_pixels
+from .rays import sphere_box, tip_from_pixel, tips_from_pixels
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
 
@@ -205,6 +205,8 @@ class TipFollower:
         self.since_lost = 0  # frames since
         self.searched = 0  # frames searched so far
         self.light = RowLight()  # the light at the tip's rows relative to the first frame's
+        #: the part of the image where the tip's sphere appears (a search anywhere looks only there; None: nowhere)
+        self.sphere_px = sphere_box(camera, self.length_m)
 
     # ------------------------------------------------------------------------------- checks
     def _appearance_ok(self, fit: SpotFit) -> bool:
@@ -316,9 +318,15 @@ class TipFollower:
         lo = (0.2 if self.tip.shape != "sphere" else 0.5) * self.r_expected
         smallest = 0.0 if refused is not None else max(lo - 1.0, 0.0)  # a first look records the small ones too
         widest = 1.6 * self.r_expected
-        x0, y0, x1, y1 = (0, 0, w, h) if centre is None else (
-            max(int(centre[0]) - reach, 0), max(int(centre[1]) - reach, 0), min(int(centre[0]) + reach, w),
-            min(int(centre[1]) + reach, h))
+        if centre is not None:
+            x0, y0, x1, y1 = (max(int(centre[0]) - reach, 0), max(int(centre[1]) - reach, 0),
+                              min(int(centre[0]) + reach, w), min(int(centre[1]) + reach, h))
+        elif refused is None and self.sphere_px is not None:  # a blob centred off the sphere's image is refused
+            m = int(widest) + 2
+            sx0, sy0, sx1, sy1 = self.sphere_px
+            x0, y0, x1, y1 = max(sx0 - m, 0), max(sy0 - m, 0), min(sx1 + m, w), min(sy1 + m, h)
+        else:  # a first look shows every spot that stood out
+            x0, y0, x1, y1 = 0, 0, w, h
         blobs = find_blobs(frame, x0, y0, x1, y1, threshold, min_radius_px=smallest, max_radius_px=widest)
         out = []
         meets = np.isfinite(tips_from_pixels(np.array([(c.x, c.y) for c in blobs]).reshape(-1, 2), self.camera,
@@ -473,7 +481,8 @@ class TipFollower:
     def _moved_since_anchor(self, pairs: list, frame: np.ndarray, fits: list[SpotFit]) -> list:
         """The confirmed spots that moved unlike the scene since they were first seen in this search (their anchor,
         :meth:`_anchor_of` among this frame's ``fits``): by more than :data:`SCENE_MOTION_PX` and 5 of the two fits'
-        combined SDs, the scene's own motion since then taken off.  A top released from rest barely moves in its first frames, and a
+        combined SDs, the scene's own motion since then taken off; and its confirming spot in the frame before too
+        (a still spot whose fit slipped once has not moved; a moving tip had).  A top released from rest barely moves in its first frames, and a
         highlight in the scene of the tip's size and shape never does; until the tip has moved, nothing is taken
         (those frames get their positions back when it is: :meth:`_trace_back`).  A spot where a sleeping top's tip
         would be passes unmoved (:meth:`_at_the_pole`)."""
@@ -490,9 +499,10 @@ class TipFollower:
                 shift = scene_shift(before, frame)
                 shifts[id(before)] = np.zeros(2) if shift is None else shift
             shift = shifts[id(before)]
-            moved = math.hypot(f.x_px - a.x_px - shift[0], f.y_px - a.y_px - shift[1])
-            noise = math.sqrt(max(np.trace(f.cov_xy) + np.trace(a.cov_xy), 0.0))
-            if moved > max(SCENE_MOTION_PX, 5.0 * noise) or self._at_the_pole(f):
+            if self._at_the_pole(f) or all(
+                    math.hypot(s.x_px - a.x_px - shift[0], s.y_px - a.y_px - shift[1])
+                    > max(SCENE_MOTION_PX, 5.0 * math.sqrt(max(np.trace(s.cov_xy) + np.trace(a.cov_xy), 0.0)))
+                    for s in (f, p[4])):
                 out.append(p)
         return out
 

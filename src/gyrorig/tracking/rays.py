@@ -8,7 +8,8 @@ import numpy as np
 from ..geometry import angles_from_tip, ray_sphere_distances
 from ..camera import Camera
 
-__all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "angles_with_covariance", "angle_covariances"]
+__all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "sphere_box", "angles_with_covariance",
+           "angle_covariances"]
 
 
 def pixel_rays(xy_px: np.ndarray, cam: Camera) -> np.ndarray:
@@ -34,6 +35,23 @@ def tip_from_pixel(x_px: float, y_px: float, cam: Camera, radius_m: float) -> np
     """Unit tip direction of one pixel (see :func:`tips_from_pixels`); None where the ray misses the sphere."""
     tip = tips_from_pixels(np.array([[x_px, y_px]]), cam, radius_m)[0]
     return None if not np.all(np.isfinite(tip)) else tip
+
+
+def sphere_box(cam: Camera, radius_m: float, step_px: int = 8) -> tuple[int, int, int, int] | None:
+    """The part of the image ``(x0, y0, x1, y1)`` [px] (half-open) holding every pixel whose ray meets the sphere
+    ``|X| = radius_m`` about the pivot (:func:`tip_from_pixel` is not None there), tested on a grid of ``step_px``
+    and widened by one step; None when no pixel's ray meets it."""
+    w, h = int(cam.width_px), int(cam.height_px)
+    xs = np.unique(np.r_[np.arange(0, w, step_px), w - 1])
+    ys = np.unique(np.r_[np.arange(0, h, step_px), h - 1])
+    gx, gy = np.meshgrid(xs, ys)
+    pts = np.column_stack([gx.ravel(), gy.ravel()]).astype(float)
+    meets = np.isfinite(tips_from_pixels(pts, cam, radius_m)[:, 0])
+    if not meets.any():
+        return None
+    x, y = pts[meets].T
+    return (max(int(x.min()) - step_px, 0), max(int(y.min()) - step_px, 0), min(int(x.max()) + step_px + 1, w),
+            min(int(y.max()) + step_px + 1, h))
 
 
 def angles_with_covariance(x: float, y: float, cov_xy: np.ndarray, cam: Camera, radius_m: float
