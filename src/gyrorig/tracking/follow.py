@@ -482,10 +482,10 @@ class TipFollower:
         """The confirmed spots that moved unlike the scene since they were first seen in this search (their anchor,
         :meth:`_anchor_of` among this frame's ``fits``): by more than :data:`SCENE_MOTION_PX` and 5 of the two fits'
         combined SDs, the scene's own motion since then taken off; and its confirming spot in the frame before too
-        (a still spot whose fit slipped once has not moved; a moving tip had).  A top released from rest barely moves in its first frames, and a
-        highlight in the scene of the tip's size and shape never does; until the tip has moved, nothing is taken
-        (those frames get their positions back when it is: :meth:`_trace_back`).  A spot where a sleeping top's tip
-        would be passes unmoved (:meth:`_at_the_pole`)."""
+        (a still spot whose fit slipped once has not moved; a moving tip had).  A top released from rest barely
+        moves in its first frames, and a highlight in the scene of the tip's size and shape never does; until the
+        tip has moved, nothing is taken (those frames get their positions back when it is: :meth:`_trace_back`).  A
+        spot where a sleeping top's tip would be passes unmoved (:meth:`_at_the_pole`)."""
         out, shifts = [], {}
         for p in pairs:
             f = p[3]
