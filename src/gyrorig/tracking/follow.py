@@ -350,7 +350,9 @@ class TipFollower:
         (``on_sphere``: whether its ray meets the sphere, if already known); None when it can be."""
         if any(math.hypot(x - lx, y - ly) <= lr + 2.0 and self._nearer_size(r, lr) for lx, ly, lr in self._lab_now()):
             return Verdict.LAB_MARKER
-        if not (on_sphere if on_sphere is not None else tip_from_pixel(x, y, self.camera, self.length_m) is not None):
+        if on_sphere is None:
+            on_sphere = tip_from_pixel(x, y, self.camera, self.length_m) is not None
+        if not on_sphere:
             return Verdict.OFF_SPHERE
         return None
 
@@ -488,7 +490,7 @@ class TipFollower:
         spot where a sleeping top's tip would be passes unmoved (:meth:`_at_the_pole`)."""
         out, shifts = [], {}
         for p in pairs:
-            f = p[3]
+            f, before_f = p[3], p[4]  # this frame's spot and the one it confirmed in the frame before
             anchor = self._anchor_of(f, fits)
             if anchor is None:
                 if self._at_the_pole(f):
@@ -502,7 +504,7 @@ class TipFollower:
             if self._at_the_pole(f) or all(
                     math.hypot(s.x_px - a.x_px - shift[0], s.y_px - a.y_px - shift[1])
                     > max(SCENE_MOTION_PX, 5.0 * math.sqrt(max(np.trace(s.cov_xy) + np.trace(a.cov_xy), 0.0)))
-                    for s in (f, p[4])):
+                    for s in (f, before_f)):
                 out.append(p)
         return out
 

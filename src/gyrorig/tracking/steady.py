@@ -178,8 +178,10 @@ class CameraWatch:
         return np.array(moves).reshape(-1, 5)
 
     def _own_image(self, decoded: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
-        """The fiducials' own image over the part of the picture their fits can reach (each fit's window about where
-        it is looked for, and as far again), and that part's first pixel."""
+        """The fiducials' own image over the part of the picture their fits can reach, and that part's first pixel:
+        ``2 (4 r + 10 sigma + 20)`` [px] about where each is looked for, over twice the widest window a spot fit
+        takes (``1.3 r + 7.5 sigma + 7`` in front of a scene, ``r + 4 sigma + 4`` with the sensor model; ``sigma``
+        the PSF's)."""
         h, w = decoded.shape[:2]
         starts = np.array([(x0, y0, r) for _x, _y, r, _rx, _ry, x0, y0 in self._starts()])
         reach = 2 * (4.0 * starts[:, 2] + 10.0 * self.camera.psf_sigma_px + 20.0)
