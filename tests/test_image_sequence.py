@@ -124,6 +124,60 @@ def test_frame_interval_statistics_and_the_warnings():
     assert not jittery["agrees_with_camera"] and jittery["jitter_rel"] > 0.05
 
 
+@pytest.mark.parametrize("capture", ["grid", "file"])
+def test_the_tips_path_tells_a_jittering_clock_from_a_varying_capture(capture):
+    """A file's times scattered by 15 % of the interval (SD): either the sensor's true times of a capture whose pace
+    varied, or a clock jittering about a steady capture.  The tip (1.5 px per frame on a circle, 0.1 px errors)
+    is where the capture put it; the times whose residuals about its path are smaller are taken: each frame's
+    capture time, to 1e-9 s, the frames near the grid too."""
+    import numpy as np
+    import pandas as pd
+
+    from gyrorig.tracking.timing import FrameClock, capture_on_grid
+
+    fps, n = 240.0, 240
+    rng = np.random.default_rng(4)
+    grid = np.arange(n) / fps
+    stamps = grid + rng.normal(0.0, 0.15 / fps, n)
+    stamps[0] = 0.0
+    taken = grid if capture == "grid" else stamps
+    xy = 300.0 + 57.3 * np.column_stack([np.cos(taken * fps / 38.2), np.sin(taken * fps / 38.2)])
+    xy += rng.normal(0.0, 0.1, xy.shape)
+    clock = FrameClock(fps, 1.0, "clip", check_rate=False)
+    numbered = [clock.number(t, k) for k, t in enumerate(stamps)]
+    assert np.sum(np.abs(stamps - grid) > 0.3 / fps) >= 10  # frames the clock alone would keep off the grid
+    angles = pd.DataFrame({"frame": [f for f, _ in numbered], "t_s": [t for _, t in numbered]})
+    markers = angles.copy()
+    said = capture_on_grid(angles, markers, {k: tuple(p) for k, p in enumerate(xy)},
+                           {k: 0.01 * np.eye(2) for k in range(n)}, clock)
+    assert said["capture"] == capture and said["off_grid_frames"] == n - 1 and abs(said["z"]) > 3
+    np.testing.assert_allclose(angles.t_s, taken, atol=1e-9)
+    np.testing.assert_allclose(markers.t_s, taken, atol=1e-9)
+
+
+def test_a_still_tip_leaves_the_capture_times_unknown_and_the_clocks_times_kept():
+    """A tip that does not move cannot tell the file's times from the grid's: ``unknown``, and each frame keeps
+    the time the clock gave it (the grid's within 0.3 of an interval, else the file's)."""
+    import numpy as np
+    import pandas as pd
+
+    from gyrorig.tracking.timing import FrameClock, capture_on_grid
+
+    fps, n = 240.0, 120
+    rng = np.random.default_rng(5)
+    stamps = np.arange(n) / fps + rng.normal(0.0, 0.15 / fps, n)
+    stamps[0] = 0.0
+    clock = FrameClock(fps, 1.0, "clip", check_rate=False)
+    numbered = [clock.number(t, k) for k, t in enumerate(stamps)]
+    angles = pd.DataFrame({"frame": [f for f, _ in numbered], "t_s": [t for _, t in numbered]})
+    given = angles.t_s.to_numpy().copy()
+    xy = 300.0 + rng.normal(0.0, 0.1, (n, 2))
+    said = capture_on_grid(angles, angles.copy(), {k: tuple(p) for k, p in enumerate(xy)},
+                           {k: 0.01 * np.eye(2) for k in range(n)}, clock)
+    assert said["capture"] == "unknown" and abs(said["z"]) <= 3
+    np.testing.assert_array_equal(angles.t_s, given)
+
+
 def test_container_rounding_is_not_a_variable_rate():
     """240 fps stored to 1 ms (Matroska) alternates 4 and 5 ms intervals: on camera.json's grid, no warning."""
     import numpy as np

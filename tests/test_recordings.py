@@ -1099,16 +1099,40 @@ def test_slow_motion_is_refused_without_its_capture_rate_and_tracked_with_it(tmp
             assert 0 <= tip.x_px[frame] - x0 < crop.shape[1] and 0 <= tip.y_px[frame] - y0 < crop.shape[0]
 
 
-def test_a_variable_frame_rate_is_tracked_with_a_warning(tmp_path):
-    """Frame times scattered by 20 % of the interval: two frames may round to one number; the later takes the
-    next number and keeps its own time, and track.json says the rate is variable."""
+@pytest.fixture(scope="module")
+def jittered_clock(tmp_path_factory):
+    """0.3 s of the phone rig whose file's times scatter by 20 % of the interval about a steady capture (the
+    renderer's frames are taken on the grid), tracked as the user describes it."""
     scene, user, _ = variant_protocols("sphere", 0.3)
-    rendered = render_phone_video(scene, tmp_path, seed=2, style=PhoneStyle(
+    rendered = render_phone_video(scene, tmp_path_factory.mktemp("jitter"), seed=2, style=PhoneStyle(
         photo="camera", codec="libx264", jitter_fraction=0.2, drop_fraction=0.0))
-    res = track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+    return rendered, track(rendered["video"], load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+
+
+def test_a_variable_frame_rate_is_tracked_with_a_warning(jittered_clock):
+    """Frame times scattered by 20 % of the interval: two frames may round to one number; the later takes the
+    next number, and track.json says the rate is variable."""
+    rendered, res = jittered_clock
     assert res.frames == len(rendered["kept"])
     assert res.angles.frame.is_monotonic_increasing and res.angles.frame.is_unique
     assert res.frame_times["agrees_with_camera"] is False and res.frame_times["jitter_rel"] > 0.1
+
+
+def test_a_jittering_clock_over_a_steady_capture_is_told_by_the_tips_path(jittered_clock):
+    """The file's times jitter, the capture did not: the tip's path says so, and every tracked frame takes its
+    capture time (the truth's, to within its rolling shutter's row delay at the fitted row: 1 % of an interval),
+    including the frames the file puts more than 0.3 intervals off the grid."""
+    rendered, res = jittered_clock
+    interval = 1.0 / load_camera(rendered["camera"]).fps
+    stored = np.asarray(rendered["stored_t_s"])
+    kept = np.asarray(rendered["kept"])
+    assert np.sum(np.abs(stored - kept * interval) > 0.3 * interval) >= 3  # frames the file puts off the grid
+    assert res.frame_times["capture"] == "grid" and res.frame_times["z2_grid"] < res.frame_times["z2_file"]
+    truth = pd.read_csv(rendered["truth"])
+    m = res.angles.dropna(subset=["theta_rad"]).merge(truth[truth.marker == "tip"][["frame", "t_marker_s"]],
+                                                        on="frame")
+    assert len(m) >= 0.9 * len(kept)
+    assert np.max(np.abs(m.t_s - m.t_marker_s)) < 0.01 * interval
 
 
 def test_ten_bit_video_is_read_at_its_depth(tmp_path):

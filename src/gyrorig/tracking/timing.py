@@ -11,8 +11,10 @@ import numpy as np
 
 from ..camera import Camera
 from .errors import BadInputError
+from .scatter import path_residuals
 
-__all__ = ["FrameClock", "settle_timing", "check_frame_rate", "frame_interval_stats", "checked_frame_times", "TIME_SNAP_FRAMES",
+__all__ = ["FrameClock", "settle_timing", "check_frame_rate", "frame_interval_stats", "checked_frame_times", "capture_on_grid",
+           "TIME_SNAP_FRAMES",
            "MIN_PLAUSIBLE_FPS", "RATE_CHECK_FRAMES", "RATE_MISMATCH_SHARE", "FPS_TOLERANCE", "VARIABLE_RATE_JITTER"]
 
 logger = logging.getLogger(__name__)
@@ -39,6 +41,8 @@ class FrameClock:
         self.times: list[float] = []  # every frame's time as read (scaled) [s]
         self.last = -1
         self.renumbered = 0
+        self.read: dict[int, float] = {}  # frame number -> its time as read (scaled) [s]
+        self.given: dict[int, float] = {}  # frame number -> the time :meth:`number` gave it [s]
 
     def number(self, t_s: float, k: int) -> tuple[int, float]:
         """The ``k``-th decoded frame's number and time [s] (its time NaN: counted at the camera's rate)."""
@@ -51,8 +55,10 @@ class FrameClock:
         self.last = index
         if self.check_rate and len(self.times) == RATE_CHECK_FRAMES:
             check_frame_rate(np.asarray(self.times), self.fps, self.source)
+        self.read[index] = t
         if abs(t - index / self.fps) <= TIME_SNAP_FRAMES / self.fps:
             t = index / self.fps
+        self.given[index] = t
         return index, t
 
 
@@ -118,22 +124,26 @@ FPS_TOLERANCE = 0.005
 VARIABLE_RATE_JITTER = 0.05
 
 
-def frame_interval_stats(t_s: np.ndarray, fps: float) -> dict:
+def frame_interval_stats(t_s: np.ndarray, fps: float, on_grid: bool = False) -> dict:
     """The measured frame intervals (the container's own times) against camera.json's ``fps``.
 
-    ``median_interval_s``, ``min_interval_s``, ``max_interval_s``, ``jitter_rel`` (SD of the intervals
-    without the dropped-frame gaps, over the median), ``dropped_frames`` (gaps of 1.5 intervals or more,
+    ``median_interval_s`` (without the dropped-frame gaps), ``min_interval_s``, ``max_interval_s``, ``jitter_rel``
+    (SD of the intervals without the gaps, over the median), ``dropped_frames`` (gaps of 1.5 intervals or more,
     counted in frames), ``measured_fps`` (1 / median), ``agrees_with_camera`` and a ``warning`` when not:
-    a median off by more than :data:`FPS_TOLERANCE` or a variable frame rate (jitter above
-    :data:`VARIABLE_RATE_JITTER`, phone video); the frames keep their own times either way.
+    a median off by more than :data:`FPS_TOLERANCE` (or three of its standard errors, if more: a jittered clock's
+    median wanders) or a variable frame rate (jitter above
+    :data:`VARIABLE_RATE_JITTER`, phone video); the frames keep their own times either way, unless ``on_grid``
+    (the tip's path says the capture was steady: :func:`capture_on_grid`).
     """
     dt = np.diff(np.asarray(t_s, float))
     if len(dt) < 2 or not np.all(np.isfinite(dt)):
         return {}
-    med = float(np.median(dt))
-    gaps = dt >= 1.5 * med
+    gaps = dt >= 1.5 * float(np.median(dt))
     regular = dt[~gaps]
+    med = float(np.median(regular)) if len(regular) else float(np.median(dt))
     jitter = float(np.std(regular) / med) if len(regular) > 1 and med > 0 else 0.0
+    # the median's own standard error (1.25 SD / sqrt(n) for a normal scatter): a jittered clock's median wanders
+    tolerance = max(FPS_TOLERANCE, 3.0 * 1.2533 * jitter / math.sqrt(max(len(regular), 1)))
     out = {"median_interval_s": med, "min_interval_s": float(dt.min()), "max_interval_s": float(dt.max()),
            "jitter_rel": jitter, "dropped_frames": int(np.sum(np.round(dt[gaps] / med) - 1)),
            "measured_fps": 1.0 / med if med > 0 else math.inf, "camera_fps": fps}
@@ -145,27 +155,104 @@ def frame_interval_stats(t_s: np.ndarray, fps: float) -> dict:
         # every frame within a rounding of camera.json's grid (Matroska stores ms: 240 fps alternates 4 and 5 ms)
         out["agrees_with_camera"] = True
         return out
-    if med > 0 and abs(med * fps - 1.0) > FPS_TOLERANCE:
+    if med > 0 and abs(med * fps - 1.0) > tolerance:
         problems.append(f"the frames are {med * 1e3:.4g} ms apart (median), {1.0 / med:.5g} fps, but camera.json "
                         f"says {fps:g} fps")
     if jitter > VARIABLE_RATE_JITTER:
-        problems.append(f"the frame intervals scatter by {jitter:.1%} of the interval (a variable frame rate): each "
-                        "frame keeps its own time")
+        problems.append(f"the frame intervals scatter by {jitter:.1%} of the interval" + (
+            ": the tip's path says the capture was steady and the file's clock jitters about it; each frame takes "
+            "its time on camera.json's grid" if on_grid else " (a variable frame rate): each frame keeps its own time"))
     out["agrees_with_camera"] = not problems
     if problems:
         out["warning"] = "; ".join(problems)
     return out
 
 
-def checked_frame_times(clock: FrameClock, camera: Camera, time_scale: float, source, fields: str | None = None
-                        ) -> dict:
+def checked_frame_times(clock: FrameClock, camera: Camera, time_scale: float, source, fields: str | None = None,
+                        capture: dict | None = None) -> dict:
     """The frame intervals measured against the camera's rate (:func:`frame_interval_stats`, with the time scale,
-    the renumbering and, for an interlaced video read field by field, its field order); a warning when they
-    disagree."""
-    times = frame_interval_stats(np.asarray(clock.times), camera.fps)
+    the renumbering, for an interlaced video read field by field its field order, and ``capture``, what
+    :func:`capture_on_grid` found); a warning when they disagree."""
+    capture = capture or {}
+    times = frame_interval_stats(np.asarray(clock.times), camera.fps, capture.get("capture") == "grid")
     if times:
         times.update(time_scale=time_scale, renumbered_frames=clock.renumbered,
-                     capture_fps=camera.capture_fps if math.isfinite(camera.capture_fps) else None, fields=fields)
+                     capture_fps=camera.capture_fps if math.isfinite(camera.capture_fps) else None, fields=fields,
+                     **capture)
     if not times.get("agrees_with_camera", True):
         logger.warning("%s: %s", source, times["warning"])
     return times
+
+
+#: a frame's squared residual counts up to this (in its error's units) in :func:`capture_on_grid`'s comparison: a
+#: wrong spot far off the path weighs the same whichever times are taken
+CAPTURE_Z2_CAP = 25.0
+#: the file's times are on camera.json's grid when none is further from it than this many intervals (a float's
+#: rounding), and :func:`capture_on_grid` has nothing to decide
+ON_GRID_FRAMES = 1e-6
+#: the frames' paired differences of squared residuals must average this many of their standard errors from zero
+#: for :func:`capture_on_grid` to take one set of times
+CAPTURE_Z = 3.0
+#: ... and only where the path follows the tip: its residuals' robust SD within this many of their errors (errors
+#: too small by as much as a codec makes them pass; a path that cannot follow a fast nod at 30 frames/s does not)
+CAPTURE_MAX_SCALE = 3.0
+#: ... the differences summed over blocks of this many frames (a path's stencil: a frame and its six neighbours)
+CAPTURE_BLOCK = 7
+
+
+def capture_on_grid(angles, markers, tip_px: dict, tip_cov: dict, clock: FrameClock) -> dict:
+    """Whether the frames were captured at the file's times or on the camera's grid, as the tip's path says, and
+    each frame's ``t_s`` in ``angles`` and ``markers`` (its time, the exposure's middle and its row's delay) moved
+    to that time, in place.
+
+    A phone's file may carry the sensor's true times of a capture whose pace varied, or the times of a clock that
+    jitters about a steady capture (an encoder stamping frames as they arrive, a container's rounding).  The tip's
+    positions tell: each frame's residual about the smooth path through its neighbours
+    (:func:`~gyrorig.tracking.scatter.path_residuals`, in its error's units) is found with the file's times and with
+    the grid's, and the times whose squared residuals (each capped at :data:`CAPTURE_Z2_CAP`) are lower, over blocks
+    of :data:`CAPTURE_BLOCK` frames, by :data:`CAPTURE_Z` standard errors of the blocks' mean difference (``z``)
+    are the capture's.  Returns ``{}``
+    when every time is on the grid (:data:`ON_GRID_FRAMES`), else ``capture`` (``grid``, ``file``, or ``unknown``
+    when the path cannot tell them: a still tip, a path that cannot follow the motion (:data:`CAPTURE_MAX_SCALE`),
+    fewer than 7 tracked frames;
+    the frames then keep the clock's times, :data:`TIME_SNAP_FRAMES`), the two sums, ``z``, the residuals' robust SD
+    (``residual_sd``, the better times') and the number of frames off the grid."""
+    numbers = np.array(sorted(clock.read), int)
+    read = np.array([clock.read[f] for f in numbers])
+    off = np.abs(read - numbers / clock.fps) * clock.fps > ON_GRID_FRAMES
+    if not off.any():
+        return {}
+    out = {"capture": "unknown", "off_grid_frames": int(off.sum()), "z2_file": math.nan, "z2_grid": math.nan,
+           "z": math.nan}
+    rows = np.array(sorted(tip_px), int)
+    if len(rows) < 7:
+        return out
+    shifts = {"file": {f: clock.read[f] - clock.given[f] for f in clock.read},
+              "grid": {f: f / clock.fps - clock.given[f] for f in clock.read}}
+    frames = angles.frame.to_numpy()[rows]
+    xy = np.array([tip_px[r] for r in rows], float).reshape(-1, 2)
+    var = np.array([np.diag(tip_cov[r]) for r in rows], float).reshape(-1, 2)
+    active = np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(var) & (var > 0), axis=1)
+    z2, scale = {}, {}
+    for name, shift in shifts.items():
+        t = angles.t_s.to_numpy()[rows] + np.array([shift.get(int(f), 0.0) for f in frames])
+        _, z = path_residuals(t, frames, xy, var, active)
+        z2[name] = np.sum(np.minimum(z * z, CAPTURE_Z2_CAP), axis=1)
+        out[f"z2_{name}"] = float(np.sum(z2[name]))
+        scale[name] = math.sqrt(float(np.median(z * z)) / 0.4549) if z.size else math.inf  # robust SD of z
+    out["residual_sd"] = min(scale.values())
+    if out["residual_sd"] > CAPTURE_MAX_SCALE:  # the path does not follow the motion (a low frame rate)
+        return out
+    # the frames' differences, paired, summed over blocks as long as a path's stencil (neighbouring frames' residuals
+    # share frames, so theirs are correlated): decisive when the blocks' mean is CAPTURE_Z of its standard errors
+    # from 0
+    d = z2["file"] - z2["grid"]
+    blocks = np.add.reduceat(d, np.arange(0, len(d), CAPTURE_BLOCK))[: len(d) // CAPTURE_BLOCK]
+    spread = float(np.std(blocks, ddof=1)) if len(blocks) > 2 else 0.0
+    out["z"] = float(np.mean(blocks) / (spread / math.sqrt(len(blocks)))) if spread > 0 else 0.0
+    if abs(out["z"]) <= CAPTURE_Z:  # the path cannot tell them (a still tip, a path that cannot follow the motion)
+        return out
+    out["capture"] = "grid" if out["z"] > 0 else "file"
+    for table in (angles, markers):
+        table["t_s"] = table.t_s + table.frame.map(lambda f: shifts[out["capture"]].get(int(f), 0.0)).to_numpy(float)
+    return out

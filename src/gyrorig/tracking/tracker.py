@@ -53,7 +53,8 @@ from .rows import TrackRows, drop_tip, empty_angle_row
 from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
-from .timing import FrameClock, check_frame_rate, checked_frame_times, frame_interval_stats, settle_timing
+from .timing import (FrameClock, capture_on_grid, check_frame_rate, checked_frame_times, frame_interval_stats,
+                     settle_timing)
 from .sources import as_source, fingerprint, prepended
 from .pace import off_pace_rows
 
@@ -450,6 +451,8 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     if again:
         return track(video, replace(given, interlace=again), protocol, progress=progress, frame_dots=frame_dots,
                      watch_camera=watch_camera)
+    times = checked_frame_times(clock, camera, time_scale, source, frames.fields,
+                                capture_on_grid(angles, markers, rows.tip_px, rows.tip_cov, clock))
     check = _check_and_scale(angles, markers, rows, appearance.doubts(camera, lossy, follower.shape, tip), lossy,
                              tip.name, camera, tip.position_m[2], MAX_SIGMA_RADII * follower.r_expected)
     source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source) + said
@@ -458,7 +461,6 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
                                      pose_info or camera.pose_points, own_pose)
     if progress:
         progress(k, k)
-    times = checked_frame_times(clock, camera, time_scale, source, frames.fields)
     return TrackResult(angles, markers, k, float(angles.theta_rad.notna().mean()), t_decode, t_track, camera,
                        pose_info, camera_sigma, check, times, motion, source_problems)
 
