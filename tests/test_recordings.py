@@ -139,6 +139,33 @@ def test_scene_spot_errors_hold_on_real_photographs():
     assert 0.7 <= pulls.std() <= 1.5 and np.abs(pulls).max() < 5.0
 
 
+@pytest.mark.parametrize("level", [600.0, 1500.0])
+def test_an_overexposed_marker_is_fitted_by_where_its_image_leaves_full_scale(level):
+    """A dot 1.3 and 2.6 stops beyond full scale in front of real photographs, 150 draws: its middle a plateau at
+    255.  The saturated pixels say the light there is at least full scale (censored), and the edge where the image
+    leaves the plateau holds the centre: at least 70 % fitted (left out, the plateau's pixels left 56 and 29 of 150
+    fitted), the pulls' SD in the band of the photographs' test (0.7-1.5), none beyond 5."""
+    rng = np.random.default_rng(0)
+    photos = [_photo(n) for n in PHOTOS]
+    cam = _camera()
+    pulls, fitted = [], 0
+    for k in range(150):
+        photo = photos[k % len(photos)] * 0.8
+        x, y = rng.uniform(60, photo.shape[1] - 60), rng.uniform(60, photo.shape[0] - 60)
+        r = rng.uniform(4, 10)
+        image = np.clip(np.round(_disc(photo, x, y, r, level, 1.0) + rng.normal(0, 2.0, photo.shape)), 0, 255)
+        fit = fit_scene_spot(image.astype(np.float32), x + rng.uniform(-1, 1), y + rng.uniform(-1, 1),
+                             r * rng.uniform(0.85, 1.15), cam)
+        if fit is None:
+            continue
+        fitted += 1
+        assert fit.saturated
+        pulls += list(np.array([fit.x_px - x, fit.y_px - y]) / np.sqrt(np.diag(fit.cov_xy)))
+    pulls = np.array(pulls)
+    assert fitted >= 105
+    assert 0.7 <= pulls.std() <= 1.5 and np.abs(pulls).max() < 5.0
+
+
 def _edge_pulls(dark_level: float, draws: int = 200) -> tuple[int, np.ndarray]:
     """A 6.5 px disc (250) blurred by 2 px (the camera file says 1: a recording's optics and codec) on a scene of 160
     with a straight edge 12-17 px from its centre beyond which the scene is ``dark_level``: fits and pulls."""
@@ -269,6 +296,24 @@ def test_a_phone_recording_on_a_real_background_is_tracked_honestly(phone_clip):
     lo, hi = sd_ratio_band(len(found))
     for pulls in (e_th, e_ph):
         assert lo - 0.25 <= pulls[~wrong].std() <= hi + 0.25
+
+
+def test_an_overexposed_phone_recording_keeps_its_tip(phone_clip):
+    """The phone clip as if exposed 1.3 stops too long (every value brightened by 2.5x in linear light and clipped at
+    full scale, as a phone's automatic exposure does when it meters the dark rotor): the white tip is a plateau at
+    full scale, the scene brighter.  Its frames are tracked as the plain clip's are (at least 90 % of those with the
+    tip visible, none beyond 5 sigma flagged ok, the pulls' SD in the band of the plain clip's test)."""
+    scene, user, rendered = phone_clip
+    with VideoFile(rendered["video"]).open() as frames:
+        (black, white), transfer = frames.levels, frames.transfer
+        decoded = [(image.copy(), t_s) for image, t_s in frames]
+    gain = 2.5 ** (1 / 2.2)  # the stored values' curve is about linear^(1/2.2)
+    bright = [np.clip(np.round(black + (image - black) * gain), 0, white).astype(np.uint8) for image, _ in decoded]
+    source = FrameArrays(bright, [t for _, t in decoded], name="overexposed", levels=(black, white), transfer=transfer)
+    res = track(source, load_camera(rendered["camera"]), parse_protocol(user), frame_dots=False)
+    m, found, e_th, e_ph = _pulls(res, pd.read_csv(rendered["truth"]))
+    assert found.quality.str.contains("saturated").mean() > 0.5  # the tip's middle is at full scale
+    _assert_honest(res, rendered["truth"])
 
 
 def test_a_heavily_compressed_recording_keeps_honest_errors(tmp_path):

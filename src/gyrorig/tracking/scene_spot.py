@@ -15,7 +15,8 @@ the edge is busy.
 
 A bin of the ring much brighter than the rest (light of another marker touching the ring) marks the fit
 ``blended``; the model still holds there to first order (that light is outside the disc), and the
-residuals carry what it does not.
+residuals carry what it does not.  A saturated pixel is censored: it says only that the light there is at least
+full scale (an overexposed marker is fitted by where its image leaves the plateau).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from numba import njit
 
 from ..camera import Camera
 from . import ellipse, spot
+from .sandwich import _projected_meat, sandwich_covariance
 from .spot import SpotFit, fit_spot, spot_window
 
 __all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX"]
@@ -52,68 +54,12 @@ MIN_INNER_PIXELS = 8
 #: of the marker's contrast, holds another spot's light
 FOREIGN_Z = 5.0
 FOREIGN_CONTRAST = 0.1
+#: a saturated marker's level (censored pixels: :func:`_pass`) is held below this many times full scale (4 stops)
+MAX_OVER_TOP = 16.0
 #: the edge's departures from a circle are read from its harmonics up to this order (:func:`_edge_roughness`)
 EDGE_HARMONICS = 5
 #: ... where at least this fraction of the bins has an edge point
 MIN_ARC_FRACTION = 0.5
-
-
-#: the spatial kernel of :func:`sandwich_covariance`: Bartlett weights over a 5 x 5 neighbourhood (a positive-definite
-#: kernel, so the estimate is positive semi-definite), reaching residuals correlated over a PSF, a texture's grain or
-#: a codec's block edge
-_BARTLETT_1D = np.array([1 / 3, 2 / 3, 1.0, 2 / 3, 1 / 3])
-
-
-@njit(cache=True)
-def _projected_meat(pick, shape, jac, weight, resid, proj):
-    """``P M P^T`` of :func:`sandwich_covariance`'s ``M = sum_ij k(i - j) u_i u_j^T`` over the fitted pixels
-    (flat indices ``pick`` into a window of ``shape``; the rows of ``jac``, ``weight``, ``resid`` theirs),
-    with ``P = proj`` (rows of ``F^-1``: only the parameters asked for are carried through the sum)."""
-    h, w = shape
-    m, n = proj.shape
-    grid = np.zeros((h, w, m))
-    for k in range(pick.size):
-        iy, ix = pick[k] // w, pick[k] % w
-        wr = weight[k] * resid[k]
-        for a in range(m):
-            acc = 0.0
-            for c in range(n):
-                acc += proj[a, c] * jac[k, c]
-            grid[iy, ix, a] = acc * wr
-    meat = np.zeros((m, m))
-    for k in range(pick.size):
-        iy, ix = pick[k] // w, pick[k] % w
-        for dy in range(-2, 3):
-            jy = iy + dy
-            if jy < 0 or jy >= h:
-                continue
-            for dx in range(-2, 3):
-                jx = ix + dx
-                if jx < 0 or jx >= w:
-                    continue
-                kern = _BARTLETT_1D[dy + 2] * _BARTLETT_1D[dx + 2]
-                for a in range(m):
-                    ua = kern * grid[iy, ix, a]
-                    for c in range(m):
-                        meat[a, c] += ua * grid[jy, jx, c]
-    return 0.5 * (meat + meat.T)
-
-
-def sandwich_covariance(pick: np.ndarray, shape: tuple[int, int], jac: np.ndarray, weight: np.ndarray,
-                        resid: np.ndarray, fisher_inv: np.ndarray, parameters: int | None = None) -> np.ndarray:
-    """The parameters' covariance from the residuals themselves: ``F^-1 M F^-1`` with
-    ``M = sum_ij k(i - j) u_i u_j^T``, ``u_i = J_i w_i r_i`` over the fitted pixels and ``k`` a Bartlett kernel
-    over neighbours up to 2 px apart.
-
-    Where the noise model is right and the pixels independent, ``E M = F`` and this is ``F^-1``; where the
-    residuals hold what the model lacks (the scene behind the spot's edge, a lossy codec's ringing,
-    spatially correlated noise) it grows by what those do to the centre: a heteroscedasticity- and
-    autocorrelation-consistent estimate (White; Newey-West, in two dimensions).  ``pick`` the fitted pixels'
-    flat indices in a window of ``shape``; ``jac`` (n, parameters), ``weight, resid`` (n) theirs.  With
-    ``parameters`` only the covariance of the first that many parameters is computed."""
-    proj = np.ascontiguousarray(fisher_inv[:parameters], np.float64)
-    return _projected_meat(np.asarray(pick, np.int64), shape, np.asarray(jac, np.float64),
-                           np.asarray(weight, np.float64), np.asarray(resid, np.float64), proj)
 
 
 @njit(cache=True)
@@ -174,11 +120,13 @@ def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
 
 
 @njit(cache=True)
-def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner):
+def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner, top):
     """One Gauss-Newton pass over the fitted pixels: ``(fisher, gradient, jac, resid, weight, coverage,
     var_in)``.  With ``measure_inner`` the marker's noise ``var_in`` is measured from the residuals where the
     disc covers the pixel (at least :data:`MIN_INNER_PIXELS` of them; NaN: use the ring's); the weights are
-    ``1 / ((1 - c) var_out + c var_in)``."""
+    ``1 / ((1 - c) var_out + c var_in)``.  A pixel at full scale ``top`` (saturated) says only that the light
+    there is at least that: where the model reaches it too, its residual and its Jacobian row are 0 (censored),
+    else the model is pulled up to it."""
     n = xs.size
     jac = np.empty((n, 5))
     resid = np.empty(n)
@@ -198,13 +146,20 @@ def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner):
         jac[k, 2] = -edge
         jac[k, 3] = c
         jac[k, 4] = level * gauss * (rho - p[2]) / p[4]
-        resid[k] = values[k] - (scene[k] * (1.0 - c) + p[3] * c)
+        model = scene[k] * (1.0 - c) + p[3] * c
+        resid[k] = min(values[k], top) - model
         cover[k] = c
+        if values[k] >= top and model >= top:
+            resid[k] = 0.0
+            cover[k] = -1.0  # censored: out of the marker's noise below
+            for a in range(5):
+                jac[k, a] = 0.0
     if measure_inner:
         inner = resid[cover > 0.99]
         if inner.size >= MIN_INNER_PIXELS:
             var_in = max(np.median(inner * inner) / 0.4549, 1.0 / 12.0)
     v_in = var_out if math.isnan(var_in) else var_in
+    cover = np.maximum(cover, 0.0)
     weight = 1.0 / (var_out * (1.0 - cover) + v_in * cover)
     fisher = np.zeros((5, 5))
     grad = np.zeros(5)
@@ -435,7 +390,8 @@ def _harmonic_power(radii):
     return 2.0 * max(explained, 0.0) / ((m - 3) * n)
 
 
-def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution", kept: np.ndarray) -> float:
+def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution", kept: np.ndarray,
+                    top: float = math.inf) -> float:
     """The variance [px^2] per axis of the centre that the edge's own departures from a circle imply: the edge
     points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a shift of the centre and is
     therefore absorbed by the fit; its unseen power is taken as the mean power per coefficient of harmonics
@@ -445,14 +401,15 @@ def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solu
     NaN when fewer than half the bins have an edge point.
 
     Only the ``kept`` bins have an edge point (a dark object's edge, whose sectors are left out of the fit, would
-    bend it; another spot's light merged with the edge is what this looks for)."""
+    bend it; another spot's light merged with the edge is what this looks for).  A saturated marker's edge is where
+    the image falls half-way from full scale ``top``, its level as far as it is seen."""
     x0, y0 = float(xx[0, 0]), float(yy[0, 0])
-    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], sol.p[3], sol.bins)
+    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], min(sol.p[3], top), sol.bins)
     return _harmonic_power(np.where(kept, radii, np.nan))
 
 
 @njit(cache=True)
-def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations):
+def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations, top):
     """:func:`_solve`'s iterations, compiled: ``(ok, p, pick, xs, ys, weight, jac, resid, fisher, bins,
     coverage)``."""
     h, w = win.shape
@@ -479,7 +436,7 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
             var_out = max(spread * spread, 1.0 / 12.0)
         # the marker's noise is held with the ring (a median's jumps would make the steps cycle)
         fisher, grad, jac, resid, weight, cover, var_in = _pass(xs, ys, values, scene, p, var_out, var_in,
-                                                                 it < RING_PASSES)
+                                                                 it < RING_PASSES, top)
         if converged:
             break
         step, ok = _lu_solve(fisher, grad)
@@ -491,7 +448,7 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
         inside = False
         for _ in range(12):
             if (p[2] + step[2] > 0.3 * r0 and 0.2 * sigma < p[4] + step[4] < sigma_max and abs(step[0]) <= r0
-                    and abs(step[1]) <= r0):
+                    and abs(step[1]) <= r0 and p[3] + step[3] <= MAX_OVER_TOP * top):
                 inside = True
                 break
             step = step / 2
@@ -502,25 +459,27 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
     return converged, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
 
 
-def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int) -> _Solution | None:
+def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int,
+           top: float = math.inf) -> _Solution | None:
     """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring, the ring taken
     again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  None when
-    a ring bin is empty, a step cannot be solved or kept in range, or the iterations do not converge."""
+    a ring bin is empty, a step cannot be solved or kept in range, or the iterations do not converge.  Pixels at
+    ``top`` are censored (:func:`_pass`)."""
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
         win, float(xx[0, 0]), float(yy[0, 0]), np.ascontiguousarray(allowed), np.asarray(p, np.float64), float(r0),
-        float(sigma), float(sigma_max), int(iterations))
+        float(sigma), float(sigma_max), int(iterations), float(top))
     if not ok:
         return None
     return _Solution(p, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
 
 
-def _joined(win, x_first, y_first, sol: "_Solution", sectors: np.ndarray) -> bool:
+def _joined(win, x_first, y_first, sol: "_Solution", sectors: np.ndarray, top: float = math.inf) -> bool:
     """Whether the light in any of the ``sectors`` joins the fitted disc: along its ray the image never falls
     half-way from the disc's level to the scene's (the median of the other bins) before the ring: the disc is then
     part of a larger bright shape (a band's middle), not a spot beside another light."""
     scene = np.full(ANGLE_BINS, _median(sol.bins[~sectors]))
     p = sol.p
-    radii = _edge_radii(win, p[0] - x_first, p[1] - y_first, p[2], p[4], p[3], scene)
+    radii = _edge_radii(win, p[0] - x_first, p[1] - y_first, p[2], p[4], min(p[3], top), scene)
     return bool(np.any(np.isposinf(radii[sectors])))
 
 
@@ -528,7 +487,9 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
                    iterations: int = 15) -> SpotFit | None:
     """Fit the opaque disc in front of the scene (module docstring) around ``(x0, y0)``, start radius ``r0``.
 
-    Saturated pixels are left out, and so is the light of another spot that reaches inside the ring
+    Saturated pixels say only that the light there is at least full scale (censored, :func:`_pass`; a marker
+    overexposed to a plateau is fitted by where its image leaves it); the light of another spot that reaches inside
+    the ring is left out
     (pixels off the disc brighter than the model by 5 of their SDs, grown by 2 px; the fit is then repeated
     without them and marked ``blended``).  ``SpotFit.background_adu`` is the ring's median,
     ``amplitude_adu`` the marker's level above it, ``chi2_red`` and ``chi2_own`` the weighted residuals' mean
@@ -542,34 +503,35 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     if window is None:
         return None
     win, xx, yy, saturated, _, background, amplitude = window
-    allowed = ~saturated
+    top = float(cam.max_adu) if saturated.any() else math.inf
+    allowed = np.ones(win.shape, np.bool_)
     x_first, y_first = float(xx[0, 0]), float(yy[0, 0])
     ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + RING_GAP_SIGMAS * sigma_max, allowed)
     dark = _foreign_bins(bins, background + amplitude, -1.0) if ok else np.zeros(ANGLE_BINS, np.bool_)
     if dark.any():  # a dark object's edge within the widest ring: its sectors are left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, dark)
     start = np.array([x0, y0, r0, background + amplitude, sigma])
-    sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations)
+    sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations, top)
     bright = _foreign_bins(bins, background + amplitude) if ok and sol is None else np.zeros(ANGLE_BINS, np.bool_)
     if bright.any():  # another light within the widest ring (a hand beside the tip) pulled the fit away: left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, bright)
-        sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations)
-        if sol is not None and _joined(win, x_first, y_first, sol, bright):
+        sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations, top)
+        if sol is not None and _joined(win, x_first, y_first, sol, bright, top):
             return None
     if sol is None:
         return None
     kept = _fitted_bins(sol)  # all but a dark object's sectors
-    foreign = _foreign_bins(sol.bins, sol.p[3])
+    foreign = _foreign_bins(sol.bins, min(sol.p[3], top))
     if foreign.any():  # another spot's light on the ring: its sectors (and one bin either side) are left out
         allowed = _without_sectors(allowed, x_first, y_first, sol.p[0], sol.p[1], foreign)
-        sol = _solve(win, xx, yy, allowed, sol.p, r0, sigma, sigma_max, iterations)
+        sol = _solve(win, xx, yy, allowed, sol.p, r0, sigma, sigma_max, iterations, top)
         if sol is None:
             return None
     p, n_used = sol.p, sol.pick.size
     if abs(p[0] - x0) > half or abs(p[1] - y0) > half or n_used <= 8:
         return None
     background = _median(sol.bins)
-    contrast = p[3] - background
+    contrast = min(p[3], top) - background  # a saturated marker's: as far as it is seen
     if contrast <= 0:
         return None
     blended = bool(foreign.any())
@@ -577,7 +539,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
         finv = np.linalg.inv(sol.fisher)
     except np.linalg.LinAlgError:
         return None
-    rough = _edge_roughness(win, xx, yy, sol, kept)
+    rough = _edge_roughness(win, xx, yy, sol, kept, top)
     if not math.isfinite(rough):
         return None
     cov = (sandwich_covariance(sol.pick, win.shape, sol.jac, sol.weight, sol.resid, finv, parameters=2)
@@ -606,7 +568,7 @@ def warm_up() -> None:
     win = 20.0 + 100.0 * (np.hypot(xx - 20.2, yy - 19.9) < 5.0)
     allowed = np.ones(win.shape, bool)
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
-        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15)
+        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15, math.inf)
     _foreign_bins(bins, float(p[3]))
     _median(bins)
     _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))
