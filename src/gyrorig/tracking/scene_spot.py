@@ -131,6 +131,7 @@ def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner, top):
     jac = np.empty((n, 5))
     resid = np.empty(n)
     cover = np.empty(n)
+    censored = np.zeros(n, np.bool_)
     s2 = math.sqrt(2.0) * p[4]
     norm = 1.0 / (math.sqrt(2.0 * math.pi) * p[4])
     for k in range(n):
@@ -150,16 +151,15 @@ def _pass(xs, ys, values, scene, p, var_out, var_in, measure_inner, top):
         resid[k] = min(values[k], top) - model
         cover[k] = c
         if values[k] >= top and model >= top:
+            censored[k] = True
             resid[k] = 0.0
-            cover[k] = -1.0  # censored: out of the marker's noise below
             for a in range(5):
                 jac[k, a] = 0.0
     if measure_inner:
-        inner = resid[cover > 0.99]
+        inner = resid[(cover > 0.99) & ~censored]
         if inner.size >= MIN_INNER_PIXELS:
             var_in = max(np.median(inner * inner) / 0.4549, 1.0 / 12.0)
     v_in = var_out if math.isnan(var_in) else var_in
-    cover = np.maximum(cover, 0.0)
     weight = 1.0 / (var_out * (1.0 - cover) + v_in * cover)
     fisher = np.zeros((5, 5))
     grad = np.zeros(5)

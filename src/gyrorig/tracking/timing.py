@@ -42,7 +42,6 @@ class FrameClock:
         self.last = -1
         self.renumbered = 0
         self.read: dict[int, float] = {}  # frame number -> its time as read (scaled) [s]
-        self.given: dict[int, float] = {}  # frame number -> the time :meth:`number` gave it [s]
 
     def number(self, t_s: float, k: int) -> tuple[int, float]:
         """The ``k``-th decoded frame's number and time [s] (its time NaN: counted at the camera's rate)."""
@@ -56,10 +55,13 @@ class FrameClock:
         if self.check_rate and len(self.times) == RATE_CHECK_FRAMES:
             check_frame_rate(np.asarray(self.times), self.fps, self.source)
         self.read[index] = t
-        if abs(t - index / self.fps) <= TIME_SNAP_FRAMES / self.fps:
-            t = index / self.fps
-        self.given[index] = t
-        return index, t
+        return index, self.given(index)
+
+    def given(self, index: int) -> float:
+        """The time [s] :meth:`number` gives frame ``index``: its time as read, or its number's time when within
+        :data:`TIME_SNAP_FRAMES` of it."""
+        t = self.read[index]
+        return index / self.fps if abs(t - index / self.fps) <= TIME_SNAP_FRAMES / self.fps else t
 
 
 def settle_timing(camera: Camera, frames, source) -> tuple[Camera, float]:
@@ -211,12 +213,13 @@ def capture_on_grid(angles, markers, tip_px: dict, tip_cov: dict, clock: FrameCl
     (:func:`~gyrorig.tracking.scatter.path_residuals`, in its error's units) is found with the file's times and with
     the grid's, and the times whose squared residuals (each capped at :data:`CAPTURE_Z2_CAP`) are lower, over blocks
     of :data:`CAPTURE_BLOCK` frames, by :data:`CAPTURE_Z` standard errors of the blocks' mean difference (``z``)
-    are the capture's.  Returns ``{}``
-    when every time is on the grid (:data:`ON_GRID_FRAMES`), else ``capture`` (``grid``, ``file``, or ``unknown``
-    when the path cannot tell them: a still tip, a path that cannot follow the motion (:data:`CAPTURE_MAX_SCALE`),
-    fewer than 7 tracked frames;
-    the frames then keep the clock's times, :data:`TIME_SNAP_FRAMES`), the two sums, ``z``, the residuals' robust SD
-    (``residual_sd``, the better times') and the number of frames off the grid."""
+    are the capture's.
+
+    Returns ``{}`` when every time is on the grid (:data:`ON_GRID_FRAMES`), else ``capture`` (``grid``, ``file``,
+    or ``unknown`` when the path cannot tell them: a still tip, a path that cannot follow the motion
+    (:data:`CAPTURE_MAX_SCALE`), fewer than 7 tracked frames; the frames then keep the clock's times,
+    :data:`TIME_SNAP_FRAMES`), the two sums, ``z``, the residuals' robust SD (``residual_sd``, the better times')
+    and the number of frames off the grid."""
     numbers = np.array(sorted(clock.read), int)
     read = np.array([clock.read[f] for f in numbers])
     off = np.abs(read - numbers / clock.fps) * clock.fps > ON_GRID_FRAMES
@@ -227,8 +230,8 @@ def capture_on_grid(angles, markers, tip_px: dict, tip_cov: dict, clock: FrameCl
     rows = np.array(sorted(tip_px), int)
     if len(rows) < 7:
         return out
-    shifts = {"file": {f: clock.read[f] - clock.given[f] for f in clock.read},
-              "grid": {f: f / clock.fps - clock.given[f] for f in clock.read}}
+    shifts = {"file": {f: clock.read[f] - clock.given(f) for f in clock.read},
+              "grid": {f: f / clock.fps - clock.given(f) for f in clock.read}}
     frames = angles.frame.to_numpy()[rows]
     xy = np.array([tip_px[r] for r in rows], float).reshape(-1, 2)
     var = np.array([np.diag(tip_cov[r]) for r in rows], float).reshape(-1, 2)
@@ -243,9 +246,8 @@ def capture_on_grid(angles, markers, tip_px: dict, tip_cov: dict, clock: FrameCl
     out["residual_sd"] = min(scale.values())
     if out["residual_sd"] > CAPTURE_MAX_SCALE:  # the path does not follow the motion (a low frame rate)
         return out
-    # the frames' differences, paired, summed over blocks as long as a path's stencil (neighbouring frames' residuals
-    # share frames, so theirs are correlated): decisive when the blocks' mean is CAPTURE_Z of its standard errors
-    # from 0
+    # the frames' paired differences, summed over blocks as long as a path's stencil (neighbouring frames' residuals
+    # share frames, so theirs are correlated)
     d = z2["file"] - z2["grid"]
     blocks = np.add.reduceat(d, np.arange(0, len(d), CAPTURE_BLOCK))[: len(d) // CAPTURE_BLOCK]
     spread = float(np.std(blocks, ddof=1)) if len(blocks) > 2 else 0.0
