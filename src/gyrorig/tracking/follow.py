@@ -10,7 +10,9 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   chi-square must stay near their running medians (a different marker, or a neighbour's light under it, changes them);
 - **motion**: the spot must lie within a gate around the position predicted from the last frames
   (the gate grows with the tip's observed speed and acceleration in pixels; once the tip has been seen to move
-  more than its radius in a frame, it holds any step up to the fastest speed seen twice, :data:`SPEED_MEMORY`);
+  more than its radius in a frame, it holds any step up to the fastest speed seen twice, :data:`SPEED_MEMORY`); a
+  spot farther and fainter (in peak contrast) than a nearer one the fit cannot describe (a streak, a tip partly
+  hidden), which may be the tip, is not taken;
 - **lab markers**: a spot where one of the protocol's lab-fixed markers appears, and nearer its size than the
   tip's, is never the tip;
 - **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
@@ -51,12 +53,12 @@ from .backward import follow_back
 from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .first_look import MAX_RECORDED, Candidate, FirstLook, Verdict
-from .light import RowLight
+from .light import RowLight, scene_shift
 from .rays import sphere_box, tip_from_pixel, tips_from_pixels
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
 
-__all__ = ["TipFollower", "Located", "SIZE_RANGE", "Verdict", "Candidate", "FirstLook", "scene_shift"]
+__all__ = ["TipFollower", "Located", "SIZE_RANGE", "Verdict", "Candidate", "FirstLook"]
 
 #: the fitted radius over the marker's expected image radius allowed for the tip (a sphere, or a blob)
 SIZE_RANGE = {"sphere": (0.7, 1.4), "blob": (0.4, 2.5)}
@@ -86,10 +88,6 @@ ACQUIRE_REACH = 1.0
 #: is then the candidate that moved unlike the scene, by more than this between the two frames [px]
 BUSY_CANDIDATES = 12
 SCENE_MOTION_PX = 0.5
-#: the scene is registered between frames at most this wide (downsampled), and its shift believed when the phase
-#: correlation's peak holds at least this much of the response
-REGISTER_WIDTH_PX = 480
-REGISTER_MIN_RESPONSE = 0.08
 #: a reacquired tip lies within this many expected radii of where it was lost, plus this many times its speed for every
 #: frame since: the :data:`REACQUIRE_QUANTILE` of its steps remembered (:data:`SPEED_MEMORY`), or its last steps'
 #: median if more (a heavy top's tip stops at each cusp of its nod, where it is often lost)
@@ -139,22 +137,6 @@ def _lab_images(camera: Camera, markers: tuple[Marker, ...]) -> list[tuple[float
         xy = cv2.projectPoints(p[None], camera.rvec, camera.tvec, camera.camera_matrix, camera.dist_coeffs)[0].ravel()
         out.append((float(xy[0]), float(xy[1]), camera.camera_matrix[0, 0] * m.radius_m / depth))
     return out
-
-
-def scene_shift(before: np.ndarray | None, after: np.ndarray) -> np.ndarray | None:
-    """How the scene moved between two frames [px] (phase correlation of the frames downsampled to at most
-    :data:`REGISTER_WIDTH_PX`, Hann-windowed), or None when there is no frame before or the scene has too little
-    texture to say (a weak correlation peak, :data:`REGISTER_MIN_RESPONSE`)."""
-    if before is None or before.shape != after.shape:
-        return None
-    f = max(1, int(math.ceil(after.shape[1] / REGISTER_WIDTH_PX)))
-    a = cv2.resize(np.asarray(before, np.float32), None, fx=1 / f, fy=1 / f, interpolation=cv2.INTER_AREA)
-    b = cv2.resize(np.asarray(after, np.float32), None, fx=1 / f, fy=1 / f, interpolation=cv2.INTER_AREA)
-    window = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_32F)
-    (dx, dy), response = cv2.phaseCorrelate(a, b, window)
-    if not response >= REGISTER_MIN_RESPONSE:
-        return None
-    return np.array([dx * f, dy * f])
 
 
 class TipFollower:
@@ -363,7 +345,7 @@ class TipFollower:
         markers: none within :data:`CLEAR_RADII` tip radii plus its own radius and the motion gate), the fit starts
         at the prediction and is taken when it stays there and passes the tip's tests; otherwise, and always
         beside another spot (whose light a fit from the prediction can take into the disc), the candidates near
-        the prediction are searched."""
+        the prediction are searched, nearest first (one farther and fainter than a spot not fitted is not taken)."""
         predicted, gate = self._prediction()
         if self.misses == 0 and len(self.last) >= 2 and self._clear(predicted, gate, others):
             fit = self._fit(frame, float(predicted[0]), float(predicted[1]), self.last_r)
@@ -374,17 +356,20 @@ class TipFollower:
                 return fit
         cand = self._candidates(frame, threshold, predicted, int(2 * self.r_expected + 10 + gate))
         cand.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
-        for x0, y0, r0, _ in cand[:3]:
+        unfitted = -math.inf  # the highest peak contrast of a nearer spot that could not be fitted
+        for x0, y0, r0, peak in cand[:3]:
             if math.hypot(x0 - predicted[0], y0 - predicted[1]) < max(2.0, 0.3 * r0):
                 # the motion prediction is sub-pixel; the blob's inscribed centre is not: fewer iterations
                 x0, y0, r0 = float(predicted[0]), float(predicted[1]), self.last_r
             fit = self._fit(frame, x0, y0, r0)
-            if self._acceptable(fit, predicted, gate, threshold):
-                return fit
-            if fit is not None and fit.blended and self.shape == "sphere" and self.camera.sensor_known:
+            if fit is None:
+                unfitted = max(unfitted, peak)
+            elif self._acceptable(fit, predicted, gate, threshold):
+                return fit if peak > unfitted else None
+            elif fit.blended and self.shape == "sphere" and self.camera.sensor_known:
                 fit = self._fit(frame, x0, y0, r0, neighbour="mask")
                 if self._acceptable(fit, predicted, gate, threshold):
-                    return fit
+                    return fit if peak > unfitted else None
         return None
 
     def _acquire(self, frame: np.ndarray, threshold: Detection) -> SpotFit | None:
