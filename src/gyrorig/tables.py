@@ -46,9 +46,11 @@ MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma
 #: ``off-pace`` (in an end of a slow-motion record that runs at another pace, a gallery copy's normal-speed end:
 #: its time unknown, angles removed, see :mod:`gyrorig.tracking.pace`); ``copied`` (the tip's pixels bit for bit
 #: another frame's, a codec's skipped block: its error holds the tip's motion between them, see
-#: :mod:`gyrorig.tracking.copies`)
+#: :mod:`gyrorig.tracking.copies`); ``streaked`` (the tip moved more than its image radius during the exposure: a
+#: streak, which the round spot fit does not describe; its error bars may be too small, see
+#: :meth:`gyrorig.tracking.rows.TrackRows.flag_streaks`)
 QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate", "outlier",
-                 "damaged", "off-pace", "copied")
+                 "damaged", "off-pace", "copied", "streaked")
 
 
 def camera_mode_columns(k: int) -> tuple[str, str]:

@@ -18,7 +18,14 @@ from .follow import ANCHOR_FRAMES, TipFollower
 from .rays import angle_covariances, angles_with_covariance
 from .spot import SpotFit
 
-__all__ = ["TrackRows", "drop_tip", "empty_angle_row", "marker_row", "unwrap_nan", "with_flag"]
+__all__ = ["TrackRows", "drop_tip", "empty_angle_row", "marker_row", "unwrap_nan", "with_flag", "streak_caveat",
+           "STREAK_RADII"]
+
+#: a tip that moves more than this many of its image radii during an exposure is a streak, which the round spot fit
+#: does not describe (on six 30 frames/s renders at 17-30 ms exposures its errors held on the whole up to 2 radii of
+#: travel and were too small by 1.2-1.7 beyond, but every frame beyond 5 sigma had moved 1.25 radii or more; the
+#: speed is only estimated, see :meth:`TrackRows.flag_streaks`)
+STREAK_RADII = 1.0
 
 
 def empty_angle_row(index: int, t_s: float, quality: str) -> tuple:
@@ -59,11 +66,15 @@ class TrackRows:
         #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
         self.others: tuple | None = ()
         self.recent, self.alike = RecentPictures(), []  # the last frames; rows alike (a codec's copies: module copies)
+        self.tip_radius_px = math.nan  # the tip's expected image radius
+        #: the frames flagged ``streaked`` by :meth:`flag_streaks`, the most the tip moved during an exposure [px]
+        self.streaked: tuple[int, float] = (0, 0.0)
 
     def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
         located = follower.locate(frame, threshold, self.others)
+        self.tip_radius_px = follower.r_expected
         self.others = () if dots is None else None
         for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
             # an acquisition, or the tip followed back: the frames before get the tip's positions back
@@ -130,7 +141,34 @@ class TrackRows:
         markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS)).sort_values("frame", kind="stable")
         markers = markers.reset_index(drop=True)
         self.widen_copies(angles, markers, camera, tip)
+        self.streaked = self.flag_streaks(angles, markers, camera.exposure_s, camera.fps, tip.name)
         return angles, markers
+
+    def flag_streaks(self, angles: pd.DataFrame, markers: pd.DataFrame, exposure_s: float, fps: float,
+                     tip_name: str) -> tuple[int, float]:
+        """The frames whose tip may have moved more than :data:`STREAK_RADII` of its image radii during the exposure
+        flagged ``streaked``: ``(how many, the most the tip moved during an exposure [px])``.  Its speed is the mean
+        of its chords to the frames either side tracked within 2.5 frame intervals: where the frame rate is low for
+        the motion, an overestimate near a turn (a central difference would miss a tip turning fast between them, a
+        streak of twice its radius taken for one of its radius).  Their errors stay the round fit's own."""
+        rows = np.array(sorted(self.tip_px), int)
+        if not exposure_s > 0 or rows.size < 2 or not self.tip_radius_px > 0:
+            return 0, 0.0
+        t = angles.t_s.to_numpy()[rows]
+        gap = np.diff(t)
+        near = (gap > 0) & (gap <= 2.5 / fps)
+        p = np.array([self.tip_px[r] for r in rows])
+        chord = np.where(near, np.hypot(*np.diff(p, axis=0).T) / np.where(near, gap, 1.0), 0.0)
+        speeds = np.zeros((rows.size, 2))
+        speeds[1:, 0], speeds[:-1, 1] = chord, chord
+        seen = np.zeros((rows.size, 2), bool)
+        seen[1:, 0], seen[:-1, 1] = near, near
+        travel = speeds.sum(axis=1) / np.maximum(seen.sum(axis=1), 1) * exposure_s
+        streaked = rows[travel > STREAK_RADII * self.tip_radius_px]
+        angles.loc[streaked, "quality"] = angles.quality[streaked].map(lambda q: with_flag(q, "streaked"))
+        sel = (markers.marker == tip_name) & markers.frame.isin(angles.frame.to_numpy()[streaked])
+        markers.loc[sel, "quality"] = markers.quality[sel].map(lambda q: with_flag(q, "streaked"))
+        return int(streaked.size), float(travel.max())
 
     def widen_copies(self, angles: pd.DataFrame, markers: pd.DataFrame, camera: Camera, tip: Marker) -> None:
         """The frames whose tip's pixels a codec copied (:mod:`gyrorig.tracking.copies`): the tip's motion over each
@@ -178,3 +216,17 @@ def drop_tip(rows: "TrackRows", angles: pd.DataFrame, markers: pd.DataFrame, pos
     for r in positions:
         rows.tip_px.pop(int(r), None)
         rows.tip_cov.pop(int(r), None)
+
+
+def streak_caveat(rows: TrackRows, exposure_s: float) -> str:
+    """What the frames flagged ``streaked`` (:meth:`TrackRows.flag_streaks`) mean, and the exposure that would keep
+    the tip a disc; '' when there are none."""
+    n, most = rows.streaked
+    if not n:
+        return ""
+    radius = rows.tip_radius_px
+    shorter = exposure_s * STREAK_RADII * radius / most
+    return (f"the tip moves up to {most:.1f} px ({most / radius:.1f} of its image radii) during an exposure of "
+            f"{exposure_s * 1e3:.3g} ms: in {n} frames it may be a streak, which the round spot fit does not describe "
+            f"(flagged streaked; their error bars may be too small); an exposure of {shorter * 1e3:.2g} ms or less "
+            "keeps it a disc")

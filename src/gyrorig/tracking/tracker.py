@@ -49,7 +49,7 @@ from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
-from .rows import TrackRows, drop_tip, empty_angle_row
+from .rows import TrackRows, drop_tip, empty_angle_row, streak_caveat
 from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
@@ -302,6 +302,14 @@ def _said(source, problem: str) -> tuple[str, ...]:
     return (problem,)
 
 
+def _caveats(source, appearance: MarkerImage, tip: Marker, frame_types: dict, lossy: bool, rows: TrackRows,
+             exposure_s: float) -> tuple[str, ...]:
+    """What the record's error bars may not hold, warned about: a coloured marker's drift in a lossy file, a tip
+    streaked by its motion during the exposure."""
+    drift = appearance.drift_caveat(tip, frame_types.values()) if lossy else ""
+    return _said(source, drift) + _said(source, streak_caveat(rows, exposure_s))
+
+
 def _rounded(values) -> str:
     """Numbers as ``(a, b, ...)`` to two decimals, for a message."""
     return "(" + ", ".join(f"{v:.2f}" for v in values) + ")"
@@ -444,7 +452,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     source_problems = _source_problems(frames, k, source, rows, angles, markers)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
-    source_problems += _said(source, appearance.drift_caveat(tip, frame_types.values()) if lossy else "")
+    source_problems += _caveats(source, appearance, tip, frame_types, lossy, rows, camera.exposure_s)
     if not angles.theta_rad.notna().any():
         raise _never_found(follower, source, k)
     again, said = judged_fields(frames, camera, angles.frame.to_numpy(), rows.tip_px, rows.tip_cov, source)
