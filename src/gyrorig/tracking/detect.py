@@ -94,7 +94,7 @@ def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_
             _components(values, own & (near == 0), x0 + bx, y0 + by, min_radius_px, out, split_above, max_radius_px,
                         cut)
             continue
-        blob = np.pad(own.astype(np.uint8), 1)
+        blob = cv2.copyMakeBorder(own.astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
         dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
         iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
         radius = float(dist[iy, ix]) + 0.5

@@ -30,7 +30,7 @@ from numba import njit
 from ..camera import Camera
 from . import ellipse, spot
 from .sandwich import _projected_meat, sandwich_covariance
-from .spot import SpotFit, fit_spot, spot_window
+from .spot import SpotFit, fit_spot, window_levels
 
 __all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX"]
 
@@ -189,30 +189,55 @@ def _sector_effects(xs, ys, cx, cy, jac, weight, coverage):
     return v
 
 
-def _fitted_bins(sol: "_Solution") -> np.ndarray:
-    """Which angular bins about the fitted centre hold fitted pixels (the others' sectors were left out)."""
-    angles = np.arctan2(sol.ys - sol.p[1], sol.xs - sol.p[0])
-    bins = ((angles + math.pi) / (2 * math.pi) * ANGLE_BINS).astype(np.int64) % ANGLE_BINS
-    return np.bincount(bins, minlength=ANGLE_BINS) > 0
+@njit(cache=True)
+def _fitted_bins(xs, ys, cx, cy):
+    """Which angular bins about ``(cx, cy)`` hold fitted pixels (at ``xs, ys``; the others' sectors were left out)."""
+    out = np.zeros(ANGLE_BINS, np.bool_)
+    for k in range(xs.size):
+        out[_bin_of(xs[k] - cx, ys[k] - cy)] = True
+    return out
 
 
-def _scene_covariance(sol: "_Solution", fisher_inv: np.ndarray, kept: np.ndarray) -> np.ndarray:
-    """What the scene behind the disc's edge, unseen, may do to the parameters: the ring stands in for it, but
+@njit(cache=True)
+def _scene_covariance(p, xs, ys, jac, weight, coverage, bins, fisher_inv, kept):
+    """What the scene behind the disc's edge, unseen, may do to the parameters ``p``: the ring stands in for it, but
     the edge lies ``3 sigma + 1`` px further in.  Taking the scene's texture as isotropic, it changes over that
     distance as much as it does along the ring over the same arc: the ring's structure function at that lag
-    (mean square difference of bins that far apart) is the variance of each bin's error, independent from bin to
+    (mean square difference of ``bins`` that far apart) is the variance of each bin's error, independent from bin to
     bin, and it reaches the fit through the pixels it lies behind (``(1 - c)`` of each, by their Jacobian rows).
     Only the ``kept`` bins enter the structure function (a dark object's edge, whose sectors are left out of the fit,
     is not the scene behind the pixels fitted)."""
-    p = sol.p
     gap = RING_GAP_SIGMAS * p[4]
     arc = 2 * math.pi * (p[2] + gap + RING_WIDTH_PX / 2) / ANGLE_BINS
-    lag = max(1, int(round((gap + 1.0) / arc)))
-    v = _sector_effects(sol.xs, sol.ys, p[0], p[1], sol.jac, sol.weight, sol.coverage)
-    pairs = kept & np.roll(kept, lag)
-    squares = (np.roll(sol.bins, lag) - sol.bins) ** 2
-    var_bin = float(np.mean(squares[pairs] if pairs.any() else squares))
-    return fisher_inv @ (var_bin * v.T @ v) @ fisher_inv
+    lag = max(1, int(np.round((gap + 1.0) / arc)))
+    v = _sector_effects(xs, ys, p[0], p[1], jac, weight, coverage)
+    kept_sum, kept_n, all_sum = 0.0, 0, 0.0
+    for b in range(ANGLE_BINS):
+        a = (b - lag) % ANGLE_BINS  # the bin ``lag`` before
+        square = (bins[a] - bins[b]) ** 2
+        all_sum += square
+        if kept[a] and kept[b]:
+            kept_sum += square
+            kept_n += 1
+    var_bin = kept_sum / kept_n if kept_n else all_sum / ANGLE_BINS
+    return fisher_inv @ (var_bin * (v.T @ v)) @ fisher_inv
+
+
+@njit(cache=True)
+def _centre_errors(win, x_first, y_first, p, pick, xs, ys, weight, jac, resid, fisher, bins, coverage, kept, top):
+    """A converged fit's centre covariance (2, 2) and reduced chi-square: the sandwich of its residuals
+    (:func:`sandwich_covariance`), the scene behind its edge (:func:`_scene_covariance`) and its edge's roughness
+    (:func:`_edge_roughness`); ``ok`` False when the edge has too few points (the Fisher matrix's inverse raises
+    ``LinAlgError`` when singular)."""
+    finv = np.linalg.inv(fisher)
+    rough = _edge_roughness(win, p[0] - x_first, p[1] - y_first, p, bins, kept, top)
+    if not math.isfinite(rough):
+        return False, np.zeros((2, 2)), math.nan
+    cov = (_projected_meat(pick, win.shape, jac, weight, resid, np.ascontiguousarray(finv[:2]))
+           + _scene_covariance(p, xs, ys, jac, weight, coverage, bins, finv, kept)[:2, :2])
+    cov[0, 0] += rough
+    cov[1, 1] += rough
+    return True, cov, float(np.sum(resid ** 2 * weight)) / max(pick.size - 5, 1)
 
 
 @dataclass
@@ -390,22 +415,24 @@ def _harmonic_power(radii):
     return 2.0 * max(explained, 0.0) / ((m - 3) * n)
 
 
-def _edge_roughness(win: np.ndarray, xx: np.ndarray, yy: np.ndarray, sol: "_Solution", kept: np.ndarray,
-                    top: float = math.inf) -> float:
-    """The variance [px^2] per axis of the centre that the edge's own departures from a circle imply: the edge
-    points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a shift of the centre and is
-    therefore absorbed by the fit; its unseen power is taken as the mean power per coefficient of harmonics
-    2 to :data:`EDGE_HARMONICS`.  Noise independent from bin to bin gives ``2 var / bins`` (what the pixels' own
-    covariance already holds); a bump of another spot's light merged with the edge, a bulge of texture under it
-    or something in front of the disc spread over neighbouring harmonics and give what they shift the centre by.
-    NaN when fewer than half the bins have an edge point.
+@njit(cache=True)
+def _edge_roughness(win, cx, cy, p, bins, kept, top):
+    """The variance [px^2] per axis of the centre (at the window's point ``(cx, cy)``) that the edge's own departures
+    from a circle imply: the edge points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a
+    shift of the centre and is therefore absorbed by the fit; its unseen power is taken as the mean power per
+    coefficient of harmonics 2 to :data:`EDGE_HARMONICS`.  Noise independent from bin to bin gives ``2 var / bins``
+    (what the pixels' own covariance already holds); a bump of another spot's light merged with the edge, a bulge of
+    texture under it or something in front of the disc spread over neighbouring harmonics and give what they shift the
+    centre by.  NaN when fewer than half the bins have an edge point.
 
     Only the ``kept`` bins have an edge point (a dark object's edge, whose sectors are left out of the fit, would
     bend it; another spot's light merged with the edge is what this looks for).  A saturated marker's edge is where
     the image falls half-way from full scale ``top``, its level as far as it is seen."""
-    x0, y0 = float(xx[0, 0]), float(yy[0, 0])
-    radii = _edge_radii(win, sol.p[0] - x0, sol.p[1] - y0, sol.p[2], sol.p[4], min(sol.p[3], top), sol.bins)
-    return _harmonic_power(np.where(kept, radii, np.nan))
+    radii = _edge_radii(win, cx, cy, p[2], p[4], min(p[3], top), bins)
+    for b in range(ANGLE_BINS):
+        if not kept[b]:
+            radii[b] = np.nan
+    return _harmonic_power(radii)
 
 
 @njit(cache=True)
@@ -459,14 +486,15 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
     return converged, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
 
 
-def _solve(win, xx, yy, allowed, p, r0: float, sigma: float, sigma_max: float, iterations: int,
-           top: float = math.inf) -> _Solution | None:
-    """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring, the ring taken
+def _solve(win, x_first: float, y_first: float, allowed, p, r0: float, sigma: float, sigma_max: float,
+           iterations: int, top: float = math.inf) -> _Solution | None:
+    """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring (the window's first
+    column and row at ``x_first, y_first``), the ring taken
     again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  None when
     a ring bin is empty, a step cannot be solved or kept in range, or the iterations do not converge.  Pixels at
     ``top`` are censored (:func:`_pass`)."""
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
-        win, float(xx[0, 0]), float(yy[0, 0]), np.ascontiguousarray(allowed), np.asarray(p, np.float64), float(r0),
+        win, float(x_first), float(y_first), np.ascontiguousarray(allowed), np.asarray(p, np.float64), float(r0),
         float(sigma), float(sigma_max), int(iterations), float(top))
     if not ok:
         return None
@@ -499,32 +527,33 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     sigma = cam.psf_sigma_px
     sigma_max = MAX_BLUR * sigma + 1.0
     half = int(math.ceil(1.3 * r0 + RING_GAP_SIGMAS * sigma_max + RING_WIDTH_PX + 2))
-    window = spot_window(image, x0, y0, half, cam)
+    window = window_levels(image, x0, y0, half)
     if window is None:
         return None
-    win, xx, yy, saturated, _, background, amplitude = window
-    top = float(cam.max_adu) if saturated.any() else math.inf
+    win, x_first, y_first, _, background, amplitude = window
+    x_first, y_first = float(x_first), float(y_first)
+    saturated = bool(win.max() >= cam.max_adu)
+    top = float(cam.max_adu) if saturated else math.inf
     allowed = np.ones(win.shape, np.bool_)
-    x_first, y_first = float(xx[0, 0]), float(yy[0, 0])
     ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + RING_GAP_SIGMAS * sigma_max, allowed)
     dark = _foreign_bins(bins, background + amplitude, -1.0) if ok else np.zeros(ANGLE_BINS, np.bool_)
     if dark.any():  # a dark object's edge within the widest ring: its sectors are left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, dark)
     start = np.array([x0, y0, r0, background + amplitude, sigma])
-    sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations, top)
+    sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top)
     bright = _foreign_bins(bins, background + amplitude) if ok and sol is None else np.zeros(ANGLE_BINS, np.bool_)
     if bright.any():  # another light within the widest ring (a hand beside the tip) pulled the fit away: left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, bright)
-        sol = _solve(win, xx, yy, allowed, start, r0, sigma, sigma_max, iterations, top)
+        sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top)
         if sol is not None and _joined(win, x_first, y_first, sol, bright, top):
             return None
     if sol is None:
         return None
-    kept = _fitted_bins(sol)  # all but a dark object's sectors
+    kept = _fitted_bins(sol.xs, sol.ys, sol.p[0], sol.p[1])  # all but a dark object's sectors
     foreign = _foreign_bins(sol.bins, min(sol.p[3], top))
     if foreign.any():  # another spot's light on the ring: its sectors (and one bin either side) are left out
         allowed = _without_sectors(allowed, x_first, y_first, sol.p[0], sol.p[1], foreign)
-        sol = _solve(win, xx, yy, allowed, sol.p, r0, sigma, sigma_max, iterations, top)
+        sol = _solve(win, x_first, y_first, allowed, sol.p, r0, sigma, sigma_max, iterations, top)
         if sol is None:
             return None
     p, n_used = sol.p, sol.pick.size
@@ -534,19 +563,15 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     contrast = min(p[3], top) - background  # a saturated marker's: as far as it is seen
     if contrast <= 0:
         return None
-    blended = bool(foreign.any())
     try:
-        finv = np.linalg.inv(sol.fisher)
+        ok, cov, chi2 = _centre_errors(win, x_first, y_first, p, sol.pick, sol.xs, sol.ys, sol.weight, sol.jac,
+                                       sol.resid, sol.fisher, sol.bins, sol.coverage, kept, top)
     except np.linalg.LinAlgError:
         return None
-    rough = _edge_roughness(win, xx, yy, sol, kept, top)
-    if not math.isfinite(rough):
+    if not ok:
         return None
-    cov = (sandwich_covariance(sol.pick, win.shape, sol.jac, sol.weight, sol.resid, finv, parameters=2)
-           + _scene_covariance(sol, finv, kept)[:2, :2] + rough * np.eye(2))
-    chi2 = float(np.sum(sol.resid ** 2 * sol.weight)) / max(n_used - 5, 1)
     return SpotFit(float(p[0]), float(p[1]), float(p[2]), contrast, background, cov, chi2,
-                   bool(saturated.any()), True, blended, chi2_own=chi2)
+                   saturated, True, bool(foreign.any()), chi2_own=chi2)
 
 
 def fit_round_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, *,
@@ -572,6 +597,5 @@ def warm_up() -> None:
     _foreign_bins(bins, float(p[3]))
     _median(bins)
     _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))
-    _harmonic_power(_edge_radii(win, float(p[0]), float(p[1]), float(p[2]), float(p[4]), float(p[3]), bins))
-    _projected_meat(pick, win.shape, jac, weight, resid, np.eye(5)[:2].copy())
-    _sector_effects(xs, ys, float(p[0]), float(p[1]), jac, weight, cover)
+    kept = _fitted_bins(xs, ys, float(p[0]), float(p[1]))
+    _centre_errors(win, 0.0, 0.0, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover, kept, math.inf)

@@ -190,7 +190,7 @@ def _neighbour_start(win, xx, yy, p, foreign) -> np.ndarray:
     """Start values of a joint fit with the neighbouring spot whose light makes up ``foreign``."""
     n_lbl, labels, stats, _ = cv2.connectedComponentsWithStats(foreign.astype(np.uint8), connectivity=8)
     big = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    blob = np.pad((labels == big).astype(np.uint8), 1)
+    blob = cv2.copyMakeBorder((labels == big).astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     dist = cv2.distanceTransform(blob, cv2.DIST_L2, 5)
     iy, ix = np.unravel_index(int(np.argmax(dist)), dist.shape)
     # the neighbour's visible part is a cap; start it a little beyond its inscribed circle
@@ -204,18 +204,28 @@ def spot_window(image: np.ndarray, x0: float, y0: float, half: int, cam: Camera)
     saturated pixels, the border pixels, the background (their median) and the amplitude (99th percentile above
     it): ``(win, xx, yy, saturated, border, background, amplitude)``; None when the window leaves the image or
     holds no light above the background."""
+    window = window_levels(image, x0, y0, half)
+    if window is None:
+        return None
+    win, x_first, y_first, border, bg, amp = window
+    yy, xx = np.mgrid[y_first:y_first + win.shape[0], x_first:x_first + win.shape[1]].astype(np.float64)
+    return win, xx, yy, win >= cam.max_adu, border, bg, amp
+
+
+def window_levels(image: np.ndarray, x0: float, y0: float, half: int):
+    """:func:`spot_window` without the pixel coordinates and saturated pixels: ``(win, x_first, y_first, border,
+    background, amplitude)``, ``x_first, y_first`` the window's first column and row; None as there."""
     xi, yi = int(round(x0)), int(round(y0))
     h, w = image.shape
     if xi - half < 0 or yi - half < 0 or xi + half >= w or yi + half >= h:
         return None
     win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
-    yy, xx = np.mgrid[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
     border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
     bg, top = _levels(border, win)
     amp = top - bg
     if amp <= 0:
         return None
-    return win, xx, yy, win >= cam.max_adu, border, bg, amp
+    return win, xi - half, yi - half, border, bg, amp
 
 
 @njit(cache=True)
