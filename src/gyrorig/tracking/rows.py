@@ -141,7 +141,6 @@ class TrackRows:
         markers = pd.DataFrame(self.markers, columns=list(MARKER_COLUMNS)).sort_values("frame", kind="stable")
         markers = markers.reset_index(drop=True)
         self.widen_copies(angles, markers, camera, tip)
-        self.streaked = self.flag_streaks(angles, markers, camera.exposure_s, camera.fps, tip.name)
         return angles, markers
 
     def flag_streaks(self, angles: pd.DataFrame, markers: pd.DataFrame, exposure_s: float, fps: float,

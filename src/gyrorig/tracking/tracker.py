@@ -303,11 +303,13 @@ def _said(source, problem: str) -> tuple[str, ...]:
 
 
 def _caveats(source, appearance: MarkerImage, tip: Marker, frame_types: dict, lossy: bool, rows: TrackRows,
-             exposure_s: float) -> tuple[str, ...]:
+             camera: Camera, angles: pd.DataFrame, markers: pd.DataFrame) -> tuple[str, ...]:
     """What the record's error bars may not hold, warned about: a coloured marker's drift in a lossy file, a tip
-    streaked by its motion during the exposure."""
+    streaked by its motion during the exposure (those frames flagged, :meth:`TrackRows.flag_streaks`, once their
+    times are the capture's and the record's outliers are out)."""
     drift = appearance.drift_caveat(tip, frame_types.values()) if lossy else ""
-    return _said(source, drift) + _said(source, streak_caveat(rows, exposure_s))
+    rows.streaked = rows.flag_streaks(angles, markers, camera.exposure_s, camera.fps, tip.name)
+    return _said(source, drift) + _said(source, streak_caveat(rows, camera.exposure_s))
 
 
 def _rounded(values) -> str:
@@ -452,7 +454,6 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     source_problems = _source_problems(frames, k, source, rows, angles, markers)
     if frame_types:
         angles["frame_type"] = angles.frame.map(frame_types).fillna("")
-    source_problems += _caveats(source, appearance, tip, frame_types, lossy, rows, camera.exposure_s)
     if not angles.theta_rad.notna().any():
         raise _never_found(follower, source, k)
     again, said = judged_fields(frames, camera, angles.frame.to_numpy(), rows.tip_px, rows.tip_cov, source)
@@ -464,6 +465,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     check = _check_and_scale(angles, markers, rows, appearance.doubts(camera, lossy, follower.shape, tip), lossy,
                              tip.name, camera, tip.position_m[2], MAX_SIGMA_RADII * follower.r_expected)
     source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source) + said
+    source_problems += _caveats(source, appearance, tip, frame_types, lossy, rows, camera, angles, markers)
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
     camera_sigma = add_camera_modes(angles, rows.tip_px, camera, tip.position_m[2],
                                      pose_info or camera.pose_points, own_pose)
