@@ -22,9 +22,7 @@ __all__ = ["TrackRows", "drop_tip", "empty_angle_row", "marker_row", "unwrap_nan
            "STREAK_RADII"]
 
 #: a tip that moves more than this many of its image radii during an exposure is a streak, which the round spot fit
-#: does not describe (on six 30 frames/s renders at 17-30 ms exposures its errors held on the whole up to 2 radii of
-#: travel and were too small by 1.2-1.7 beyond, but every frame beyond 5 sigma had moved 1.25 radii or more; the
-#: speed is only estimated, see :meth:`TrackRows.flag_streaks`)
+#: does not describe (its error bars may be too small there: docs/recordings.md, "Streaks")
 STREAK_RADII = 1.0
 
 
@@ -53,9 +51,10 @@ def unwrap_nan(phi: np.ndarray) -> np.ndarray:
 
 
 class TrackRows:
-    """Rows of the angle and marker tables as the loop produces them."""
+    """Rows of the angle and marker tables as the loop produces them, for a tip of ``tip_radius_px`` (its expected
+    image radius)."""
 
-    def __init__(self):
+    def __init__(self, tip_radius_px: float = math.nan):
         self.angles: list[tuple] = []
         self.markers: list[tuple] = []
         self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
@@ -66,15 +65,12 @@ class TrackRows:
         #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
         self.others: tuple | None = ()
         self.recent, self.alike = RecentPictures(), []  # the last frames; rows alike (a codec's copies: module copies)
-        self.tip_radius_px = math.nan  # the tip's expected image radius
-        #: the frames flagged ``streaked`` by :meth:`flag_streaks`, the most the tip moved during an exposure [px]
-        self.streaked: tuple[int, float] = (0, 0.0)
+        self.tip_radius_px = tip_radius_px
 
     def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
         located = follower.locate(frame, threshold, self.others)
-        self.tip_radius_px = follower.r_expected
         self.others = () if dots is None else None
         for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
             # an acquisition, or the tip followed back: the frames before get the tip's positions back
@@ -148,8 +144,8 @@ class TrackRows:
         """The frames whose tip may have moved more than :data:`STREAK_RADII` of its image radii during the exposure
         flagged ``streaked``: ``(how many, the most the tip moved during an exposure [px])``.  Its speed is the mean
         of its chords to the frames either side tracked within 2.5 frame intervals: where the frame rate is low for
-        the motion, an overestimate near a turn (a central difference would miss a tip turning fast between them, a
-        streak of twice its radius taken for one of its radius).  Their errors stay the round fit's own."""
+        the motion, an overestimate near a turn, where a central difference would be an underestimate of a tip that
+        turns between its neighbours.  Their errors stay the round fit's own."""
         rows = np.array(sorted(self.tip_px), int)
         if not exposure_s > 0 or rows.size < 2 or not self.tip_radius_px > 0:
             return 0, 0.0
@@ -217,13 +213,12 @@ def drop_tip(rows: "TrackRows", angles: pd.DataFrame, markers: pd.DataFrame, pos
         rows.tip_cov.pop(int(r), None)
 
 
-def streak_caveat(rows: TrackRows, exposure_s: float) -> str:
-    """What the frames flagged ``streaked`` (:meth:`TrackRows.flag_streaks`) mean, and the exposure that would keep
-    the tip a disc; '' when there are none."""
-    n, most = rows.streaked
+def streak_caveat(n: int, most: float, radius: float, exposure_s: float) -> str:
+    """What ``n`` frames flagged ``streaked`` (:meth:`TrackRows.flag_streaks`; the tip moving up to ``most`` px
+    during an exposure of ``exposure_s``, its image radius ``radius`` px) mean, and the exposure that would keep it a
+    disc; '' when there are none."""
     if not n:
         return ""
-    radius = rows.tip_radius_px
     shorter = exposure_s * STREAK_RADII * radius / most
     return (f"the tip moves up to {most:.1f} px ({most / radius:.1f} of its image radii) during an exposure of "
             f"{exposure_s * 1e3:.3g} ms: in {n} frames it may be a streak, which the round spot fit does not describe "

@@ -308,8 +308,8 @@ def _caveats(source, appearance: MarkerImage, tip: Marker, frame_types: dict, lo
     streaked by its motion during the exposure (those frames flagged, :meth:`TrackRows.flag_streaks`, once their
     times are the capture's and the record's outliers are out)."""
     drift = appearance.drift_caveat(tip, frame_types.values()) if lossy else ""
-    rows.streaked = rows.flag_streaks(angles, markers, camera.exposure_s, camera.fps, tip.name)
-    return _said(source, drift) + _said(source, streak_caveat(rows, camera.exposure_s))
+    streaks = rows.flag_streaks(angles, markers, camera.exposure_s, camera.fps, tip.name)
+    return _said(source, drift) + _said(source, streak_caveat(*streaks, rows.tip_radius_px, camera.exposure_s))
 
 
 def _rounded(values) -> str:
@@ -410,7 +410,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
         scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
-        rows = TrackRows()
+        rows = TrackRows(follower.r_expected)
         frame_types: dict[int, str] = {}  # frame number -> picture type (video files)
         prev_hash = None
         clock = FrameClock(camera.fps, time_scale, source)
