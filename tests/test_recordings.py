@@ -1294,6 +1294,28 @@ def test_ten_bit_colour_video_is_read_at_its_depth(tmp_path, codec, pix_fmt):
     assert marked[10:20, 20:30].min() > 0.5 * camera.max_adu > marked[:, :18].max()
 
 
+@pytest.mark.parametrize("colour, polarity, bits, rgb", [("any", "bright", 8, False), ("any", "bright", 10, False),
+                                                         ("any", "dark", 8, False), ("red", "bright", 8, True),
+                                                         ("any", "bright", 8, True)])
+def test_the_tracker_reads_a_frame_part_by_part_as_it_would_whole(colour, polarity, bits, rgb):
+    """The tracker maps only the parts of a frame it reads (``MarkerImage.lazy``): each part, strided or at the
+    frame's edge, must be the whole frame's image there, pixel for pixel, for every kind of image."""
+    rng = np.random.default_rng(3)
+    top = 2 ** bits - 1
+    frame = rng.integers(0, top + 1, (40, 56, 3) if rgb else (40, 56)).astype(np.uint8 if bits == 8 else np.uint16)
+    tip = parse_markers({"tip": {"body": "frame", "position_m": [0, 0, 0.1], "radius_m": 0.003,
+                                 "colour": colour, "polarity": polarity}}).tip()
+    camera = _camera(size=(56, 40)).with_sensor(bit_depth=bits, gamma=2.2)
+    image = MarkerImage(tip, camera, (16 * 2 ** (bits - 8), 235 * 2 ** (bits - 8)), rgb=rgb)
+    whole = image(frame)
+    for key in [np.s_[3:17, 5:29], np.s_[0:40, 50:56], np.s_[12:30, ::8], np.s_[35:45, 0:3], np.s_[7:7, 1:9]]:
+        lazy = image.lazy(frame)
+        np.testing.assert_array_equal(np.asarray(lazy[key], float), whole[key].astype(float))
+    lazy = image.lazy(frame)
+    np.testing.assert_array_equal(np.asarray(lazy), whole)
+    assert lazy[4, 9] == whole[4, 9]
+
+
 def _encode(path, codec: str, pix_fmt: str, rgb: np.ndarray, options=None, trc: int | None = None) -> None:
     with av.open(str(path), "w") as container:
         stream = container.add_stream(codec, rate=Fraction(25))

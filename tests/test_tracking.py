@@ -110,6 +110,28 @@ def test_duplicate_frames_and_a_spurious_spot(tmp_path):
     assert np.abs(m.theta_rad - m.theta_rad_true).max() < 6 * m.theta_sigma_rad.max()
 
 
+def test_a_frame_changed_in_a_few_pixels_is_not_a_duplicate(tmp_path):
+    """A still scene coded without noise repeats most pixels exactly; a frame that differs from the one before only
+    where something small moved is a new picture, wherever the change lies."""
+    p = parse_protocol(scene())
+    render_video(p, tmp_path / "v", seed=1, calibration_views=0)
+    frames = gray_frames(tmp_path / "v" / "video.mkv")
+    changed = frames[30].copy()
+    changed[101:104, 201:204] ^= 1  # 9 pixels, none on the grid of every 7th row and column
+    frames.insert(31, changed)
+    frames.insert(32, changed.copy())  # ... and a true repeat after it
+    w = cv2.VideoWriter(str(tmp_path / "edited.mkv"), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"FFV1"), 200.0,
+                        (640, 480), [cv2.VIDEOWRITER_PROP_IS_COLOR, 0])
+    for f in frames:
+        w.write(f)
+    w.release()
+    track_video(tmp_path / "edited.mkv", load_camera(tmp_path / "v" / "camera.json"), p, tmp_path / "t")
+    a = pd.read_csv(tmp_path / "t" / "angles.csv")
+    assert a.quality.iloc[31] != "duplicate"
+    assert a.quality.iloc[32] == "duplicate"
+    assert (a.quality == "duplicate").sum() == 1
+
+
 def test_dropped_frames_are_gaps_at_the_container_timestamps(tmp_path):
     """A camera that drops frames writes a container whose timestamps jump; OpenCV's writer
     cannot make one, so PyAV (FFmpeg's Python binding) writes it here, keeping each frame's

@@ -29,7 +29,7 @@ from ..markers import Marker
 from ..camera import Camera
 from .transfer import TRANSFERS, linear_level
 
-__all__ = ["MarkerImage", "lab_marker_image"]
+__all__ = ["MarkerImage", "MappedFrame", "decoded_pixels", "lab_marker_image"]
 
 _CHANNEL = {"red": 0, "green": 1, "blue": 2}
 #: BT.709's luma weights of R', G', B' (as a 1 x 3 matrix for ``cv2.transform``)
@@ -89,6 +89,13 @@ class MarkerImage:
                 "the record's check cannot see, and the error bars may be too small (most at a low bit rate); a "
                 "white or retroreflective tip is tracked from the full-resolution brightness")
 
+    def lazy(self, frame: np.ndarray) -> "MappedFrame | np.ndarray":
+        """The tracker's image of a decoded frame, mapped where it is read (:class:`MappedFrame`); the frame itself
+        when the image is the decoded frame (a linear sensor's luma on the full scale)."""
+        if not (self.rgb or self.colour or self.dark) and self._linear is None:
+            return frame
+        return MappedFrame(frame, self)
+
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         if self.rgb and not self.colour:
             frame = cv2.transform(frame, _LUMA)
@@ -98,6 +105,51 @@ class MarkerImage:
         if self.dark:
             image = (self.top if not self.colour else 0.0) - np.asarray(image, np.float32)
         return image
+
+
+class MappedFrame:
+    """A decoded frame (``decoded``) seen as the tracker's image (``shape`` its rows and columns): a part read
+    by slicing (``image[y0:y1, x0:x1]``, steps allowed) is mapped alone, so a frame of which the tracker reads a few
+    windows is never mapped whole; any other read (an index, ``np.asarray``) maps the whole frame once and keeps it.
+    Each pixel's value is the same either way: the map is pixel by pixel."""
+
+    __slots__ = ("decoded", "_map", "_whole")
+    ndim = 2
+
+    def __init__(self, decoded: np.ndarray, mapping: Callable[[np.ndarray], np.ndarray]):
+        self.decoded = decoded
+        self._map = mapping
+        self._whole: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.decoded.shape[:2]
+
+    def whole(self) -> np.ndarray:
+        """The whole frame's image (mapped once)."""
+        if self._whole is None:
+            self._whole = self._map(self.decoded)
+        return self._whole
+
+    def __getitem__(self, key):
+        if self._whole is not None or not (isinstance(key, tuple) and len(key) == 2
+                                           and all(isinstance(k, slice) for k in key)):
+            return self.whole()[key]
+        part = self.decoded[key]
+        if part.size == 0:
+            return np.zeros(part.shape[:2], np.float32)
+        return self._map(np.ascontiguousarray(part))
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        whole = self.whole()
+        if dtype is not None and np.dtype(dtype) != whole.dtype:
+            return whole.astype(dtype)
+        return whole.copy() if copy else whole
+
+
+def decoded_pixels(image: "MappedFrame | np.ndarray") -> np.ndarray:
+    """The decoded frame behind a tracker's image (:meth:`MarkerImage.lazy`)."""
+    return image.decoded if isinstance(image, MappedFrame) else image
 
 
 def lab_marker_image(lab: Sequence[Marker], tip: Marker, camera: Camera,

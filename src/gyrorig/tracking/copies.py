@@ -17,7 +17,9 @@ from collections import deque
 
 import numpy as np
 
-__all__ = ["RecentPictures", "copy_groups", "path_extent_px", "copy_extents", "COPY_FRAMES", "COPY_MARGIN_PX",
+from .appearance import decoded_pixels
+
+__all__ = ["RepeatedFrames", "RecentPictures", "copy_groups", "path_extent_px", "copy_extents", "COPY_FRAMES", "COPY_MARGIN_PX",
            "PATH_FRAMES"]
 
 #: how many frames back a copy is looked for (a codec's run of B pictures and the reference pictures around it)
@@ -28,6 +30,30 @@ COPY_MARGIN_PX = 4
 PATH_FRAMES = 3
 
 
+#: the frame's pixels compared first with the frame before's: every this many rows and columns (most frames differ
+#: there; only those that do not are compared whole)
+REPEAT_SAMPLE_STEP = (16, 7)
+
+
+class RepeatedFrames:
+    """Tells a decoded frame identical to the one before it (a repeated picture, as a rate conversion writes)."""
+
+    def __init__(self) -> None:
+        self._before: np.ndarray | None = None
+        self._sample = b""
+
+    def repeats(self, frame: np.ndarray) -> bool:
+        """Whether ``frame`` (decoded) holds exactly the pixels of the frame seen before it; it becomes that frame.
+        A sample of its pixels (:data:`REPEAT_SAMPLE_STEP`) is compared first and the whole frame where they agree;
+        a frame sharing the one before's memory (a source reusing its buffer) by the sample alone."""
+        rows, cols = REPEAT_SAMPLE_STEP
+        sample, before = frame[::rows, ::cols].tobytes(), self._before
+        same = (before is not None and sample == self._sample and before.shape == frame.shape
+                and (np.may_share_memory(before, frame) or np.array_equal(before, frame)))
+        self._before, self._sample = frame, sample
+        return same
+
+
 class RecentPictures:
     """The last :data:`COPY_FRAMES` frames seen, each with its angle table row (held, not copied: each decoded frame
     is an array of its own)."""
@@ -36,11 +62,12 @@ class RecentPictures:
         self._frames: deque[tuple[np.ndarray, int | None]] = deque(maxlen=COPY_FRAMES)
 
     def see(self, frame: np.ndarray, row: int | None, fit=None) -> set[int]:
-        """Take the next frame (its tip's fit in angle table row ``row``; None: no fit) and return the rows whose
-        frames hold the same pixels within the tip's radius plus :data:`COPY_MARGIN_PX` of the fit's centre as
+        """Take the next frame (the tracker's image or the decoded frame: the decoded pixels are compared; its tip's
+        fit in angle table row ``row``; None: no fit) and return the rows whose frames hold the same pixels within the tip's radius plus :data:`COPY_MARGIN_PX` of the fit's centre as
         this one, with this one's row; empty when none does.  A frame sharing this one's memory (a source reusing
         its buffer) is not compared."""
         same: set[int] = set()
+        frame = decoded_pixels(frame)
         if fit is not None:
             half = int(math.ceil(fit.radius_px)) + COPY_MARGIN_PX
             xi, yi = int(round(fit.x_px)), int(round(fit.y_px))

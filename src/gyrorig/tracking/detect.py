@@ -59,6 +59,7 @@ def opening_size_px(largest_radius_px: float, psf_sigma_px: float) -> int:
 def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
     """``image`` minus its grey-scale opening by a ``scale_px`` square (float32; 0 where nothing narrower
     than the square stands out)."""
+    image = np.asarray(image)
     img = image if image.dtype in (np.uint8, np.uint16, np.float32) else image.astype(np.float32)
     kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (scale_px, scale_px))
     opened = cv2.morphologyEx(img, cv2.MORPH_OPEN, kernel, borderType=cv2.BORDER_REPLICATE)

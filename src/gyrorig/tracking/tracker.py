@@ -49,6 +49,7 @@ from .dots import DotTracker
 from .errors import BadInputError, TrackingError
 from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
+from .copies import RepeatedFrames
 from .rows import TrackRows, drop_tip, empty_angle_row, streak_caveat
 from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
@@ -412,7 +413,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
         rows = TrackRows(follower.r_expected)
         frame_types: dict[int, str] = {}  # frame number -> picture type (video files)
-        prev_hash = None
+        repeated = RepeatedFrames()
         clock = FrameClock(camera.fps, time_scale, source)
         k = 0
         t_decode = t_track = 0.0  # t_decode: time spent waiting for decoded frames
@@ -428,14 +429,12 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
             index, t_frame = clock.number(t_frame, k)
             if frames.frame_types is not None:
                 frame_types[index] = frames.frame_types[k]
-            digest = hash(frame[::7, ::7].tobytes())
-            if digest == prev_hash:
+            if repeated.repeats(frame):
                 rows.angles.append(empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
                 rows.seen = []
                 k += 1
                 continue
-            prev_hash = digest
-            raw, frame = frame, appearance(frame)
+            raw, frame = frame, appearance.lazy(frame)
             if k % 100 == 0:  # the contrast's spread, refreshed every 100 frames (drifting light, moving scenes)
                 threshold = detection_threshold(frame, scale_px, floor=4.0 * camera.max_adu / 255.0)
             watch.observe(frame, k, index, raw)
