@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..camera import Camera
+from .appearance import MarkerImage
 from .rays import angles_with_covariance
 from .scatter import path_residuals
 from .scene_spot import fit_round_spot
@@ -40,8 +40,10 @@ __all__ = ["CameraWatch", "CameraMotion", "steady_angle_rows", "CHECK_EVERY", "M
 
 #: the fiducials are fitted in every this many frames (until they move; five fits cost about as much as the tip's)
 CHECK_EVERY = 8
-#: once the fiducials have moved this far [px] from where they were first seen, they are fitted in every frame
+#: once the fiducials have moved this far [px] from where they were first seen, and by this many of the move's
+#: errors (their fits' own, scaled by their scatter), they are fitted in every frame
 MIN_MOTION_PX = 0.3
+MOTION_SIGMAS = 4.0
 #: the camera is taken as held still when the picture's displacement, averaged over :data:`SMOOTH_CHECKS` checks, stays
 #: within this RMS over the record [px] (or 4 of that average's errors): below the tip's own errors on a phone's
 #: footage (0.1-0.3 px)
@@ -112,8 +114,8 @@ class CameraWatch:
     """Collects the fiducials' displacements while the record is tracked (module docstring)."""
 
     def __init__(self, camera: Camera, fiducials_px: list[tuple[float, float, float]],
-                 image: Callable[[np.ndarray], np.ndarray] | None = None):
-        """``image``: maps a decoded frame to the image the fiducials are fitted in, when that is not the tip's
+                 image: MarkerImage | None = None):
+        """``image``: the image the fiducials are fitted in, when that is not the tip's
         (:func:`gyrorig.tracking.appearance.lab_marker_image`); None: the tip's image serves."""
         margin = 10.0
         self.camera = camera
@@ -161,50 +163,32 @@ class CameraWatch:
             out.append((x, y, r, rx, ry, x + self.last[0] + a * rx - b * ry, y + self.last[1] + b * rx + a * ry))
         return out
 
-    def _moves(self, frame: np.ndarray, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
-        """Each fiducial found in ``frame`` (a part of the picture whose first pixel is ``origin`` [px]) near where it
-        is expected: (rx, ry, dx, dy, variance) rows, ``rx, ry`` its place about the fiducials' centre, ``dx, dy``
-        its displacement, ``variance`` its fit's per axis."""
+    def _moves(self, frame: np.ndarray) -> np.ndarray:
+        """Each fiducial found in ``frame`` near where it is expected: (rx, ry, dx, dy, variance) rows, ``rx, ry`` its
+        place about the fiducials' centre, ``dx, dy`` its displacement, ``variance`` its fit's per axis."""
         moves = []
-        ox, oy = origin
         for x, y, r, rx, ry, x0, y0 in self._starts():
-            fit = fit_round_spot(frame, x0 - ox, y0 - oy, r, self.camera)
-            if fit is not None:
-                fit = replace(fit, x_px=fit.x_px + ox, y_px=fit.y_px + oy)
+            fit = fit_round_spot(frame, x0, y0, r, self.camera)
             if (fit is None or not 0.6 * r <= fit.radius_px <= 1.6 * r
                     or math.hypot(fit.x_px - x0, fit.y_px - y0) > max(3.0, REACH_RADII * r)):
                 continue
             moves.append((rx, ry, fit.x_px - x, fit.y_px - y, max(float(np.trace(fit.cov_xy)) / 2, 1e-8)))
         return np.array(moves).reshape(-1, 5)
 
-    def _own_image(self, decoded: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
-        """The fiducials' own image over the part of the picture their fits can reach, and that part's first pixel:
-        ``2 (4 r + 10 sigma + 20)`` [px] about where each is looked for, over twice the widest window a spot fit
-        takes (``1.3 r + 7.5 sigma + 7`` in front of a scene, ``r + 4 sigma + 4`` with the sensor model; ``sigma``
-        the PSF's)."""
-        h, w = decoded.shape[:2]
-        starts = np.array([(x0, y0, r) for _x, _y, r, _rx, _ry, x0, y0 in self._starts()])
-        reach = 2 * (4.0 * starts[:, 2] + 10.0 * self.camera.psf_sigma_px + 20.0)
-        x0 = max(int(np.min(starts[:, 0] - reach)), 0)
-        y0 = max(int(np.min(starts[:, 1] - reach)), 0)
-        x1 = min(int(np.max(starts[:, 0] + reach)) + 1, w)
-        y1 = min(int(np.max(starts[:, 1] + reach)) + 1, h)
-        return self.image(decoded[y0:y1, x0:x1]), (x0, y0)
-
     def observe(self, frame: np.ndarray, count: int, index: int, decoded: np.ndarray | None = None) -> None:
         """Fit the fiducials in every :data:`CHECK_EVERY`-th frame (``count`` the frames seen before this one), and
-        in every frame once they have moved by :data:`MIN_MOTION_PX` from where they were first seen (a shaking
+        in every frame once they have moved by :data:`MIN_MOTION_PX` and :data:`MOTION_SIGMAS` of the move's errors from
+        where they were first seen (a shaking
         camera's displacement is then measured in each frame, not interpolated); ``index`` the frame's number;
         ``frame`` the tip's image, ``decoded`` the frame as decoded (for the fiducials' own image)."""
         if len(self.spots) < 2 or count % self.every:
             return
-        origin = (0, 0)  # where the image the fiducials are fitted in starts
         if self.image is not None and decoded is not None and self.own_image is not False:
-            own, origin = self._own_image(decoded)
+            own = self.image.lazy(decoded)  # mapped where the fits look
             if self.own_image is None:  # the first check: their own image, unless the tip's shows them better
-                self.own_image = _score(self._moves(own, origin)) >= _score(self._moves(frame))
-            frame, origin = (own, origin) if self.own_image else (frame, (0, 0))
-        m = self._moves(frame, origin)
+                self.own_image = _score(self._moves(own)) >= _score(self._moves(frame))
+            frame = own if self.own_image else frame
+        m = self._moves(frame)
         if len(self.variances) >= TURN_OUTLIER_SAMPLES:  # a fit far less sure than the fiducials' usual is not clean
             m = m[m[:, 4] <= MAX_SIGMA_RATIO ** 2 * float(np.median(self.variances))]
         self.variances.extend(m[:, 4].tolist())
@@ -220,8 +204,19 @@ class CameraWatch:
             self.turn, self.turn_fitted = (a, b), True
         first = self.samples[0]
         turned = self.lever * math.hypot(self.turn[0] - first[3], self.turn[1] - first[4])
-        if math.hypot(dx - first[1], dy - first[2]) + (turned if math.isfinite(turned) else 0.0) > MIN_MOTION_PX:
+        moved = math.hypot(dx - first[1], dy - first[2]) + (turned if math.isfinite(turned) else 0.0)
+        if moved > max(MIN_MOTION_PX, MOTION_SIGMAS * self._move_sd(first[7], cov)):
             self.every = 1
+
+    def _move_sd(self, before: np.ndarray, now: np.ndarray) -> float:
+        """The error of the move :meth:`observe` measures between two checks whose fits' covariances of ``(tx, ty, a,
+        b)`` are ``before`` and ``now``: the shift's per axis plus the turn's at the fiducials' distance (0 where a
+        check fitted no turn), scaled by the fiducials' scatter about the checks' fits so far where it exceeds their
+        fits' errors (:func:`_scatter_scale`)."""
+        both = before + now
+        turn = self.lever * math.sqrt((both[2, 2] + both[3, 3]) / 2)
+        sd = math.sqrt((both[0, 0] + both[1, 1]) / 2) + (turn if math.isfinite(turn) else 0.0)
+        return sd * math.sqrt(max(_scatter_scale(self.samples), 1.0))
 
     def motion(self) -> CameraMotion | None:
         """The record's :class:`CameraMotion` (None with fewer than 3 checks: the fiducials were not seen)."""
@@ -232,9 +227,7 @@ class CameraWatch:
         # each check's displacement is fitted to its fiducials', weighted by their fits' own errors: its error from
         # those, scaled by the fiducials' scatter about the fits pooled over the record (their own fits' covariances
         # leave out the scene under their edges)
-        chi2 = sum(float(np.sum(v[6][:, None] * v[5] ** 2)) for v in samples)
-        dof = sum(max(2 * len(v[5]) - (2 if math.isnan(v[3]) else 4), 0) for v in samples)
-        scale = chi2 / dof if dof > 0 else 1.0
+        scale = _scatter_scale(samples)
         var = scale * float(np.median([(v[7][0, 0] + v[7][1, 1]) / 2 for v in samples]))
         turn_var = [(v[7][2, 2] + v[7][3, 3]) / 2 for v in samples if math.isfinite(v[3])]
         turn_var = scale * self.lever ** 2 * float(np.median(turn_var)) if turn_var else var
@@ -285,6 +278,14 @@ TURN_OUTLIER_SAMPLES = 20
 MAX_SIGMA_RATIO = 4.0
 #: the fiducials' latest misses and fit variances kept for those scales
 FIT_MEMORY = 500
+
+
+def _scatter_scale(samples: list[tuple]) -> float:
+    """The fiducials' scatter about their checks' fits (:meth:`CameraWatch.observe`'s samples) over what their fits'
+    own errors say: the pooled chi-square per degree of freedom (1 without any)."""
+    chi2 = sum(float(np.sum(v[6][:, None] * v[5] ** 2)) for v in samples)
+    dof = sum(max(2 * len(v[5]) - (2 if math.isnan(v[3]) else 4), 0) for v in samples)
+    return chi2 / dof if dof > 0 else 1.0
 
 
 def _similarity_fit(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
