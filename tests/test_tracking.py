@@ -167,6 +167,38 @@ def test_dropped_frames_are_gaps_at_the_container_timestamps(tmp_path):
     assert np.abs(m.theta_rad - m.theta_rad_true).max() < 6 * m.theta_sigma_rad.max()
 
 
+@pytest.mark.parametrize("file_fps", [199.2, 200_000 / 1001])
+def test_a_file_a_little_off_camera_jsons_rate_keeps_its_own_frame_times(tmp_path, file_fps):
+    """camera.json says 200 fps; the file's frames are 0.4 % slower, or at the television rate 200 x 1000/1001 (a
+    phone's 29.97 stated as 30).  The grid of camera.json's rate drifts from the frames, and each frame within 0.3 of
+    an interval of a grid time was moved to it: up to 0.24 intervals off over 60 frames, far beyond a fast tip's
+    errors.  The frames are now numbered and timed on the file's own rate."""
+    import fractions
+
+    import av
+
+    p = parse_protocol(scene())
+    render_video(p, tmp_path / "v", seed=2, calibration_views=0)
+    cam = load_camera(tmp_path / "v" / "camera.json")
+    frames = gray_frames(tmp_path / "v" / "video.mkv")
+    base = fractions.Fraction(1, 90000)  # MP4's usual clock
+    with av.open(str(tmp_path / "slower.mp4"), "w") as out:
+        st = out.add_stream("ffv1", rate=200)
+        st.width, st.height, st.pix_fmt = 640, 480, "gray"
+        st.time_base = st.codec_context.time_base = base
+        for k, f in enumerate(frames):
+            vf = av.VideoFrame.from_ndarray(f, format="gray")
+            vf.pts, vf.time_base = round(90000 * k / file_fps), base
+            out.mux(st.encode(vf))
+        out.mux(st.encode())
+    summary = track_video(tmp_path / "slower.mp4", cam, p, tmp_path / "t")
+    a = pd.read_csv(tmp_path / "t" / "angles.csv")
+    assert a.frame.tolist() == list(range(len(frames)))
+    # each frame's time is the file's own (its clock's rounding: 1/90000 s)
+    np.testing.assert_allclose(a.t_s - cam.exposure_s / 2, np.arange(len(frames)) / file_fps, atol=2e-5)
+    assert summary["frame_times"]["camera_fps"] == pytest.approx(file_fps, rel=1e-4)
+
+
 def test_calibration_recovers_the_rendered_camera(tmp_path, capsys):
     d = copy.deepcopy(BASE)
     p = parse_protocol(d)

@@ -127,7 +127,11 @@ class VideoFile:
 
     def frame_interval_s(self) -> float:
         """The interval between the stream's frames [s] from its packets' presentation times, read without
-        decoding them (:func:`_grid_interval`; NaN when the stream has no times)."""
+        decoding them (:func:`grid_fit`; NaN when the stream has no times)."""
+        return self.frame_grid()[0]
+
+    def frame_grid(self) -> tuple[float, float, int]:
+        """:meth:`frame_interval_s` with its standard error and the number of frames (:func:`grid_fit`)."""
         import av
 
         try:
@@ -137,7 +141,7 @@ class VideoFile:
                 base = stream.time_base
         except (av.FFmpegError, IndexError, ValueError, OSError) as exc:
             raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
-        return _grid_interval(np.sort(np.asarray(pts, float)) * float(base)) if base else math.nan
+        return grid_fit(np.sort(np.asarray(pts, float)) * float(base)) if base else (math.nan, math.nan, len(pts))
 
     def open(self, *, colour: bool = False) -> Frames:
         import av
@@ -259,8 +263,12 @@ class FrameArrays:
         return None
 
     def frame_interval_s(self) -> float:
-        """The interval between the frames [s] from their times (:func:`_grid_interval`; NaN without times)."""
-        return _grid_interval(self.t_s) if self.t_s is not None else math.nan
+        """The interval between the frames [s] from their times (:func:`grid_fit`; NaN without times)."""
+        return self.frame_grid()[0]
+
+    def frame_grid(self) -> tuple[float, float, int]:
+        """:meth:`frame_interval_s` with its standard error and the number of frames (:func:`grid_fit`)."""
+        return grid_fit(self.t_s) if self.t_s is not None else (math.nan, math.nan, 0)
 
     def open(self, *, colour: bool = False) -> Frames:
         h, w = np.shape(self.frames[0])[:2]
@@ -326,8 +334,12 @@ class ImageFolder:
         return h.hexdigest()
 
     def frame_interval_s(self) -> float:
-        """The interval between the frames [s] from their times (:func:`_grid_interval`; NaN without timestamps)."""
-        return _grid_interval(self.t_s) if self.t_s is not None else math.nan
+        """The interval between the frames [s] from their times (:func:`grid_fit`; NaN without timestamps)."""
+        return self.frame_grid()[0]
+
+    def frame_grid(self) -> tuple[float, float, int]:
+        """:meth:`frame_interval_s` with its standard error and the number of frames (:func:`grid_fit`)."""
+        return grid_fit(self.t_s) if self.t_s is not None else (math.nan, math.nan, 0)
 
     def _read(self, k: int) -> np.ndarray:
         image = cv2.imread(str(self.files[k]), cv2.IMREAD_UNCHANGED)
@@ -353,25 +365,43 @@ class ImageFolder:
         return Frames(int(w), int(h), math.nan, len(self.files), items())
 
 
-def _grid_interval(t_s) -> float:
-    """The frames' interval: the slope of their times against their grid numbers (numbered by the median
-    interval over ever longer stretches, so that jitter and dropped frames neither bias it nor make a late
-    frame's number slip by one), NaN for fewer than two frames."""
+def grid_fit(t_s) -> tuple[float, float, int]:
+    """The frames' interval: the slope of their times against their grid numbers, its standard error (from the times'
+    scatter about the line) and the number of frames: ``(interval, se, n)``; NaN for fewer than two frames (the error
+    for fewer than three).  The grid is found first as the rate at which the times line up best (their phases'
+    coherence, searched within :data:`GRID_SEARCH` of the median interval's rate on ever longer stretches, each
+    search narrowed to the last one's resolution), so that a clock's jitter, a first frame off the grid and dropped
+    frames neither bias the rate nor make a late frame's number slip by one."""
     t = np.sort(np.asarray(t_s, float)[np.isfinite(np.asarray(t_s, float))])
     dt = np.diff(t)
     dt = dt[dt > 0]
     if not len(dt):
-        return math.nan
-    step = float(np.median(dt))
-    m = 16
+        return math.nan, math.nan, len(t)
+    t = t - t[0]
+    rate, width, m = 1.0 / float(np.median(dt)), GRID_SEARCH, min(len(t), 64)
     while True:
-        part = t[:m] - t[0]
-        n = np.round(part / step)
-        if len(np.unique(n)) > 1:
-            step = float(np.polyfit(n, part, 1)[0])
-        if m >= len(t):
-            return step
-        m *= 4
+        part = t[:m]
+        if part[-1] <= 0:
+            break
+        # the coherence's peak is 1 / (the stretch's duration) wide: searched in eighths of that
+        count = int(math.ceil(2.0 * width * rate * part[-1] * 8.0)) + 1
+        rates = rate * (1.0 + np.linspace(-width, width, count))
+        rate = float(rates[np.argmax(np.abs(np.exp(2j * np.pi * np.outer(rates, part)).sum(axis=1)))])
+        if m == len(t):
+            break
+        width, m = 4.0 / (rate * part[-1]), min(len(t), 4 * m)
+    origin = float(np.angle(np.exp(2j * np.pi * rate * t).sum())) / (2.0 * np.pi * rate)
+    n = np.round((t - origin) * rate)
+    if len(np.unique(n)) < 2:
+        return 1.0 / rate, math.nan, len(t)
+    (step, _), resid = np.polyfit(n, t, 1, full=True)[:2]
+    spread = float(np.sum((n - n.mean()) ** 2))
+    se = math.sqrt(float(resid[0]) / (len(n) - 2) / spread) if len(resid) and len(n) > 2 else math.nan
+    return float(step), se, len(t)
+
+
+#: the frame rate :func:`grid_fit` looks for lies within this fraction of the median interval's
+GRID_SEARCH = 0.05
 
 
 def _as_wanted(image: np.ndarray, colour: bool, order: str) -> np.ndarray:
@@ -458,6 +488,9 @@ class Clip:
 
     def frame_interval_s(self) -> float:
         return self.source.frame_interval_s() if hasattr(self.source, "frame_interval_s") else math.nan
+
+    def frame_grid(self) -> tuple[float, float, int]:
+        return self.source.frame_grid() if hasattr(self.source, "frame_grid") else (math.nan, math.nan, 0)
 
     def _inside(self, cut: Cut, k: int, t: float, t0: float, fps: float, after: bool) -> bool:
         if cut.unit == "f":

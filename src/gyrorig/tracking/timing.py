@@ -15,6 +15,7 @@ from .scatter import path_residuals
 
 __all__ = ["FrameClock", "settle_timing", "check_frame_rate", "frame_interval_stats", "checked_frame_times", "capture_on_grid",
            "TIME_SNAP_FRAMES",
+           "FILE_RATE_RANGE", "FILE_RATE_SIGMAS", "FILE_RATE_DRIFT_FRAMES",
            "MIN_PLAUSIBLE_FPS", "RATE_CHECK_FRAMES", "RATE_MISMATCH_SHARE", "FPS_TOLERANCE", "VARIABLE_RATE_JITTER"]
 
 logger = logging.getLogger(__name__)
@@ -67,7 +68,8 @@ class FrameClock:
 def settle_timing(camera: Camera, frames, source) -> tuple[Camera, float]:
     """The camera with its frame rate settled, and the factor from the file's times to real times: a capture rate
     stated apart from the file's (slow motion) scales the file's times so that their interval (the slope of the
-    times against their grid numbers) is one capture interval."""
+    times against their grid numbers) is one capture interval; a rate stated a little off the file's own is
+    replaced by it (:func:`_file_rate`)."""
     if math.isfinite(camera.capture_fps):
         interval = source.frame_interval_s() if hasattr(source, "frame_interval_s") else math.nan
         if not (math.isfinite(interval) and interval > 0):
@@ -86,7 +88,36 @@ def settle_timing(camera: Camera, frames, source) -> tuple[Camera, float]:
             logger.warning("%s: the frames are %.4g s apart (%.3g fps): frame times in milliseconds where seconds "
                            "are meant?", source, 1.0 / fps, fps)
         return replace(camera, fps=fps), 1.0
-    return camera, 1.0
+    return _file_rate(camera, source), 1.0
+
+
+#: a file whose frames' rate differs from camera.json's by at most this fraction is numbered and timed on its own rate
+#: (a nominal 30 for NTSC's 30000/1001, 29.97) when the difference is beyond :data:`FILE_RATE_SIGMAS` standard errors
+#: and moves the record's last frame by more than :data:`FILE_RATE_DRIFT_FRAMES` of an interval
+FILE_RATE_RANGE = 0.02
+FILE_RATE_SIGMAS = 4.0
+FILE_RATE_DRIFT_FRAMES = 0.05
+
+
+def _file_rate(camera: Camera, source):
+    """The camera with the file's own frame rate where camera.json states one a little off it (:data:`FILE_RATE_RANGE`:
+    a phone's NTSC rate stated as 30 or 60; the grid drifts from the frames, whose times are then snapped to the
+    wrong numbers' times), with a warning; else as it is.  The file's rate is the slope of its times, or the stated
+    rate's NTSC value (times 1000/1001) where that slope is within :data:`FILE_RATE_SIGMAS` of its errors of it."""
+    interval, se, n = source.frame_grid() if hasattr(source, "frame_grid") else (math.nan, math.nan, 0)
+    if not (math.isfinite(interval) and interval > 0 and math.isfinite(se)):
+        return camera
+    off = interval * camera.fps - 1.0  # the file's interval over camera.json's, less 1
+    if not (abs(off) <= FILE_RATE_RANGE and abs(off) > FILE_RATE_SIGMAS * se * camera.fps
+            and abs(off) * n > FILE_RATE_DRIFT_FRAMES):
+        return camera
+    fps = 1.0 / interval
+    ntsc = camera.fps * 1000.0 / 1001.0  # a television rate's exact value, where the file's is within its error of it
+    fps = ntsc if abs(fps - ntsc) <= FILE_RATE_SIGMAS * se * fps * fps else fps
+    logger.warning("%s: camera.json says %g fps, but the file's frames are %.6g fps apart (%+.2g %%, %.2g intervals "
+                   "over its %d frames): they are numbered and timed on the file's rate", source, camera.fps, fps,
+                   100.0 * (fps / camera.fps - 1.0), abs(off) * n, n)
+    return replace(camera, fps=fps)
 
 
 def check_frame_rate(t_s: np.ndarray, fps: float, source) -> None:
