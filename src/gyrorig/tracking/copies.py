@@ -19,8 +19,8 @@ import numpy as np
 
 from .appearance import decoded_pixels
 
-__all__ = ["RepeatedFrames", "RecentPictures", "copy_groups", "path_extent_px", "copy_extents", "COPY_FRAMES", "COPY_MARGIN_PX",
-           "PATH_FRAMES"]
+__all__ = ["RepeatedFrames", "RecentPictures", "copy_groups", "path_extent_px", "copy_extents", "COPY_FRAMES",
+           "COPY_MARGIN_PX", "PATH_FRAMES", "REPEAT_SAMPLE_STEP"]
 
 #: how many frames back a copy is looked for (a codec's run of B pictures and the reference pictures around it)
 COPY_FRAMES = 8
@@ -63,9 +63,9 @@ class RecentPictures:
 
     def see(self, frame: np.ndarray, row: int | None, fit=None) -> set[int]:
         """Take the next frame (the tracker's image or the decoded frame: the decoded pixels are compared; its tip's
-        fit in angle table row ``row``; None: no fit) and return the rows whose frames hold the same pixels within the tip's radius plus :data:`COPY_MARGIN_PX` of the fit's centre as
-        this one, with this one's row; empty when none does.  A frame sharing this one's memory (a source reusing
-        its buffer) is not compared."""
+        fit in angle table row ``row``; None: no fit) and return the rows whose frames hold the same pixels within the
+        tip's radius plus :data:`COPY_MARGIN_PX` of the fit's centre as this one, with this one's row; empty when none
+        does.  A frame sharing this one's memory (a source reusing its buffer) is not compared."""
         same: set[int] = set()
         frame = decoded_pixels(frame)
         if fit is not None:

@@ -177,10 +177,10 @@ class CameraWatch:
 
     def observe(self, frame: np.ndarray, count: int, index: int, decoded: np.ndarray | None = None) -> None:
         """Fit the fiducials in every :data:`CHECK_EVERY`-th frame (``count`` the frames seen before this one), and
-        in every frame once they have moved by :data:`MIN_MOTION_PX` and :data:`MOTION_SIGMAS` of the move's errors from
-        where they were first seen (a shaking
-        camera's displacement is then measured in each frame, not interpolated); ``index`` the frame's number;
-        ``frame`` the tip's image, ``decoded`` the frame as decoded (for the fiducials' own image)."""
+        in every frame once they have moved by :data:`MIN_MOTION_PX` and :data:`MOTION_SIGMAS` of the move's errors
+        from where they were first seen (a shaking camera's displacement is then measured in each frame, not
+        interpolated); ``index`` the frame's number; ``frame`` the tip's image, ``decoded`` the frame as decoded (for
+        the fiducials' own image)."""
         if len(self.spots) < 2 or count % self.every:
             return
         if self.image is not None and decoded is not None and self.own_image is not False:
