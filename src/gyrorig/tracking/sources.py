@@ -386,7 +386,7 @@ def grid_fit(t_s) -> tuple[float, float, int]:
         # the coherence's peak is 1 / (the stretch's duration) wide: searched in eighths of that
         count = int(math.ceil(2.0 * width * rate * part[-1] * 8.0)) + 1
         rates = rate * (1.0 + np.linspace(-width, width, count))
-        rate = float(rates[np.argmax(np.abs(np.exp(2j * np.pi * np.outer(rates, part)).sum(axis=1)))])
+        rate = float(rates[np.argmax(_coherence(rates, part))])
         if m == len(t):
             break
         width, m = 4.0 / (rate * part[-1]), min(len(t), 4 * m)
@@ -402,6 +402,16 @@ def grid_fit(t_s) -> tuple[float, float, int]:
 
 #: the frame rate :func:`grid_fit` looks for lies within this fraction of the median interval's
 GRID_SEARCH = 0.05
+
+
+def _coherence(rates: np.ndarray, t: np.ndarray, block: int = 1 << 20) -> np.ndarray:
+    """How well the times ``t`` line up on a grid of each rate: the length of the mean of their phases' unit vectors,
+    summed over blocks of the times (a long record's phases would not fit in memory at once)."""
+    step = max(1, block // max(len(rates), 1))
+    total = np.zeros(len(rates), complex)
+    for k in range(0, len(t), step):
+        total += np.exp(2j * np.pi * np.outer(rates, t[k:k + step])).sum(axis=1)
+    return np.abs(total) / max(len(t), 1)
 
 
 def _as_wanted(image: np.ndarray, colour: bool, order: str) -> np.ndarray:
