@@ -497,7 +497,7 @@ class Clip:
         return self.source.fingerprint()
 
     def frame_interval_s(self) -> float:
-        return self.source.frame_interval_s() if hasattr(self.source, "frame_interval_s") else math.nan
+        return self.frame_grid()[0]
 
     def frame_grid(self) -> tuple[float, float, int]:
         return self.source.frame_grid() if hasattr(self.source, "frame_grid") else (math.nan, math.nan, 0)

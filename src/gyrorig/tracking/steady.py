@@ -129,6 +129,8 @@ class CameraWatch:
         self.centre = tuple(xy.mean(axis=0)) if len(xy) else (0.0, 0.0)
         self.lever = math.sqrt(float(np.mean(np.sum((xy - self.centre) ** 2, axis=1)))) if len(xy) else 0.0
         self.samples: list[tuple] = []  # (frame, dx, dy, scale, roll, residuals, weights, covariance): _similarity
+        #: the samples' fiducials' weighted squared residuals about their checks' fits, and their degrees of freedom
+        self._chi2, self._dof = 0.0, 0
         self.last = (0.0, 0.0)
         self.turn = (0.0, 0.0)
         #: how much the fitted turn changed from one check to the next (each component of ``(a, b)``, as a distance)
@@ -197,6 +199,8 @@ class CameraWatch:
             return
         (dx, dy, a, b), resid, weights, cov = fitted
         self.samples.append((index, dx, dy, a, b, resid, weights, cov))
+        self._chi2 += float(np.sum(weights[:, None] * resid ** 2))
+        self._dof += max(2 * len(resid) - (2 if math.isnan(a) else 4), 0)
         self.last = (dx, dy)
         if math.isfinite(a):
             if self.turn_fitted:
@@ -205,18 +209,23 @@ class CameraWatch:
         first = self.samples[0]
         turned = self.lever * math.hypot(self.turn[0] - first[3], self.turn[1] - first[4])
         moved = math.hypot(dx - first[1], dy - first[2]) + (turned if math.isfinite(turned) else 0.0)
-        if moved > max(MIN_MOTION_PX, MOTION_SIGMAS * self._move_sd(first[7], cov)):
+        if self.every > 1 and moved > max(MIN_MOTION_PX, MOTION_SIGMAS * self._move_sd(first[7], cov)):
             self.every = 1
 
     def _move_sd(self, before: np.ndarray, now: np.ndarray) -> float:
         """The error of the move :meth:`observe` measures between two checks whose fits' covariances of ``(tx, ty, a,
         b)`` are ``before`` and ``now``: the shift's per axis plus the turn's at the fiducials' distance (0 where a
         check fitted no turn), scaled by the fiducials' scatter about the checks' fits so far where it exceeds their
-        fits' errors (:func:`_scatter_scale`)."""
+        fits' errors (:meth:`_scatter_scale`)."""
         both = before + now
         turn = self.lever * math.sqrt((both[2, 2] + both[3, 3]) / 2)
         sd = math.sqrt((both[0, 0] + both[1, 1]) / 2) + (turn if math.isfinite(turn) else 0.0)
-        return sd * math.sqrt(max(_scatter_scale(self.samples), 1.0))
+        return sd * math.sqrt(max(self._scatter_scale(), 1.0))
+
+    def _scatter_scale(self) -> float:
+        """The fiducials' scatter about their checks' fits over what their fits' own errors say: the chi-square per
+        degree of freedom pooled over the checks so far (1 without any)."""
+        return self._chi2 / self._dof if self._dof > 0 else 1.0
 
     def motion(self) -> CameraMotion | None:
         """The record's :class:`CameraMotion` (None with fewer than 3 checks: the fiducials were not seen)."""
@@ -227,7 +236,7 @@ class CameraWatch:
         # each check's displacement is fitted to its fiducials', weighted by their fits' own errors: its error from
         # those, scaled by the fiducials' scatter about the fits pooled over the record (their own fits' covariances
         # leave out the scene under their edges)
-        scale = _scatter_scale(samples)
+        scale = self._scatter_scale()
         var = scale * float(np.median([(v[7][0, 0] + v[7][1, 1]) / 2 for v in samples]))
         turn_var = [(v[7][2, 2] + v[7][3, 3]) / 2 for v in samples if math.isfinite(v[3])]
         turn_var = scale * self.lever ** 2 * float(np.median(turn_var)) if turn_var else var
@@ -278,14 +287,6 @@ TURN_OUTLIER_SAMPLES = 20
 MAX_SIGMA_RATIO = 4.0
 #: the fiducials' latest misses and fit variances kept for those scales
 FIT_MEMORY = 500
-
-
-def _scatter_scale(samples: list[tuple]) -> float:
-    """The fiducials' scatter about their checks' fits (:meth:`CameraWatch.observe`'s samples) over what their fits'
-    own errors say: the pooled chi-square per degree of freedom (1 without any)."""
-    chi2 = sum(float(np.sum(v[6][:, None] * v[5] ** 2)) for v in samples)
-    dof = sum(max(2 * len(v[5]) - (2 if math.isnan(v[3]) else 4), 0) for v in samples)
-    return chi2 / dof if dof > 0 else 1.0
 
 
 def _similarity_fit(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
