@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import skimage.data
+from scipy import ndimage
 
 from _stats import sd_ratio_band
 from gyrorig.bench.variants import PHONE_VARIANTS, track_variant, variant_protocols
@@ -35,7 +36,7 @@ from gyrorig.tracking import BadInputError, FrameArrays, ImageFolder, VideoFile,
 from gyrorig.tracking.appearance import MarkerImage
 from gyrorig.tracking.sources import Clip, parse_cut
 from gyrorig.tracking.transfer import settle_transfer
-from gyrorig.tracking.detect import detection_threshold, find_blobs, opening_size_px
+from gyrorig.tracking.detect import detection_threshold, find_blobs, local_contrast, opening_size_px
 from gyrorig.tracking.scene_spot import fit_scene_spot, sandwich_covariance
 from gyrorig.tracking.steady import CHECK_EVERY
 
@@ -96,6 +97,25 @@ def test_a_marker_against_a_bright_patch_of_the_scene_is_detected_as_itself(side
     threshold = detection_threshold(image, opening_size_px(2.5 * 7.0, 1.0))
     blobs = find_blobs(image, 0, 0, 200, 200, threshold, min_radius_px=2.5, max_radius_px=1.6 * 7.0)
     assert any(math.hypot(b.x - x, b.y - y) <= 1.5 and 5.0 <= b.r <= 1.6 * 7.0 for b in blobs)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_local_contrast_is_the_image_minus_its_opening_by_the_square(dtype):
+    """The local contrast against its definition computed independently (scipy's grey-scale opening, the image's
+    edge values repeated beyond it): windows of the sizes the tracker cuts, smaller than the square, a real
+    photograph and a whole 1280 x 720 frame; equal to the last bit (a minimum and a maximum have no rounding)."""
+    rng = np.random.default_rng(4)
+    photo = _photo("brick")
+    images = [rng.random((h, w)) * 1000 for h, w in [(146, 146), (58, 97), (3, 200), (1, 1), (30, 9)]]
+    images += [photo[:150, :210] * 3.0, np.tile(photo, (2, 3))[:720, :1280] * 3.0]
+    for image in images:
+        image = image.astype(dtype)
+        for size in (3, 21, 45):
+            want = image.astype(np.float32) - ndimage.grey_opening(image.astype(np.float32), size=(size, size),
+                                                                  mode="nearest")
+            got = local_contrast(image, size)
+            assert got.dtype == np.float32 and got.shape == image.shape
+            np.testing.assert_array_equal(got, want)
 
 
 def test_a_faint_spot_joined_to_a_bright_one_is_detected_as_itself():

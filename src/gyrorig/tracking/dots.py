@@ -12,6 +12,7 @@ images: ``psi`` is then known modulo pi, and is continuous within a record.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -45,25 +46,29 @@ def _dot_position(dot: Marker, n: np.ndarray, psi: float) -> np.ndarray:
     return dot.off_axis_m * (math.cos(ang) * a + math.sin(ang) * b) + dot.position_m[2] * n
 
 
-def dot_angles(xy_px: np.ndarray, dot: Marker, n: np.ndarray, cam: Camera) -> np.ndarray:
-    """The frame angles psi (k,) implied by ``dot`` seen at pixels ``xy_px`` (k, 2), for the tip direction ``n``.
+def dot_angles(xy_px: np.ndarray, dot: "Marker | Sequence[Marker]", n: np.ndarray, cam: Camera) -> np.ndarray:
+    """The frame angles psi (k,) implied by ``dot`` (one for every pixel, or one per pixel) seen at pixels
+    ``xy_px`` (k, 2), for the tip direction ``n``.
 
     Each ray meets the sphere ``|X| = |p|`` twice; the intersection whose height along the axis is nearer the
     dot's is taken, and rejected (NaN) if it is off the dot's circle by more than a quarter of its radius, or if
     the ray misses the sphere.
     """
     d = pixel_rays(np.asarray(xy_px, float).reshape(-1, 2), cam)
+    dots = [dot] * len(d) if isinstance(dot, Marker) else list(dot)
+    radius = np.array([float(np.dot(m.position_m, m.position_m)) ** 0.5 for m in dots])
+    height = np.array([m.position_m[2] for m in dots], float)
+    rho = np.array([m.off_axis_m for m in dots], float)
     c = cam.centre_m
-    near, far = ray_sphere_distances(c, d, float(np.dot(dot.position_m, dot.position_m)) ** 0.5)
+    near, far = ray_sphere_distances(c, d, radius)
     both = c + np.stack([near, far], axis=1)[:, :, None] * d[:, None, :]  # (k, 2, 3)
-    off = np.abs(both @ n - dot.position_m[2])
+    off = np.abs(both @ n - height[:, None])
     pick = np.argmin(np.where(np.isfinite(off), off, np.inf), axis=1)
     X = both[np.arange(len(d)), pick]
     off = off[np.arange(len(d)), pick]
     v = X - (X @ n)[:, None] * n
-    rho = dot.off_axis_m
     a, b = _axis_basis(n)
-    psi = np.arctan2(v @ b, v @ a) - _angle_on_frame(dot)
+    psi = np.arctan2(v @ b, v @ a) - np.array([_angle_on_frame(m) for m in dots])
     bad = ~np.isfinite(near) | (off > 0.25 * rho) | (np.abs(np.linalg.norm(v, axis=1) - rho) > 0.25 * rho)
     return np.where(bad, np.nan, psi)
 
@@ -139,20 +144,27 @@ class DotTracker:
             cx, cy, cr = px, py, self.last_r[dot.name]  # sub-pixel prediction: fewer iterations
         return fit_round_spot(image, cx, cy, cr, self.cam)
 
-    def _psi_with_variance(self, fit: SpotFit, dot: Marker, n) -> tuple[float | None, float | None]:
-        """psi of a fitted dot and its variance from the spot covariance through the pixel -> angle map
-        (central differences over +-0.05 px); ``(None, None)`` when the dot is rejected, the variance None when
-        a neighbouring pixel is."""
+    def _psis_with_variance(self, fitted: list, n) -> list[tuple[float | None, float | None]]:
+        """psi of each fitted dot (``fitted``: ``(Marker, SpotFit)`` pairs) and its variance from the spot
+        covariance through the pixel -> angle map (central differences over +-0.05 px), all in one ray call;
+        ``(None, None)`` for a dot rejected, the variance None when a neighbouring pixel is."""
+        if not fitted:
+            return []
         eps = 0.05
         offsets = np.array([[0.0, 0.0], [eps, 0.0], [-eps, 0.0], [0.0, eps], [0.0, -eps]])
-        psi = dot_angles(np.array([fit.x_px, fit.y_px]) + offsets, dot, n, self.cam)
-        if not math.isfinite(psi[0]):
-            return None, None
-        if not np.all(np.isfinite(psi)):
-            return float(psi[0]), None
-        jac = np.array([wrap_angle(psi[1] - psi[2]), wrap_angle(psi[3] - psi[4])]) / (2 * eps)
-        var = float(jac @ fit.cov_xy @ jac)
-        return float(psi[0]), (var if var > 0 else None)
+        xy = np.concatenate([np.array([fit.x_px, fit.y_px]) + offsets for _, fit in fitted])
+        psis = dot_angles(xy, [dot for dot, _ in fitted for _ in offsets], n, self.cam).reshape(-1, len(offsets))
+        out = []
+        for (_, fit), psi in zip(fitted, psis):
+            if not math.isfinite(psi[0]):
+                out.append((None, None))
+            elif not np.all(np.isfinite(psi)):
+                out.append((float(psi[0]), None))
+            else:
+                jac = np.array([wrap_angle(psi[1] - psi[2]), wrap_angle(psi[3] - psi[4])]) / (2 * eps)
+                var = float(jac @ fit.cov_xy @ jac)
+                out.append((float(psi[0]), var if var > 0 else None))
+        return out
 
     def step(self, image, t_s: float, n: np.ndarray, tip_xy, r_tip: float, threshold: Detection):
         """Fit the dots in one frame; returns ``(psi, psi_sigma, [(name, SpotFit), ...])``."""
@@ -165,12 +177,13 @@ class DotTracker:
         found, est = [], []
         predicted = self._project(np.array([_dot_position(d, n, psi_pred) for d in self.dots]))
         places = [(float(x), float(y), self.r_px[d.name]) for (x, y), d in zip(predicted, self.dots)]
+        fitted = []
         for k, dot in enumerate(self.dots):
             fit = self._fit_dot(image, dot, predicted[k], tip_xy, r_tip, threshold, places[:k] + places[k + 1:])
-            if fit is None:
-                continue
-            self.last_r[dot.name] = fit.radius_px
-            psi_m, var = self._psi_with_variance(fit, dot, n)
+            if fit is not None:
+                self.last_r[dot.name] = fit.radius_px
+                fitted.append((dot, fit))
+        for (dot, fit), (psi_m, var) in zip(fitted, self._psis_with_variance(fitted, n)):
             if psi_m is None:
                 continue
             psi_m = psi_pred + wrap_angle(psi_m - psi_pred)
