@@ -69,11 +69,12 @@ def _bin_of(dx, dy):
 
 
 @njit(cache=True)
-def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
+def _ring(win, x_first, y_first, cx, cy, r_out, allowed, inside=True):
     """The ring about ``(cx, cy)`` starting at ``r_out``, and the pixels inside it: ``(ok, bins, pick, scene,
     spread)``.  ``bins`` the ring's bin means; ``pick`` the flat indices of the allowed pixels nearer than
     ``r_out``, ``scene`` the scene ``B`` at each (the bins interpolated in angle); ``spread`` the ring pixels'
-    robust SD about their bins' means.  ``ok`` False when a bin is empty."""
+    robust SD about their bins' means.  ``ok`` False when a bin is empty.  Without ``inside`` only ``ok`` and
+    ``bins`` are made (``pick`` and ``scene`` empty, ``spread`` 0)."""
     h, w = win.shape
     sums = np.zeros(ANGLE_BINS)
     counts = np.zeros(ANGLE_BINS)
@@ -83,13 +84,19 @@ def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
     angle = np.empty(h * w)
     n_ring = 0
     n_pick = 0
-    for iy in range(h):
+    # only the rows and columns the ring's outer circle reaches (a pixel beyond them is off it in x or y alone)
+    reach = r_out + RING_WIDTH_PX
+    iy0, iy1, ix0, ix1 = 0, h, 0, w
+    if math.isfinite(cx) and math.isfinite(cy) and math.isfinite(reach):
+        iy0, iy1 = max(0, int(math.floor(cy - reach - y_first))), min(h, int(math.ceil(cy + reach - y_first)) + 1)
+        ix0, ix1 = max(0, int(math.floor(cx - reach - x_first))), min(w, int(math.ceil(cx + reach - x_first)) + 1)
+    for iy in range(iy0, iy1):
         dy = y_first + iy - cy
-        for ix in range(w):
+        for ix in range(ix0, ix1):
             dx = x_first + ix - cx
             rho = math.sqrt(dx * dx + dy * dy) + 1e-12
             if rho < r_out:
-                if allowed[iy, ix]:
+                if inside and allowed[iy, ix]:
                     pick[n_pick] = iy * w + ix
                     angle[n_pick] = math.atan2(dy, dx)
                     n_pick += 1
@@ -106,6 +113,8 @@ def _ring(win, x_first, y_first, cx, cy, r_out, allowed):
         if counts[b] == 0:
             return False, bins, pick[:n_pick], scene, 0.0
         bins[b] = sums[b] / counts[b]
+    if not inside:
+        return True, bins, pick[:0], scene, 0.0
     dev = np.empty(n_ring)
     for k in range(n_ring):
         dev[k] = abs(ring_values[k] - bins[ring_bins[k]])
@@ -535,7 +544,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     saturated = bool(win.max() >= cam.max_adu)
     top = float(cam.max_adu) if saturated else math.inf
     allowed = np.ones(win.shape, np.bool_)
-    ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + RING_GAP_SIGMAS * sigma_max, allowed)
+    ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + RING_GAP_SIGMAS * sigma_max, allowed, False)
     dark = _foreign_bins(bins, background + amplitude, -1.0) if ok else np.zeros(ANGLE_BINS, np.bool_)
     if dark.any():  # a dark object's edge within the widest ring: its sectors are left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, dark)
@@ -594,6 +603,7 @@ def warm_up() -> None:
     allowed = np.ones(win.shape, bool)
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
         win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15, math.inf)
+    _ring(win, 0.0, 0.0, 20.0, 20.0, 8.0, allowed, False)
     _foreign_bins(bins, float(p[3]))
     _median(bins)
     _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))
