@@ -113,8 +113,9 @@ def _square_opening(image: np.ndarray, size: int) -> np.ndarray:
 
 
 def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
-    """``image`` minus its grey-scale opening by a ``scale_px`` square (float32; 0 where nothing narrower
-    than the square stands out)."""
+    """``image`` minus its grey-scale opening by a ``scale_px`` square (``scale_px`` odd, as
+    :func:`opening_size_px` gives; float32; 0 where nothing narrower than the square stands out), the image's edge
+    values repeated beyond it."""
     if scale_px % 2 == 0:
         raise ValueError(f"scale_px must be odd, got {scale_px}")
     image = np.asarray(image)
