@@ -57,29 +57,25 @@ def opening_size_px(largest_radius_px: float, psf_sigma_px: float) -> int:
     return 2 * int(math.ceil(largest_radius_px + 2.0 * psf_sigma_px + 1.0)) + 1
 
 
-#: images of up to this many pixels are opened by the compiled :func:`_square_opening` (the tracker's windows: 2-4x
-#: faster than OpenCV's direct window there), larger ones (a whole frame) by OpenCV; the two give the same values
+#: images of up to this many pixels (the tracker's windows) are opened by the compiled :func:`_square_opening`, larger
+#: ones (a whole frame) by OpenCV, whose window over wide rows is the faster there; the two give the same values
 _COMPILED_UP_TO = 250_000
 
 
 @njit(cache=True)
-def _running_extreme(src: np.ndarray, size: int, take_max: bool) -> np.ndarray:
-    """The minimum (or maximum) of ``src`` (2-D float32) over ``size`` (odd) consecutive rows, in each column, the
-    first and last rows repeated beyond the ends (a window reaching past an end is cut there): van Herk's and Gil and
-    Werman's method, three comparisons a value whatever the size (a direct window takes ``size``), each step over a
-    whole row at once."""
+def _running_min(src: np.ndarray, size: int) -> np.ndarray:
+    """The minimum of ``src`` (2-D float32) over ``size`` (odd) consecutive rows, in each column, the first and last
+    rows repeated beyond the ends (a window reaching past an end is cut there): van Herk's and Gil and Werman's
+    method, three comparisons a value whatever the size, each step over a whole row at once."""
     n, cols = src.shape
     h = size // 2
     m = ((n + 2 * h + size - 1) // size) * size
-    ahead = np.empty((m, cols), np.float32)  # the extreme from each block's first row down to this row
+    ahead = np.empty((m, cols), np.float32)  # the minimum from each block's first row down to this row
     behind = np.empty((m, cols), np.float32)  # ... from this row down to its block's last row
     for j in range(m):
         row = src[min(max(j - h, 0), n - 1)]
         if j % size == 0:
             ahead[j] = row
-        elif take_max:
-            for c in range(cols):
-                ahead[j, c] = max(ahead[j - 1, c], row[c])
         else:
             for c in range(cols):
                 ahead[j, c] = min(ahead[j - 1, c], row[c])
@@ -87,29 +83,23 @@ def _running_extreme(src: np.ndarray, size: int, take_max: bool) -> np.ndarray:
         row = src[min(max(j - h, 0), n - 1)]
         if j % size == size - 1:
             behind[j] = row
-        elif take_max:
-            for c in range(cols):
-                behind[j, c] = max(behind[j + 1, c], row[c])
         else:
             for c in range(cols):
                 behind[j, c] = min(behind[j + 1, c], row[c])
     out = np.empty((n, cols), np.float32)
     for i in range(n):
-        if take_max:
-            for c in range(cols):
-                out[i, c] = max(behind[i, c], ahead[i + size - 1, c])
-        else:
-            for c in range(cols):
-                out[i, c] = min(behind[i, c], ahead[i + size - 1, c])
+        for c in range(cols):
+            out[i, c] = min(behind[i, c], ahead[i + size - 1, c])
     return out
 
 
 @njit(cache=True)
 def _square_opening(image: np.ndarray, size: int) -> np.ndarray:
     """The grey-scale opening of ``image`` (2-D float32) by a ``size`` square (odd), the image's edge values repeated
-    beyond it: erosion (the minimum over the square, rows then columns), then dilation of that (the maximum)."""
-    eroded_t = _running_extreme(_running_extreme(image, size, False).T.copy(), size, False)  # transposed
-    return _running_extreme(_running_extreme(eroded_t, size, True).T.copy(), size, True)
+    beyond it: erosion (the minimum over the square, down the columns then along the rows), then dilation of that
+    (the maximum: the minimum of the values turned over, exact in floating point)."""
+    turned_t = -_running_min(_running_min(image, size).T.copy(), size)  # the erosion turned over, transposed
+    return -_running_min(_running_min(turned_t, size).T.copy(), size)
 
 
 def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
