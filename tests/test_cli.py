@@ -76,6 +76,18 @@ def test_bench_methods_prints_a_table(tmp_path, capsys):
     assert (table[table.method != "exact"].max_tip_error_rad < 1e-7).all()
 
 
+def test_bench_length_checks_a_30_fps_record_against_its_sinusoids(tmp_path):
+    """``bench length`` runs the record's check, the smoother and the fit on 30 frames/s tracks of the simulated
+    top; at 30 frames/s the check is the path of sinusoids, and the errors it finds match the 0.1 px of noise added
+    to the stated 0.1 px: factor 1 within 4 of its standard errors (1 / sqrt(2 N), N = 2 coordinates a frame)."""
+    assert main(["bench", "length", "--frames", "300", "600", "--out", str(tmp_path)]) == 0
+    table = pd.read_csv(tmp_path / "length.csv")
+    assert list(table.frames) == [300, 600]
+    assert (table.path == "sinusoids").all()
+    assert (np.abs(table.factor - 1.0) < 4.0 / np.sqrt(2 * 2 * table.frames)).all(), table.factor.tolist()
+    assert np.isfinite(table.check_exponent.iloc[1]) and (table[["check_s", "smooth_s", "fit_s"]] > 0).all().all()
+
+
 def test_demo_runs_the_chain_and_writes_its_plots(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--duration", "1", "--video-duration", "1.5"]) == 0
     for name in ("trajectory.png", "tracking.png", "fit.png"):

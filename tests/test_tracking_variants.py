@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.signal import lombscargle
 
 from _stats import sd_ratio_band
 from test_tracking import gray_frames
@@ -27,7 +28,7 @@ from gyrorig.render import render_video
 from gyrorig.camera import Camera, Sensor
 from gyrorig.tracking import FrameArrays, load_camera, track
 from gyrorig.tracking.ellipse import DiscGeometry, disc_image, fit_ellipse_spot
-from gyrorig.tracking.harmonic import harmonic_check
+from gyrorig.tracking.harmonic import Periodogram, harmonic_check
 from gyrorig.tracking.scatter import LOCAL_FRAMES, NOISE_ACF, check_sigmas, local_factors, motion_frequency
 
 
@@ -215,6 +216,26 @@ def test_a_path_of_sinusoids_checks_the_errors_where_the_neighbours_cannot_follo
     for label, expected in (("B", 2.0), ("ref", 1.0)):
         f, se, _ = h.by_class[label]
         assert abs(f - expected) < 4 * se, (label, f, se)
+
+
+@pytest.mark.parametrize("jitter, dropped", [(0.0, 0), (0.1, 15), (0.45, 40)])
+def test_the_periodogram_by_fft_is_scipys_lombscargle(jitter, dropped):
+    """The path of sinusoids finds each frequency on a periodogram made by FFT (:class:`Periodogram`): it is
+    :func:`scipy.signal.lombscargle` with a floating mean (the direct sums, an independent definition) on the check's
+    own grid, summed over both axes, to 1e-9 of its peak (the FFT's sums are exact but for a Taylor series carried
+    to 1e-13), on frame times on the grid, jittered, and with frames dropped."""
+    rng = np.random.default_rng(int(jitter * 100) + dropped)
+    frames = np.sort(rng.choice(400 + dropped, 400, replace=False))
+    t = 5.0 + (frames + rng.uniform(-jitter, jitter, 400)) / 30.0
+    y = np.column_stack([np.sin(2 * np.pi * 9.3 * t) + rng.normal(0, 1, 400), rng.normal(0, 1, 400)])
+    span = float(np.ptp(t))
+    d_omega, m = 0.1 * 2 * np.pi / span, math.ceil(2 * span * 30 / 2 / 0.1) - 1
+    omegas = np.arange(1, m + 1) * d_omega
+    expected = sum(lombscargle(t - t.mean(), y[:, k], omegas, floating_mean=True) for k in (0, 1))
+    got = Periodogram(t, d_omega, m).power(y)
+    assert np.max(np.abs(got - expected)) < 1e-9 * expected.max()
+    single = Periodogram(t, d_omega, m).power(y[:, 0])
+    assert np.max(np.abs(single - lombscargle(t, y[:, 0], omegas, floating_mean=True))) < 1e-9 * expected.max()
 
 
 def test_a_path_of_sinusoids_that_cannot_follow_says_so():

@@ -21,6 +21,7 @@ from ..physics.simulate import output_times
 from .._validate import number
 from ..protocols import load_protocol, protocol_summary
 from .codes import EXIT_FAILED, EXIT_OK
+from .bench_commands import _cmd_bench_length, _cmd_bench_smooth  # noqa: F401 (dispatched by name)
 from .camera_commands import _cmd_calibrate, _cmd_pose  # noqa: F401 (dispatched by name)
 from .gimbal_commands import gimbal_theory, simulate_gimbal_scene
 from .parser import clipped
@@ -412,20 +413,6 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if out:
         print(f"-> {out / 'plan.json'}")
     return EXIT_FAILED if blind else EXIT_OK
-
-
-def _cmd_bench_smooth(args: argparse.Namespace) -> int:
-    from ..bench import smooth_benchmark
-
-    r = smooth_benchmark(args.frames, args.filterpy_frames)
-    print(f"compiled smoother (filter + RTS), {r['frames']:,} frames: {r['fast_s']:.3f} s "
-          f"({r['fast_us_per_frame']:.2f} us/frame; target < 0.2 s)")
-    print(f"filterpy 2.0 KalmanFilter + rts_smoother, same model, {r['filterpy_frames']:,} frames: {r['filterpy_s']:.2f} s "
-          f"({r['filterpy_us_per_frame']:.0f} us/frame): {r['speedup']:.0f}x slower per frame")
-    print(f"agreement: states {r['max_state_diff_in_sigma']:.1e} sigma; covariances {r['max_cov_diff_rel_after_first']:.1e} "
-          f"of sqrt(P_ii P_jj) (first frame {r['max_cov_diff_rel_first']:.1e}); same gating: {r['same_gating']}")
-    print(f"maximum-likelihood noise levels: {r['ml_noise_s']:.2f} s ({r['ml_evaluations']} filter passes)")
-    return EXIT_OK
 
 
 def _cmd_protocols(args: argparse.Namespace) -> int:

@@ -119,6 +119,15 @@ def build_parser() -> argparse.ArgumentParser:
     bsm.add_argument("--frames", type=int, default=100_000, help="frames for the compiled path (default 100000)")
     bsm.add_argument("--filterpy-frames", type=int, default=20_000, help="frames for filterpy (default 20000)")
     bsm.set_defaults(func="_cmd_bench_smooth")
+    bl = bsub.add_parser("length", help="how the record checks, smoothing and fit grow with the record's length")
+    bl.add_argument("protocol", nargs="?", default="air-cushion-heavy-top",
+                    help="a bundled protocol's name (default air-cushion-heavy-top)")
+    bl.add_argument("--frames", type=int, nargs="+", default=[1000, 4000, 16000],
+                    help="record lengths in frames (default 1000 4000 16000)")
+    bl.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30: a phone's default)")
+    bl.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    bl.add_argument("--out", default=None, help="also write length.csv here")
+    bl.set_defaults(func="_cmd_bench_length")
     bf = bsub.add_parser("fit", help="Monte Carlo of render -> track -> smooth -> fit: pulls, bias, sd / CRB")
     bf.add_argument("--scenes", nargs="+", default=None, help="bundled protocol names (default: three rigs)")
     bf.add_argument("--seeds", type=int, default=None, help="runs per scene (default 40; 4 with --quick)")
