@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from .fit import STATE_NAMES, Constraints, FitResult, FitTerms, fit_angles, record_state, state_values
+from .fit.result import Note, NoteKind
 from .fit.quantities import at_record_state
 from .prediction import Prediction
 from .protocols import Protocol
@@ -35,6 +36,14 @@ __all__ = ["Analysis", "Fitted", "analyze", "smooth_and_fit"]
 
 Progress = Callable[[int, int], None]
 Stage = Callable[[str], None]
+
+#: a smoother that gates more than this share of the frames cannot follow the record's motion with its one process
+#: noise (a nod too fast for the frame rate, a transient at the start of a long record): its gate at 5 sigma would
+#: leave out a share of 6e-7 of frames its model fits
+SMOOTHER_OUTLIER_SHARE = 0.01
+#: the fit's own outliers: frames whose normalised residual (over the residuals' robust SD, where larger than 1)
+#: exceeds this
+FIT_OUTLIER_Z = 5.0
 
 
 @dataclass(frozen=True)
@@ -89,12 +98,36 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: Pred
     if prediction is None:
         prediction = predict_with_uncertainty(protocol)
     exclude = (smooth.table["status"] == "outlier").to_numpy()
+    note = None
+    if exclude.mean() > SMOOTHER_OUTLIER_SHARE:
+        exclude, note = _outliers_by_fit(angles, protocol, prediction, exclude, terms, constraints)
     fit = fit_angles(angles, protocol, prediction=prediction, exclude=exclude, truth=truth, rng=rng, terms=terms,
                      constraints=constraints)
+    if note is not None:
+        fit = replace(fit, notes=fit.notes + (note,))
     if fit.spec.damped:
         say("theory at the record's own state (the simulator from its fitted first frame) ...")
     fit = _at_record_state(fit, angles, protocol, exclude, prediction)
     return Fitted(smooth, prediction, fit, {"smooth": t1 - t0, "fit": time.perf_counter() - t1})
+
+
+def _outliers_by_fit(angles: pd.DataFrame, protocol: Protocol, prediction: Prediction, gated: np.ndarray,
+                     terms: FitTerms | str, constraints: Constraints | None) -> tuple[np.ndarray, Note]:
+    """The frames to leave out when the smoother gated more than :data:`SMOOTHER_OUTLIER_SHARE` of them: those the
+    fit of every frame leaves beyond :data:`FIT_OUTLIER_Z` of its residuals' robust SD (where above 1), and a note
+    that says so."""
+    every = fit_angles(angles, protocol, prediction=prediction, terms=terms, constraints=constraints,
+                       check_residuals=False)
+    z = every.residuals[["theta_resid_norm", "phi_resid_norm"]].to_numpy(float)
+    spread = max(1.0, 1.4826 * float(np.median(np.abs(z))))
+    off = every.residuals.t_s.to_numpy(float)[np.max(np.abs(z), axis=1) > FIT_OUTLIER_Z * spread]
+    exclude = np.isin(angles.t_s.to_numpy(float), off)
+    text = (f"the smoother gated {int(gated.sum())} of {len(gated)} frames ({100 * gated.mean():.1f} %), more than "
+            f"its model allows ({100 * SMOOTHER_OUTLIER_SHARE:g} %: one process noise cannot follow this motion at "
+            f"this frame rate); the fit's model judged them instead: {int(exclude.sum())} frame(s) beyond "
+            f"{FIT_OUTLIER_Z:g} of its residuals' spread left out")
+    logger.warning(text)
+    return exclude, Note(NoteKind.OUTLIERS_BY_FIT, text)
 
 
 def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, exclude: np.ndarray,

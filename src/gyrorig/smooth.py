@@ -24,7 +24,8 @@ at the measurement and marks ``reset``, so a genuine jump does not lock it out).
 (:mod:`gyrorig.fit`) use the *tracked* angles with the tracker's covariances and only the
 smoother's outlier marks: smoothed samples are correlated with their neighbours, and
 fitting them as independent would make least-squares errors wrong.  That is how the
-process model cannot distort what is fitted.
+process model cannot distort what is fitted (and where it gates more frames than its model
+allows, :func:`gyrorig.pipeline.smooth_and_fit` lets the fit's model judge them instead).
 
 Two engines run the same model: ``"fast"`` (a compiled loop, ~1 us per frame) and
 ``"filterpy"`` (filterpy 2.0's ``KalmanFilter.predict/update`` and ``rts_smoother``: the

@@ -113,6 +113,8 @@ class NoteKind(StrEnum):
     PLAUSIBILITY = "plausibility"
     #: the record's geometry disagrees with the protocol's (the launch tilt): a tip marker or pose stated wrong
     GEOMETRY = "geometry"
+    #: the smoother gated more frames than its model allows: the fit's own model judged which to leave out
+    OUTLIERS_BY_FIT = "outliers-by-fit"
 
 
 @dataclass(frozen=True)

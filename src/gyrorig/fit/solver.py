@@ -95,9 +95,11 @@ def solve(spec: ModelSpec, data: FitData, start: dict[str, float], *, near: bool
     x = x0
     chi2_prev = math.inf
     for _round in range(4):
-        res = least_squares(white, x, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL,
-                            gtol=LM_TOL, max_nfev=50 * (len(x0) + 1))
-        x, r, J = _gauss_newton_polish(white, res.x, res.fun, res.jac)
+        # a trial step may send the damped model's exponentials beyond the floats: infinite residuals, a step refused
+        with np.errstate(over="ignore", invalid="ignore"):
+            res = least_squares(white, x, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL,
+                                gtol=LM_TOL, max_nfev=50 * (len(x0) + 1))
+            x, r, J = _gauss_newton_polish(white, res.x, res.fun, res.jac)
         chi2_now = float(r @ r)
         stationary = (remaining_step_se(J, r) < STATIONARY_STEP_SE
                       or chi2_prev - chi2_now < STALLED_CHI2_GAIN)
