@@ -52,8 +52,8 @@ def record_length_benchmark(protocol: str = "air-cushion-heavy-top", frames=DEFA
                             noise_px: float = 0.1, seed: int = 0, progress=None) -> pd.DataFrame:
     """One row per record length: ``frames``, ``record_s``, and per stage (``check``: the pixel track to angles with
     its errors checked; ``smooth``; ``fit``) its seconds and microseconds per frame, the growth exponent from the
-    row before (``*_exponent``), the check's ``path`` (sinusoids or the neighbours') and its ``factor`` (the
-    errors' scale against ``noise_px``: about 1)."""
+    row before (``*_exponent``), the check's ``path`` (``sinusoids``, ``neighbours`` or ``unchecked``) and its
+    ``factor`` (the errors' scale against ``noise_px``: about 1 where checked)."""
     from ..pipeline import smooth_and_fit
     from ..tracking.imported import angles_from_pixel_track
 
@@ -70,8 +70,7 @@ def record_length_benchmark(protocol: str = "air-cushion-heavy-top", frames=DEFA
         check = summary["sigma_check"]
         row = {"frames": int(n), "record_s": float(np.ptp(track.t_s)), "check_s": t1 - t0,
                "smooth_s": fitted.time_s["smooth"], "fit_s": fitted.time_s["fit"],
-               "path": "sinusoids" if "sinusoids" in str(check.get("reason", "")) else "neighbours",
-               "factor": float(check.get("factor", math.nan))}
+               "path": summary["checked_by"], "factor": float(check.get("factor", math.nan))}
         rows.append(row)
         if progress:
             progress(row)

@@ -157,7 +157,8 @@ def _with_nutation(base: Solution, data: FitData, scene: SceneModel, sel: Select
     p0 = model0.values(base.x)
     th0, _ = model0.axis_frame(base.x, data.tau, data.segment)
     th_obs, _ = model0.in_axis_frame(base.x, data)
-    w0 = dominant_frequency(data.t_s, th_obs - th0, NYQUIST_FRACTION * nyq, scene.nutation_frequency_hint_rad_s)
+    w0 = dominant_frequency(data.t_s, th_obs - th0, NYQUIST_FRACTION * nyq, scene.nutation_frequency_hint_rad_s,
+                            window=not spec0.damped)
     start = dict(p0, nutation_frequency_rad_s=w0)
     if spec0.damped:
         start["nutation_decay_rate_per_s"] = 0.0

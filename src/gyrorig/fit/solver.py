@@ -229,12 +229,16 @@ def linear_start(spec: ModelSpec, data: FitData, axis: tuple[float, float] | Non
     return start
 
 
-def dominant_frequency(t: np.ndarray, y: np.ndarray, w_max: float, hint: float | None) -> float:
-    """Peak of the periodogram of y (resampled on a uniform grid), refined by interpolation. [rad/s]"""
+def dominant_frequency(t: np.ndarray, y: np.ndarray, w_max: float, hint: float | None, *,
+                       window: bool = True) -> float:
+    """Peak of the periodogram of y (resampled on a uniform grid), refined by interpolation. [rad/s]
+
+    ``window``: a Hann window against leakage, for a motion that lasts the record; not for one that dies out
+    (a damped nod at the record's start, which the window would take away)."""
     dt = float(np.median(np.diff(t)))
     grid = np.arange(t[0], t[-1], dt)
     yy = np.interp(grid, t, y)
-    yy = (yy - yy.mean()) * np.hanning(len(yy))
+    yy = (yy - yy.mean()) * (np.hanning(len(yy)) if window else 1.0)
     nfft = 1 << int(math.ceil(math.log2(len(yy) * 8)))
     spec = np.abs(np.fft.rfft(yy, nfft))
     w = 2 * np.pi * np.fft.rfftfreq(nfft, dt)

@@ -180,7 +180,9 @@ def read_pixel_track(path: str | Path, *, track_name: str | None = None, fps: fl
 def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Protocol
                             ) -> tuple[pd.DataFrame, dict]:
     """The angle table (:mod:`gyrorig.tables`) of a pixel track (:func:`read_pixel_track`), and a summary: the
-    error check (``sigma_check``), the errors used (``sigma_px``, ``sigma_source``), the camera's modes."""
+    error check (``sigma_check``; ``checked_by``: the path through each frame's ``neighbours``, ``sinusoids`` over
+    the record, or ``unchecked`` where neither follows), the errors used (``sigma_px``, ``sigma_source``), the
+    camera's modes."""
     if not camera.has_pose:
         raise BadInputError("the camera file has no pose: a pixel track needs one (gyrorig pose --board-image or "
                             "--video, or lab fiducials tracked in a video)")
@@ -245,6 +247,7 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
     summary = {"frames": len(angles), "tracked_fraction": float(ok.mean()), "outliers": len(outliers),
                "off_sphere": int(np.sum(quality == "off-sphere")), "sigma_px": float(np.median(sigma)),
                "sigma_source": source, "sigma_check": check.as_dict(), "camera_sigma_rad": camera_sigma,
+               "checked_by": "neighbours" if check.smooth_path else ("sinusoids" if followed else "unchecked"),
                "tip_distance_m": length}
     return angles, summary
 
