@@ -3,7 +3,9 @@
 import copy
 import hashlib
 import math
+import os
 import tomllib
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -146,6 +148,24 @@ def test_mp4_and_sixteen_bit(tmp_path):
     cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
     ok, f = cap.read()
     assert ok and f.dtype == np.uint16 and f.max() > 255
+
+
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="resident memory read from /proc")
+def test_a_long_render_does_not_hold_its_frames_in_memory(tmp_path):
+    """The bundled rig's 1440 x 1080 camera over 2 s (400 frames): the process's resident memory grows by less than
+    150 MB from frame 100 to the end.  Each frame's small truth table kept until the end fragmented the heap under
+    the encoder's frame buffers: 2.3 MB a frame never given back (700 MB here; a 60 s protocol, 12,000 frames, was
+    killed for want of memory)."""
+    p = parse_protocol(BASE)
+    page = os.sysconf("SC_PAGE_SIZE")
+    resident = {}
+
+    def progress(done, total):
+        resident[done] = int(Path("/proc/self/statm").read_text().split()[1]) * page
+
+    render_video(p, tmp_path / "long", codec="mp4", calibration_views=0, duration_s=2.0, progress=progress)
+    first = min(k for k in resident if k > 100)
+    assert max(resident.values()) - resident[first] < 150e6, {k: v // 10**6 for k, v in resident.items()}
 
 
 def test_rolling_shutter_times_each_marker_by_its_row():

@@ -32,7 +32,7 @@ import pandas as pd
 from .. import _io
 from ..camera import camera_setup
 from ..protocols import Protocol, parse_protocol
-from .video import render_frames
+from .video import TRUTH_COLUMNS, render_frames
 
 __all__ = ["PhoneStyle", "PHOTOS", "render_phone_video", "photo_background"]
 
@@ -366,7 +366,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     tmp = out / f".{name}.partial{Path(name).suffix}"
     kept = set(int(k) for k in keep)
     stored = dict(zip((int(k) for k in keep), t_store))
-    truths = []
+    records = []  # the truth's rows as tuples (a frame's small table kept per frame fragments the heap)
     recording = None
     container = av.open(str(tmp), "w", format="matroska" if style.codec == "ffv1" else "mp4")
     try:
@@ -378,16 +378,15 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
         stream.pix_fmt = ("yuv420p10le" if ten else "yuv420p") if style.codec != "ffv1" else \
             ("yuv444p10le" if ten else "yuv444p")
         clock = Fraction(1, 90000)
-        stream.time_base = clock
-        stream.codec_context.time_base = clock
+        stream.time_base = stream.codec_context.time_base = clock
         if style.transfer == "bt709":
             stream.codec_context.color_trc = _TRC_BT709
         if style.codec != "ffv1":
             stream.options = _encoder_options(style)
         top = (1 << style.bit_depth) - 1
         for k, (image, truth) in enumerate(render_frames(protocol, seed=seed, duration_s=duration, noise=False)):
-            truths.append(truth)
             if k not in kept:
+                records.extend(truth.itertuples(index=False, name=None))
                 continue
             t = k / cam.fps
             shift = style.drift_px_per_s * t  # along (0.8, 0.6), by fractions of a pixel (bilinear)
@@ -398,7 +397,8 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
             alpha = np.clip(np.asarray(image, np.float32) / peak, 0.0, 1.0)[:, :, None]
             linear = (bg * (1.0 - alpha) + alpha * rgb) * _light(style, t, cam.exposure_s, cam.height_px)
             if shake is not None:  # the camera turned a little: the whole picture moves (the truth's pixels with it)
-                linear, truths[-1] = _shaken(linear, truth, shake(t + cam.exposure_s / 2))
+                linear, truth = _shaken(linear, truth, shake(t + cam.exposure_s / 2))
+            records.extend(truth.itertuples(index=False, name=None))
             electrons = rng.poisson(np.clip(linear, 0.0, 1.0) * style.full_well_e).astype(np.float32)
             electrons += rng.normal(0.0, style.read_noise_e, electrons.shape).astype(np.float32)
             value = _encoded(np.clip(electrons / style.full_well_e, 0.0, 1.0), style)
@@ -425,7 +425,7 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
             pass
         if tmp.exists():
             tmp.unlink()
-    truth = pd.concat(truths, ignore_index=True)
+    truth = pd.DataFrame(records, columns=list(TRUTH_COLUMNS))
     _io.write_csv(truth, out / "truth.csv")
     camera = {k: v for k, v in cam.to_json().items() if k not in ("sensor", "psf_sigma_px", "motion_blur_samples")}
     camera["sensor"] = {"bit_depth": style.bit_depth, **({} if style.transfer else {"gamma": style.gamma})}

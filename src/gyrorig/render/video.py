@@ -140,7 +140,8 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
     name = {"lossless": "video.mkv", "mp4": "video.mp4", "raw": "video.avi"}[codec]
     tmp = out / f".{name}.partial{Path(name).suffix}"
     writer = open_writer(tmp, cam, codec)
-    truths = []
+    records = []  # the truth's rows as tuples: a small table kept per frame fragments the heap under the encoder's
+    # frame buffers, which are then never given back
     t_render = t_encode = 0.0
     try:
         t0 = time.perf_counter()
@@ -153,11 +154,11 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
             writer.write(image)
             t0 = time.perf_counter()
             t_encode += t0 - t1
-            truths.append(truth)
+            records.extend(truth.itertuples(index=False, name=None))
             if progress and (k % 50 == 0 or k == n_frames - 1):
                 progress(k + 1, n_frames)
         writer.release()
-        truth = pd.concat(truths, ignore_index=True)
+        truth = pd.DataFrame(records, columns=list(TRUTH_COLUMNS))
         # a marker never in the field of view is a misconfigured camera or marker; one hidden
         # behind the rig for the whole clip is not (it is marked visible = False)
         never = [m.name for m in setup.markers if not truth[truth.marker == m.name].in_view.any()]
