@@ -23,6 +23,7 @@ from ..camera import camera_setup
 from ..physics import simulate
 from ..protocols import BUNDLED_PROTOCOL_DIR, load_protocol
 from ..render.paths import project
+from ..tracking.tracker import tip_marker
 
 __all__ = ["record_length_benchmark", "DEFAULT_FRAMES"]
 
@@ -30,7 +31,8 @@ DEFAULT_FRAMES = (1000, 4000, 16000)
 
 
 def _pixel_track(protocol, fps: float, frames: int, noise_px: float, rng: np.random.Generator):
-    """The simulated tip's pixel track (``frame, t_s, x_px, y_px``), the camera at ``fps``."""
+    """The simulated tip's pixel track (``frame, t_s, x_px, y_px, sigma_px``: the noise stated), the camera at
+    ``fps``."""
     camera = replace(camera_setup(protocol).camera, fps=fps)
     number = np.sort(rng.choice(int(frames * 1.02), frames, replace=False))
     t = (number + rng.uniform(-0.05, 0.05, frames)) / fps
@@ -39,12 +41,10 @@ def _pixel_track(protocol, fps: float, frames: int, noise_px: float, rng: np.ran
     protocol = replace(protocol, scene=replace(protocol.scene, duration_s=float(mid.max()) + 1.0 / fps))
     df = simulate(protocol, t_eval_s=mid)
     theta, phi = df.theta_rad.to_numpy(), df.phi_rad.to_numpy()
-    from ..tracking.tracker import tip_marker  # the tracker's own reading of the protocol's tip
-
     length = float(tip_marker(protocol).position_m[2])
     tip = length * np.stack([np.sin(theta) * np.sin(phi), -np.sin(theta) * np.cos(phi), np.cos(theta)], axis=1)
     xy = project(camera, tip)[0] + rng.normal(0.0, noise_px, (frames, 2))
-    track = pd.DataFrame({"frame": number, "t_s": t, "x_px": xy[:, 0], "y_px": xy[:, 1], "sigma_px": math.nan})
+    track = pd.DataFrame({"frame": number, "t_s": t, "x_px": xy[:, 0], "y_px": xy[:, 1], "sigma_px": noise_px})
     return track, camera
 
 
@@ -62,7 +62,6 @@ def record_length_benchmark(protocol: str = "air-cushion-heavy-top", frames=DEFA
     for n in frames:
         rng = np.random.default_rng(seed)
         track, camera = _pixel_track(base, fps, int(n), noise_px, rng)
-        track["sigma_px"] = noise_px
         t0 = time.perf_counter()
         angles, summary = angles_from_pixel_track(track, camera, base)
         t1 = time.perf_counter()

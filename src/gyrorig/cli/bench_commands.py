@@ -29,7 +29,6 @@ def _cmd_bench_smooth(args: argparse.Namespace) -> int:
 
 def _cmd_bench_length(args: argparse.Namespace) -> int:
     from ..bench.length import record_length_benchmark
-
     from ..protocols import bundled_protocols
 
     if args.protocol not in bundled_protocols():
