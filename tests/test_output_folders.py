@@ -5,6 +5,7 @@ whole; a failed or interrupted run leaves the earlier output as it was; concurre
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
@@ -154,8 +155,9 @@ def test_a_signal_while_tracking_leaves_nothing(tmp_path, long_video, signame, c
                str(long_video / "camera.json"), "--protocol", AIR, "--out", str(out)]
     foreground = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
                   "os.execv(sys.argv[1], sys.argv[1:])")
+    # PYTHONFAULTHANDLER: a child that hangs is aborted below and prints every thread's stack
     proc = subprocess.Popen([sys.executable, "-c", foreground, *command], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONFAULTHANDLER": "1"})
     seen = []
     for line in proc.stderr:  # wait for the first progress line: frames are being decoded and tracked
         seen.append(line)
@@ -164,7 +166,12 @@ def test_a_signal_while_tracking_leaves_nothing(tmp_path, long_video, signame, c
     assert proc.poll() is None, "tracking finished before the interrupt: the test needs a longer video"
     time.sleep(0.3)
     proc.send_signal(getattr(signal, signame))
-    _, rest = proc.communicate(timeout=30)
+    try:
+        _, rest = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        _, rest = proc.communicate(timeout=30)
+        pytest.fail(f"still running 30 s after {signame}; its threads:\n" + "".join(seen) + rest)
     err = "".join(seen) + rest
     assert proc.returncode == code, err
     assert err.strip().splitlines()[-1].startswith("gyrorig:") and "Traceback" not in err
