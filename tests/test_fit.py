@@ -571,8 +571,8 @@ def test_a_damped_record_is_compared_with_theory_at_its_own_state():
 
 def test_a_nod_too_fast_for_the_smoother_does_not_take_frames_from_the_fit():
     """The eddy-damped top at 30 frames/s over 20 s: its nod (59 rad/s, 2 rad a frame) dies out in the first seconds,
-    and the smoother's one process noise, set by the quiet rest, gated 10-14 % of the frames, all in the nod; left
-    out, they took the nod from the fit (chi2_red 34, the nutation frequency 29 rad/s against 59).  The fit's own
+    and the smoother's one process noise, set by the quiet rest, gated 23 % of these frames, all in the nod; left
+    out, they took the nod from the fit (chi2_red 28, the nutation frequency 22 rad/s against 59).  The fit's own
     model judges them instead (a note says so): chi2_red in its band (4 standard errors), each quantity within 4
     standard errors of the same model on the noiseless truth, and the nod's frequency within 1 % of the simulator's at
     the protocol's launch (the tilt settles from 0.785 to 0.806 rad, moving it by about 0.1 %)."""
@@ -597,8 +597,8 @@ def test_a_nod_that_dies_out_at_the_start_of_a_long_record_sets_the_nutation_sta
     """A damped nod lives in the record's first seconds: the eddy-damped top's (0.02 rad at 59.4 rad/s, dying out
     in 1.5 s) at the start of 133 s at 30 frames/s, with the tilt's settling beside it and noise.  The periodogram
     that starts the fit's nutation frequency finds it without the Hann window (whose weight there is 0.02 and
-    which made it 2-20 rad/s, and the fit find another motion): within 1 % (the periodogram's peak of a nod that
-    lasts 45 frames is about 1/(2 x 1.5 s) = 0.33 rad/s wide)."""
+    which made it 2-20 rad/s, and the fit found another motion): within 1 %, 0.6 rad/s (the peak of a nod dying
+    out in 1.5 s has a half-width of 1 / 1.5 s = 0.67 rad/s; its centre is found far closer)."""
     from gyrorig.fit.solver import dominant_frequency
 
     rng = np.random.default_rng(3)

@@ -184,7 +184,7 @@ def harmonic_check(t_s, frames, xy, var, classes=None) -> HarmonicCheck | None:
         periodogram = Periodogram(tau[keep], d_omega, len(grid))
         while len(omegas) < MAX_FREQUENCIES and p + 4 <= MAX_PARAMETER_SHARE * keep.sum():
             power = periodogram.power(res / sd[keep])
-            peak, step = float(grid[int(np.argmax(power))]), float(grid[1] - grid[0])
+            peak, step = float(grid[int(np.argmax(power))]), d_omega
             best = minimize_scalar(lambda w: _fit(tau[keep], xy[keep], sd[keep], omegas + [w])[2],
                                    bounds=(peak - step, peak + step), method="bounded", options={"xatol": step / 100})
             trial = omegas + [float(best.x)]
