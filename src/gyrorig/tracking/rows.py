@@ -16,6 +16,7 @@ from .detect import Detection
 from .dots import DotTracker
 from .follow import ANCHOR_FRAMES, TipFollower
 from .rays import angle_covariances, angles_with_covariance
+from .scene_spot import near_ring_move
 from .spot import SpotFit
 
 __all__ = ["TrackRows", "drop_tip", "empty_angle_row", "marker_row", "unwrap_nan", "with_flag", "streak_caveat",
@@ -59,6 +60,9 @@ class TrackRows:
         self.markers: list[tuple] = []
         self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
         self.tip_cov: dict[int, np.ndarray] = {}  # angle row -> its covariance in (x, y) [px^2]
+        #: angle row -> the variance along x and y [px^2] that a second view of the scene under the tip's edge adds
+        #: (:func:`~gyrorig.tracking.scene_spot.near_ring_move`; a recording's sphere in the luma only)
+        self.scene_var: dict[int, np.ndarray] = {}
         self.psi: dict[int, tuple[float, float]] = {}
         #: the frames the follower saw since the last duplicate, latest last: (row, index, t_frame, threshold)
         self.seen: list[tuple[int, int, float, Detection]] = []
@@ -108,6 +112,13 @@ class TrackRows:
         if geo is not None:
             self.tip_px[row] = (fit.x_px, fit.y_px)
             self.tip_cov[row] = np.asarray(fit.cov_xy, float)
+            self.scene_var.pop(row, None)
+            # a colour's image (the codec's half-resolution chroma) spreads beyond the disc's blurred edge, where the
+            # near ring would see the marker itself
+            if frame is not None and follower.shape == "sphere" and not camera.sensor_known and tip.colour == "any":
+                move = near_ring_move(frame, fit, follower.r_expected, camera)
+                if move.any():
+                    self.scene_var[row] = move**2
             if dots is not None:
                 psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
                 self.psi[row] = (psi, psi_sigma)
@@ -177,6 +188,16 @@ class TrackRows:
             sel = (markers.marker == tip.name) & markers.frame.isin(angles.frame.to_numpy()[copied])
             markers.loc[sel, "quality"] = markers.quality[sel].map(lambda q: with_flag(q, "copied"))
         drop_tip(self, angles, markers, unknown, "duplicate", tip_name=tip.name)
+
+    def widen_by_scene(self, angles: pd.DataFrame, markers: pd.DataFrame, camera: Camera, length_m: float,
+                       tip_name: str) -> int:
+        """The tip's errors widened by :attr:`scene_var` in the rows still tracked (after the record's check, which
+        then judged the spot fits' own errors); how many rows."""
+        rows = np.array([r for r in sorted(self.scene_var) if r in self.tip_px], int)
+        if len(rows):
+            self.scale_tip_errors(angles, markers, rows, np.ones(len(rows)),
+                                  np.array([self.scene_var[r] for r in rows]), camera, length_m, tip_name)
+        return len(rows)
 
     def scale_tip_errors(self, angles: pd.DataFrame, markers: pd.DataFrame, rows: np.ndarray, scale: np.ndarray,
                          added: np.ndarray, camera: Camera, length_m: float, tip_name: str) -> None:

@@ -5,13 +5,14 @@ marker is whatever the room shows, and it is not flat: a texture's edge, a shado
 the marker pulls a flat-background fit towards it by far more than the noise would.  Here the disc
 covers the scene: ``mu = B (1 - c) + M c``, ``c`` the disc's coverage blurred by the PSF
 (``erfc((rho - r) / (sqrt(2) sigma)) / 2``), ``M`` the marker's level and ``B`` the scene **just outside
-the disc at the same angle**: the mean of the ring ``r + 3 sigma <= rho < r + 3 sigma + 2`` px in
-:data:`ANGLE_BINS` bins around the centre, interpolated in angle.  Only the pixels inside the ring are
-fitted (``x, y, r, M`` and the blur; weighted least squares, the ring taken again about the first few centres); what the
-scene does between the ring and the disc's edge is left in the residuals, and the centre's covariance
-comes from them (:func:`sandwich_covariance`) and from what the unseen scene under the edge may differ from the
-ring (:func:`_scene_covariance`: the ring's own texture at that distance), so it grows where the scene behind
-the edge is busy.
+the disc at the same angle**: the mean of the ring ``r + g sigma <= rho < r + g sigma + 2`` px in
+:data:`ANGLE_BINS` bins around the centre, interpolated in angle (``g`` :data:`RING_GAP_SIGMAS`).  Only the
+pixels inside the ring are fitted (``x, y, r, M`` and the blur; weighted least squares, the ring taken again about
+the first few centres); what the scene does between the ring and the disc's edge is left in the residuals, and the
+centre's covariance comes from them (:func:`sandwich_covariance`) and from what the unseen scene under the edge may
+differ from the ring (:func:`_scene_covariance`: the ring's own texture at that distance), so it grows where the
+scene behind the edge is busy.  A second fit with the ring nearer the edge (:func:`near_ring_move`) says where the
+scene changes between the edge and the ring.
 
 A bin of the ring much brighter than the rest (light of another marker touching the ring) marks the fit
 ``blended``; the model still holds there to first order (that light is outside the disc), and the
@@ -30,9 +31,11 @@ from numba import njit
 from ..camera import Camera
 from . import ellipse, spot
 from .sandwich import _projected_meat, sandwich_covariance
+from .small_solve import lu_solve
 from .spot import SpotFit, fit_spot, window_levels
 
-__all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX"]
+__all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX",
+           "near_ring_move", "NEAR_RING_GAP_SIGMAS"]
 
 #: angular bins of the ring that gives the scene behind the disc's edge
 ANGLE_BINS = 32
@@ -40,6 +43,13 @@ ANGLE_BINS = 32
 RING_WIDTH_PX = 2.0
 #: the ring starts this many PSF sigmas beyond the disc's edge (where the disc's light has fallen to 1e-3)
 RING_GAP_SIGMAS = 3.0
+#: a second view of the scene under the edge (:func:`near_ring_move`): a ring this many sigmas beyond the edge (the
+#: disc's light there 7 % of its contrast, 0.5-3 % over the ring's width, alike at every angle: it moves the ring's
+#: levels, not the centre)
+NEAR_RING_GAP_SIGMAS = 1.5
+#: the two views' centres differ when they are farther apart than this many of their errors (the two fits' covariances
+#: summed: their errors are correlated, so chance differences stay well inside this)
+RING_MOVE_Z = 2.0
 #: the edge's blur is fitted (a recording's optics, focus and codec widen the PSF), up to this factor (+1 px) of the
 #: camera file's PSF sigma
 MAX_BLUR = 2.5
@@ -208,15 +218,15 @@ def _fitted_bins(xs, ys, cx, cy):
 
 
 @njit(cache=True)
-def _scene_covariance(p, xs, ys, jac, weight, coverage, bins, fisher_inv, kept):
+def _scene_covariance(p, xs, ys, jac, weight, coverage, bins, fisher_inv, kept, gap_sigmas):
     """What the scene behind the disc's edge, unseen, may do to the parameters ``p``: the ring stands in for it, but
-    the edge lies ``3 sigma + 1`` px further in.  Taking the scene's texture as isotropic, it changes over that
+    the edge lies ``gap_sigmas sigma + 1`` px further in.  Taking the scene's texture as isotropic, it changes over that
     distance as much as it does along the ring over the same arc: the ring's structure function at that lag
     (mean square difference of ``bins`` that far apart) is the variance of each bin's error, independent from bin to
     bin, and it reaches the fit through the pixels it lies behind (``(1 - c)`` of each, by their Jacobian rows).
     Only the ``kept`` bins enter the structure function (a dark object's edge, whose sectors are left out of the fit,
     is not the scene behind the pixels fitted)."""
-    gap = RING_GAP_SIGMAS * p[4]
+    gap = gap_sigmas * p[4]
     arc = 2 * math.pi * (p[2] + gap + RING_WIDTH_PX / 2) / ANGLE_BINS
     lag = max(1, int(np.round((gap + 1.0) / arc)))
     v = _sector_effects(xs, ys, p[0], p[1], jac, weight, coverage)
@@ -233,17 +243,18 @@ def _scene_covariance(p, xs, ys, jac, weight, coverage, bins, fisher_inv, kept):
 
 
 @njit(cache=True)
-def _centre_errors(win, x_first, y_first, p, pick, xs, ys, weight, jac, resid, fisher, bins, coverage, kept, top):
+def _centre_errors(win, x_first, y_first, p, pick, xs, ys, weight, jac, resid, fisher, bins, coverage, kept, top,
+                   gap_sigmas):
     """A converged fit's centre covariance (2, 2) and reduced chi-square: the sandwich of its residuals
     (:func:`sandwich_covariance`), the scene behind its edge (:func:`_scene_covariance`) and its edge's roughness
     (:func:`_edge_roughness`); ``ok`` False when the edge has too few points (the Fisher matrix's inverse raises
     ``LinAlgError`` when singular)."""
     finv = np.linalg.inv(fisher)
-    rough = _edge_roughness(win, p[0] - x_first, p[1] - y_first, p, bins, kept, top)
+    rough = _edge_roughness(win, p[0] - x_first, p[1] - y_first, p, bins, kept, top, gap_sigmas)
     if not math.isfinite(rough):
         return False, np.zeros((2, 2)), math.nan
     cov = (_projected_meat(pick, win.shape, jac, weight, resid, np.ascontiguousarray(finv[:2]))
-           + _scene_covariance(p, xs, ys, jac, weight, coverage, bins, finv, kept)[:2, :2])
+           + _scene_covariance(p, xs, ys, jac, weight, coverage, bins, finv, kept, gap_sigmas)[:2, :2])
     cov[0, 0] += rough
     cov[1, 1] += rough
     return True, cov, float(np.sum(resid ** 2 * weight)) / max(pick.size - 5, 1)
@@ -317,14 +328,15 @@ def _bilinear(win, x, y):
 
 
 @njit(cache=True)
-def _edge_radii(win, cx, cy, r, blur, marker_level, bins):
+def _edge_radii(win, cx, cy, r, blur, marker_level, bins, gap_sigmas):
     """Where the edge lies in each angular bin: along the ray from the window's point ``(cx, cy)`` through the
     bin's centre angle, the first radius at which the image falls below half-way between the marker's level and
-    that bin's ring (bilinear samples 0.25 px apart, from ``r - 4 sigma`` out to the ring's outer edge; linear
+    that bin's ring (bilinear samples 0.25 px apart, from ``r - 4 sigma`` out to the ring's outer edge, ``gap_sigmas``
+    sigmas and :data:`RING_WIDTH_PX` beyond the edge; linear
     between samples).  ``+inf`` where it never falls that far (light beyond the disc), ``-inf`` where it starts
     below (something in front of the disc)."""
     start = max(r - 4.0 * blur, 0.3 * r)
-    n = int(math.ceil((r + RING_GAP_SIGMAS * blur + RING_WIDTH_PX - start) / 0.25))
+    n = int(math.ceil((r + gap_sigmas * blur + RING_WIDTH_PX - start) / 0.25))
     out = np.full(ANGLE_BINS, np.inf)
     for b in range(ANGLE_BINS):
         c, s = math.cos(_BIN_ANGLES[b]), math.sin(_BIN_ANGLES[b])
@@ -341,40 +353,6 @@ def _edge_radii(win, cx, cy, r, blur, marker_level, bins):
                 break
             before = v
     return out
-
-
-@njit(cache=True)
-def _lu_solve(a, b):
-    """``a x = b`` for a small square matrix by Gaussian elimination with partial pivoting; ``(x, ok)``, ``ok``
-    False when a pivot vanishes or the result is not finite."""
-    n = b.size
-    m = a.copy()
-    x = b.copy()
-    for k in range(n):
-        piv = k
-        for i in range(k + 1, n):
-            if abs(m[i, k]) > abs(m[piv, k]):
-                piv = i
-        if m[piv, k] == 0.0:
-            return x, False
-        if piv != k:
-            for j in range(n):
-                m[k, j], m[piv, j] = m[piv, j], m[k, j]
-            x[k], x[piv] = x[piv], x[k]
-        for i in range(k + 1, n):
-            f = m[i, k] / m[k, k]
-            for j in range(k, n):
-                m[i, j] -= f * m[k, j]
-            x[i] -= f * x[k]
-    for k in range(n - 1, -1, -1):
-        acc = x[k]
-        for j in range(k + 1, n):
-            acc -= m[k, j] * x[j]
-        x[k] = acc / m[k, k]
-    for k in range(n):
-        if not math.isfinite(x[k]):
-            return x, False
-    return x, True
 
 
 #: the harmonic basis of :func:`_edge_roughness` at the bins' angles: 1, cos(n a), sin(n a) for n = 1..EDGE_HARMONICS
@@ -394,7 +372,7 @@ def _residual_sum(radii, good, m):
                 rhs[i] += _HARMONICS[b, i] * radii[b]
                 for j in range(m):
                     a[i, j] += _HARMONICS[b, i] * _HARMONICS[b, j]
-    coef, ok = _lu_solve(a, rhs)
+    coef, ok = lu_solve(a, rhs)
     if not ok:
         return math.nan
     total = 0.0
@@ -425,7 +403,7 @@ def _harmonic_power(radii):
 
 
 @njit(cache=True)
-def _edge_roughness(win, cx, cy, p, bins, kept, top):
+def _edge_roughness(win, cx, cy, p, bins, kept, top, gap_sigmas):
     """The variance [px^2] per axis of the centre (at the window's point ``(cx, cy)``) that the edge's own departures
     from a circle imply: the edge points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a
     shift of the centre and is therefore absorbed by the fit; its unseen power is taken as the mean power per
@@ -437,7 +415,7 @@ def _edge_roughness(win, cx, cy, p, bins, kept, top):
     Only the ``kept`` bins have an edge point (a dark object's edge, whose sectors are left out of the fit, would
     bend it; another spot's light merged with the edge is what this looks for).  A saturated marker's edge is where
     the image falls half-way from full scale ``top``, its level as far as it is seen."""
-    radii = _edge_radii(win, cx, cy, p[2], p[4], min(p[3], top), bins)
+    radii = _edge_radii(win, cx, cy, p[2], p[4], min(p[3], top), bins, gap_sigmas)
     for b in range(ANGLE_BINS):
         if not kept[b]:
             radii[b] = np.nan
@@ -445,7 +423,7 @@ def _edge_roughness(win, cx, cy, p, bins, kept, top):
 
 
 @njit(cache=True)
-def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations, top):
+def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations, top, gap_sigmas):
     """:func:`_solve`'s iterations, compiled: ``(ok, p, pick, xs, ys, weight, jac, resid, fisher, bins,
     coverage)``."""
     h, w = win.shape
@@ -462,7 +440,7 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
     for it in range(iterations):
         if it < RING_PASSES:  # then the ring and the fitted pixels stay put: their edges would make the steps flip
             ok, bins, pick, scene, spread = _ring(win, x_first, y_first, p[0], p[1],
-                                                  p[2] + RING_GAP_SIGMAS * p[4], allowed)
+                                                  p[2] + gap_sigmas * p[4], allowed)
             if not ok:
                 return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
             xs, ys, values = np.empty(pick.size), np.empty(pick.size), np.empty(pick.size)
@@ -475,7 +453,7 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
                                                                  it < RING_PASSES, top)
         if converged:
             break
-        step, ok = _lu_solve(fisher, grad)
+        step, ok = lu_solve(fisher, grad)
         if not ok:
             return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
         # converged when the full step is small (one more pass then evaluates the weights, residuals and Fisher
@@ -496,27 +474,27 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
 
 
 def _solve(win, x_first: float, y_first: float, allowed, p, r0: float, sigma: float, sigma_max: float,
-           iterations: int, top: float = math.inf) -> _Solution | None:
+           iterations: int, top: float, gap_sigmas: float) -> _Solution | None:
     """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring (the window's first
     column and row at ``x_first, y_first``), the ring taken
     again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  None when
     a ring bin is empty, a step cannot be solved or kept in range, or the iterations do not converge.  Pixels at
-    ``top`` are censored (:func:`_pass`)."""
+    ``top`` are censored (:func:`_pass`); the ring lies ``gap_sigmas`` blur sigmas beyond the edge."""
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
         win, float(x_first), float(y_first), np.ascontiguousarray(allowed), np.asarray(p, np.float64), float(r0),
-        float(sigma), float(sigma_max), int(iterations), float(top))
+        float(sigma), float(sigma_max), int(iterations), float(top), float(gap_sigmas))
     if not ok:
         return None
     return _Solution(p, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
 
 
-def _joined(win, x_first, y_first, sol: "_Solution", sectors: np.ndarray, top: float = math.inf) -> bool:
+def _joined(win, x_first, y_first, sol: "_Solution", sectors: np.ndarray, top: float, gap_sigmas: float) -> bool:
     """Whether the light in any of the ``sectors`` joins the fitted disc: along its ray the image never falls
     half-way from the disc's level to the scene's (the median of the other bins) before the ring: the disc is then
     part of a larger bright shape (a band's middle), not a spot beside another light."""
     scene = np.full(ANGLE_BINS, _median(sol.bins[~sectors]))
     p = sol.p
-    radii = _edge_radii(win, p[0] - x_first, p[1] - y_first, p[2], p[4], min(p[3], top), scene)
+    radii = _edge_radii(win, p[0] - x_first, p[1] - y_first, p[2], p[4], min(p[3], top), scene, gap_sigmas)
     return bool(np.any(np.isposinf(radii[sectors])))
 
 
@@ -533,9 +511,32 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     square (about 1 when the disc's region is as smooth as the scene around it).  None when the window
     leaves the image, the ring is incomplete, or the fit diverges.
     """
+    return _fit_with_ring(image, x0, y0, r0, cam, iterations, RING_GAP_SIGMAS)
+
+
+def near_ring_move(image: np.ndarray, fit: SpotFit, r0: float, cam: Camera) -> np.ndarray:
+    """How far [px] (dx, dy) the centre of ``fit`` (:func:`fit_scene_spot`'s) moves when the disc is fitted again from
+    there (start radius ``r0``) with the ring :data:`NEAR_RING_GAP_SIGMAS` beyond its edge, where that move exceeds
+    what the two fits' own errors allow (:data:`RING_MOVE_Z`); zeros where it does not, or where that fit fails.
+
+    The two rings are two views of the scene under the disc's edge; where the scene changes between the edge and
+    the far ring (the tip in front of a patch a little larger than itself) the far ring's view is wrong and the
+    centre moves by about its error, which neither fit's covariance holds."""
+    near = _fit_with_ring(image, fit.x_px, fit.y_px, r0, cam, 15, NEAR_RING_GAP_SIGMAS)
+    if near is None:
+        return np.zeros(2)
+    move = np.array([near.x_px - fit.x_px, near.y_px - fit.y_px])
+    if float(move @ np.linalg.solve(fit.cov_xy + near.cov_xy, move)) <= RING_MOVE_Z**2:
+        return np.zeros(2)
+    return move
+
+
+def _fit_with_ring(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, iterations: int,
+                   gap_sigmas: float) -> SpotFit | None:
+    """:func:`fit_scene_spot` with the ring ``gap_sigmas`` blur sigmas beyond the disc's edge."""
     sigma = cam.psf_sigma_px
     sigma_max = MAX_BLUR * sigma + 1.0
-    half = int(math.ceil(1.3 * r0 + RING_GAP_SIGMAS * sigma_max + RING_WIDTH_PX + 2))
+    half = int(math.ceil(1.3 * r0 + gap_sigmas * sigma_max + RING_WIDTH_PX + 2))
     window = window_levels(image, x0, y0, half)
     if window is None:
         return None
@@ -544,17 +545,17 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     saturated = bool(win.max() >= cam.max_adu)
     top = float(cam.max_adu) if saturated else math.inf
     allowed = np.ones(win.shape, np.bool_)
-    ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + RING_GAP_SIGMAS * sigma_max, allowed, False)
+    ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + gap_sigmas * sigma_max, allowed, False)
     dark = _foreign_bins(bins, background + amplitude, -1.0) if ok else np.zeros(ANGLE_BINS, np.bool_)
     if dark.any():  # a dark object's edge within the widest ring: its sectors are left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, dark)
     start = np.array([x0, y0, r0, background + amplitude, sigma])
-    sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top)
+    sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top, gap_sigmas)
     bright = _foreign_bins(bins, background + amplitude) if ok and sol is None else np.zeros(ANGLE_BINS, np.bool_)
     if bright.any():  # another light within the widest ring (a hand beside the tip) pulled the fit away: left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, bright)
-        sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top)
-        if sol is not None and _joined(win, x_first, y_first, sol, bright, top):
+        sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top, gap_sigmas)
+        if sol is not None and _joined(win, x_first, y_first, sol, bright, top, gap_sigmas):
             return None
     if sol is None:
         return None
@@ -562,7 +563,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     foreign = _foreign_bins(sol.bins, min(sol.p[3], top))
     if foreign.any():  # another spot's light on the ring: its sectors (and one bin either side) are left out
         allowed = _without_sectors(allowed, x_first, y_first, sol.p[0], sol.p[1], foreign)
-        sol = _solve(win, x_first, y_first, allowed, sol.p, r0, sigma, sigma_max, iterations, top)
+        sol = _solve(win, x_first, y_first, allowed, sol.p, r0, sigma, sigma_max, iterations, top, gap_sigmas)
         if sol is None:
             return None
     p, n_used = sol.p, sol.pick.size
@@ -574,7 +575,8 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
         return None
     try:
         ok, cov, chi2 = _centre_errors(win, x_first, y_first, p, sol.pick, sol.xs, sol.ys, sol.weight, sol.jac,
-                                       sol.resid, sol.fisher, sol.bins, sol.coverage, kept, top)
+                                       sol.resid, sol.fisher, sol.bins, sol.coverage, kept, top,
+                                       gap_sigmas)
     except np.linalg.LinAlgError:
         return None
     if not ok:
@@ -602,10 +604,11 @@ def warm_up() -> None:
     win = 20.0 + 100.0 * (np.hypot(xx - 20.2, yy - 19.9) < 5.0)
     allowed = np.ones(win.shape, bool)
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
-        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15, math.inf)
+        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15, math.inf, RING_GAP_SIGMAS)
     _ring(win, 0.0, 0.0, 20.0, 20.0, 8.0, allowed, False)
     _foreign_bins(bins, float(p[3]))
     _median(bins)
     _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))
     kept = _fitted_bins(xs, ys, float(p[0]), float(p[1]))
-    _centre_errors(win, 0.0, 0.0, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover, kept, math.inf)
+    _centre_errors(win, 0.0, 0.0, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover, kept, math.inf,
+                   RING_GAP_SIGMAS)
