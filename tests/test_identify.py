@@ -503,8 +503,9 @@ def test_tables_from_a_european_spreadsheet_read_as_written(tmp_path):
 def test_headers_as_a_spreadsheet_writes_them_read_as_the_suffix_form(tmp_path):
     """A balanced gyro's precession table as students write it: the unit in brackets or after a slash, a degree
     sign, a deviation in its own column or marked after the name, Windows-1252 text (Excel's "CSV (comma
-    delimited)"), a notes column, and the cleared cells Excel exports as empty columns and rows; each reads to the
-    numbers of the suffix form, and rows keep their line numbers in the file."""
+    delimited)"), a notes column, and the cleared cells Excel exports as empty columns and rows, the units in a row
+    of their own under the header (as data loggers export them), a title above the header, DIN's ``Spin in U/min``;
+    each reads to the numbers of the suffix form, and rows keep their line numbers in the file."""
     canonical = ("spin_rev_per_min,precession_period_s,precession_period_s_sd,tilt_deg,added_mass_g\n"
                  "4000,3.0,0.1,90,50\n4500,2.5,0.05,88,50\n")
     written = {
@@ -514,6 +515,17 @@ def test_headers_as_a_spreadsheet_writes_them_read_as_the_suffix_form(tmp_path):
                       "4000;3000;100;90;0,05\n4500;2500;50;88;0,05\n", "utf-8-sig"),
         "square.csv": ("# lab book p. 12\n\nSpin [RPM],Precession_period [s],Precession period σ [s],Tilt [degrees],"
                        "Added mass [g]\n4000,3.0,0.1,90,50\n\n# refilled the air\n4500,2.5,0.05,88,50\n", "utf-8"),
+        "units_row.csv": ("Spin,Precession period,±,Tilt,Added mass\nrpm,s,s,°,g\n4000,3.0,0.1,90,50\n"
+                          "4500,2.5,0.05,88,50\n", "utf-8"),
+        "units_row_brackets.csv": ("Spin,Precession period (s),Precession period sd,Tilt,Added mass,Notes\n"
+                                   "(rpm),,[s],(deg),[kg],\n4000,3.0,0.1,90,0.05,x\n4500,2.5,0.05,88,0.05,\n",
+                                   "utf-8"),
+        "title.csv": ("Precession of gyro B (26 Nov)\nSpin (rpm),Precession period (s),± (s),Tilt (°),Added mass (g)\n"
+                      "4000,3.0,0.1,90,50\n4500,2.5,0.05,88,50\n", "utf-8"),
+        "title_cells.csv": ("Precession of gyro B,,,,\n,,,,\nSpin (rpm),Precession period (s),± (s),Tilt (°),"
+                            "Added mass (g)\n4000,3.0,0.1,90,50\n4500,2.5,0.05,88,50\n", "cp1252"),
+        "din.csv": ("Spin in U/min;Precession period in s;Precession period sd in s;Tilt in °;Added mass in g\n"
+                    "4000;3,0;0,1;90;50\n4500;2,5;0,05;88;50\n", "utf-8"),
     }
     (tmp_path / "precession.csv").write_text(canonical)
     reference = read_table(tmp_path / "precession.csv")
@@ -526,6 +538,9 @@ def test_headers_as_a_spreadsheet_writes_them_read_as_the_suffix_form(tmp_path):
             np.testing.assert_allclose(table.values[q], reference.values[q], rtol=1e-12, err_msg=name)
             np.testing.assert_allclose(table.sd[q], reference.sd[q], rtol=1e-12, err_msg=name)
     assert read_table(tmp_path / "precession_square.csv").lines.tolist() == [4, 7]
+    assert read_table(tmp_path / "precession_units_row.csv").lines.tolist() == [3, 4]
+    assert read_table(tmp_path / "precession_title.csv").lines.tolist() == [3, 4]
+    assert read_table(tmp_path / "precession_title_cells.csv").lines.tolist() == [4, 5]
 
 
 def test_an_excel_workbook_gives_a_table_per_sheet(tmp_path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import re
 
+import pandas as pd
 import pytest
 
 from conftest import PROTOCOL_DIR
@@ -62,6 +63,18 @@ def test_bundled_protocols_by_name(capsys, tmp_path, monkeypatch):
     with pytest.raises(ProtocolError):
         load_protocol("no-such-protocol")
     assert main(["theory", "free-top", "--no-simulate", "--json"]) == 0
+
+
+def test_a_bundled_protocols_name_serves_identify_and_a_sweep(tmp_path, monkeypatch):
+    """The commands that also read the protocol's text (identify writes it anew with the identified values, a sweep
+    changes one key in it) take a bundled protocol's name as the others do (they looked for a file of that name)."""
+    monkeypatch.chdir(tmp_path)
+    table = tmp_path / "spin_down.csv"
+    table.write_text("t (s),spin (rpm)\n0,4000\n30,3700\n60,3420\n90,3160\n120,2920\n150,2700\n")
+    assert main(["-q", "identify", str(table), "--protocol", "air-cushion-heavy-top", "--out", "id"]) == 0
+    assert load_protocol(tmp_path / "id" / "identified.toml").name == "air-cushion-heavy-top"
+    assert main(["-q", "plan", "air-cushion-heavy-top", "--sweep", "camera.fps=100:200:2", "--out", "sweep"]) == 0
+    assert len(pd.read_csv(tmp_path / "sweep" / "sweep_camera_fps.csv")) == 2
 
 
 def test_theory_prints_predictions_to_the_digits_their_sd_resolves(tmp_path, capsys):

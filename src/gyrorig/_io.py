@@ -63,13 +63,15 @@ def read_table_csv(path: str | Path, *, numbers: bool = True, **kwargs) -> pd.Da
     (:func:`table_encoding`).  The separator is the
     header's: a ``;`` or a tab in it and no comma; with ``;`` and ``numbers`` a decimal comma in any cell becomes a
     point (``numbers=False``: cells of text, e.g. file names, kept as written).  ``kwargs`` go to
-    :func:`pandas.read_csv` (``comment``, ``dtype``, ...); its errors as it raises them."""
+    :func:`pandas.read_csv` (``comment``, ``dtype``, ``skiprows`` as a list of 0-based line numbers, ...); its errors as
+    it raises them."""
     comment = kwargs.get("comment")
+    skipped = set(kwargs.get("skiprows") or ())
     encoding = kwargs.pop("encoding", None) or table_encoding(path)
     header = ""
     with open(path, encoding=encoding, errors="replace") as fh:
-        for line in fh:
-            if line.strip() and not (comment and line.lstrip().startswith(comment)):
+        for number, line in enumerate(fh):
+            if number not in skipped and line.strip() and not (comment and line.lstrip().startswith(comment)):
                 header = line
                 break
     sep = ";" if ";" in header and "," not in header else "\t" if "\t" in header and "," not in header else ","

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import _io
+from . import _io, protocols
 from .expectation import ExpectedRecord, expected_record, plan_fit_terms, project, tip_setup
 from .fit import FitError, FitResult, fit_angles, linear_response
 from .geometry import wrap_angle
@@ -550,7 +550,7 @@ def sweep(protocol_path: str | Path, key: str, values: np.ndarray, *, duration_s
     see the tip), ``motion_blur_px``, ``sigma_px``, ``marker_in_view_fraction`` (the frames whose tip spot is
     wholly in the image: below 1 the setting loses the marker, and its frames are gaps of the expected record).
     """
-    base = tomllib.loads(_io.read_settings_text(protocol_path))
+    base = tomllib.loads(_io.read_settings_text(protocols.protocol_path(protocol_path)))
     rows = []
     for i, v in enumerate(values):
         data = copy.deepcopy(base)

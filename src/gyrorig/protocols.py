@@ -45,7 +45,7 @@ __all__ = [
     "top_protocol",
     "protocol_summary",
     "BUNDLED_PROTOCOL_DIR",
-    "bundled_protocols",
+    "bundled_protocols", "protocol_path",
     "Uncertainty",
     "checked_rig",
 ]
@@ -509,6 +509,13 @@ def checked_rig(rig: Rig) -> Rig:
     return _parse_rig({k: v for k, v in asdict(rig).items() if v is not None})
 
 
+def protocol_path(path: str | Path) -> Path:
+    """``path``, or the bundled protocol of that name where no such file exists (``gyrorig plan free-top``)."""
+    path, bundled = Path(path), BUNDLED_PROTOCOL_DIR / f"{Path(path).stem}.toml"
+    named = not path.exists() and path.name == str(path) and path.suffix in ("", ".toml")
+    return bundled if named and bundled.is_file() else path
+
+
 def load_protocol(path: str | Path) -> Protocol:
     """Read and validate a protocol TOML file.
 
@@ -526,11 +533,7 @@ def load_protocol(path: str | Path) -> Protocol:
     ProtocolError
         If the file cannot be read or parsed, or a value is invalid.
     """
-    path = Path(path)
-    if not path.exists() and path.name == str(path) and path.suffix in ("", ".toml"):
-        bundled = BUNDLED_PROTOCOL_DIR / f"{path.stem}.toml"
-        if bundled.is_file():  # a bundled protocol named on its own (``gyrorig plan air-cushion-heavy-top``)
-            path = bundled
+    path = protocol_path(path)
     from . import _io
 
     try:

@@ -12,7 +12,7 @@ import numpy as np
 import tomli_w
 
 from .. import _io
-from ..protocols import Protocol, ProtocolError, load_protocol
+from ..protocols import Protocol, ProtocolError, load_protocol, protocol_path
 from .configurations import configuration_of, configured, configured_prior, parse_configurations
 from .estimate import Identification, extra_priors, formulas_used, identify_parameters, prior_rig_values
 from .observations import Observation, observations_from_fit, observations_from_table
@@ -162,7 +162,7 @@ def identify_files(inputs: list[str | Path], prior_path: str | Path, out: str | 
     if not all(math.isfinite(v) for v in ident.standard_errors):
         raise IdentifyInputError("the inputs do not determine every parameter (infinite standard error)")
     out = Path(out)
-    text = identified_toml(_io.read_settings_text(prior_path), ident, prior, [str(i) for i in inputs])
+    text = identified_toml(_io.read_settings_text(protocol_path(prior_path)), ident, prior, [str(i) for i in inputs])
     with _io.atomic_path(out / "identified.toml") as tmp:
         Path(tmp).write_text(text)
     _io.write_json(identify_document(ident, prior, [str(i) for i in inputs]), out / "identify.json")

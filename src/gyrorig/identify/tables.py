@@ -7,7 +7,8 @@ standard deviation ``<name>_<unit>_sd``; or as a spreadsheet's header is written
 slash (``Spin (rpm)``, ``Precession period [s]``, ``t / s``, ``Tilt (°)``), the name's words joined by ``_``
 (``time`` for ``t``), a standard deviation marked ``sd``, ``std``, ``sigma`` or ``±`` after the name
 (``spin sd (rpm)``), or a column of its own (``± (rpm)``, ``sd [s]``) right of its value's column, or in each cell after
-its value (``4000 ± 10``).  A time may be a stopwatch's reading (``1:05.5``).  Unit spellings: :data:`UNIT_WORDS`.  Every problem is an :class:`IdentifyInputError` naming the file, the row (as the line number
+its value (``4000 ± 10``); the units may stand in a row of their own under the header (``Time, Spin`` then ``s, rpm``).
+A time may be a stopwatch's reading (``1:05.5``).  Unit spellings: :data:`UNIT_WORDS`.  Every problem is an :class:`IdentifyInputError` naming the file, the row (as the line number
 in the file) and the column as written.
 """
 
@@ -127,15 +128,18 @@ _WRITTEN = re.compile(r"^(?P<name>[^(\[]*?)\s*[(\[](?P<unit>[^)\]]*)[)\]]\s*(\.\
 
 
 def _written(path: str, column: str, left: tuple[str, str, bool] | None) -> tuple[str, str, bool] | None:
-    """A header as a spreadsheet writes it (``Spin (rpm)``, ``t / s``, ``± [rpm]``), or None for another form."""
+    """A header as a spreadsheet writes it (``Spin (rpm)``, ``t / s``, ``t in s``, ``± [rpm]``), or None for another
+    form."""
     match = _WRITTEN.match(column)
     if match is not None:
         name, unit = match["name"], match["unit"]
+    elif " in " in column and _unit_key(column.rpartition(" in ")[2]) in UNIT_WORDS:  # DIN's 't in s'
+        name, _, unit = column.rpartition(" in ")
     elif "/" in column and not column.endswith("_sd"):
         name, _, unit = column.partition(" / ") if " / " in column else column.partition("/")
     else:
         return None
-    key = re.sub(r"[\s*·]", "", unit.lower()).replace("²", "2").replace("^2", "2")
+    key = _unit_key(unit)
     if key not in UNIT_WORDS:
         raise IdentifyInputError(f"{path}: column {column!r}: unknown unit {unit.strip()!r}; known: "
                                  + ", ".join(UNIT_WORDS))
@@ -151,6 +155,40 @@ def _written(path: str, column: str, left: tuple[str, str, bool] | None) -> tupl
         if words.endswith(tail) and len(words) > len(tail):
             return _known(path, column, words[: -len(tail)].rstrip("_"), suffix), suffix, True
     return _known(path, column, words, suffix), suffix, False
+
+
+def _unit_key(unit: str) -> str:
+    """A unit as written (``m²``, ``kg * m^2``, ``S``), in :data:`UNIT_WORDS`' spelling."""
+    return re.sub(r"[\s*·]", "", unit.lower()).replace("²", "2").replace("^2", "2")
+
+
+def _below_title(frame: pd.DataFrame, lines: np.ndarray) -> tuple[pd.DataFrame, np.ndarray]:
+    """A title read as the header (its first cell alone filled: ``Spin-down of gyro B,,`` as Excel writes a title
+    row): the first row under it that fills two cells or more is the header."""
+    if len(frame.columns) < 2 or not all(c.startswith("Unnamed: ") for c in frame.columns[1:]):
+        return frame, lines
+    cells = frame.apply(lambda c: c.map(lambda v: "" if pd.isna(v) else str(v).strip()))
+    rows = np.flatnonzero((cells != "").sum(axis=1).to_numpy() >= 2)
+    if len(rows) == 0:
+        return frame, lines
+    k = int(rows[0])
+    out = frame.iloc[k + 1:].copy()
+    out.columns = [v if v else f"Unnamed: {i}" for i, v in enumerate(cells.iloc[k])]
+    return out.reset_index(drop=True), lines[k + 1:]
+
+
+def _units_row(frame: pd.DataFrame, lines: np.ndarray) -> tuple[pd.DataFrame, np.ndarray]:
+    """A row of units under the header (``Time, Spin`` then ``s, rpm``, as data loggers' and many spreadsheets'
+    exports write them) taken into the header (``Time (s)``), where every filled cell of the first row is a known
+    unit (bracketed or not); a column whose header already states a unit keeps it."""
+    if len(frame) == 0:
+        return frame, lines
+    cells = {c: str(v).strip() for c, v in frame.iloc[0].items() if not pd.isna(v) and str(v).strip()}
+    units = {c: v[1:-1] if v[:1] in "([" and v[-1:] in ")]" else v for c, v in cells.items()}
+    if not units or any(_unit_key(u) not in UNIT_WORDS for u in units.values()):
+        return frame, lines
+    named = {c: f"{c} ({u})" for c, u in units.items() if _WRITTEN.match(c) is None and "/" not in c}
+    return frame.iloc[1:].rename(columns=named).reset_index(drop=True), lines[1:]
 
 
 #: the columns that tell a table's kind when neither a ``kind`` column nor the file name does
@@ -266,15 +304,26 @@ def _cell(frame: pd.DataFrame, column: str, row: int) -> str:
     return "an empty cell" if pd.isna(value) or str(value).strip() == "" else repr(str(value))
 
 
-def _data_lines(path: Path) -> np.ndarray:
-    """The file's line number of each row pandas reads (the lines after the header that are neither blank nor a
-    ``#`` comment)."""
-    numbers = []
+def _text_lines(path: Path) -> list[tuple[int, str]]:
+    """The file's lines that are neither blank nor a ``#`` comment, with their numbers (from 1)."""
     with open(path, encoding=_io.table_encoding(path), errors="replace") as fh:
-        for number, line in enumerate(fh, start=1):
-            if line.strip() and not line.lstrip().startswith("#"):
-                numbers.append(number)
-    return np.array(numbers[1:], int)
+        return [(n, line) for n, line in enumerate(fh, start=1) if line.strip() and not line.lstrip().startswith("#")]
+
+
+def _title_lines(lines: list[tuple[int, str]]) -> list[int]:
+    """The numbers (from 1) of title lines above the header (``Spin-down of gyro B``): lines with no separator
+    before the first that has one (a table has two columns at least, so a header has one)."""
+    titles = []
+    for number, line in lines:
+        if any(sep in line for sep in ",;\t"):
+            return titles
+        titles.append(number)
+    return []
+
+
+def _data_lines(lines: list[tuple[int, str]], titles: list[int]) -> np.ndarray:
+    """The file's line number of each row pandas reads (the lines after the title and the header)."""
+    return np.array([n for n, _ in lines if n not in titles][1:], int)
 
 
 def _cleaned(label: str, frame: pd.DataFrame, lines: np.ndarray, row_word: str) -> tuple[pd.DataFrame, np.ndarray]:
@@ -296,12 +345,14 @@ def read_table(path: str | Path) -> Table:
     """Read one lab table (a CSV file) into SI units (see the module docstring)."""
     path = Path(path)
     try:
-        frame = _io.read_table_csv(path, skipinitialspace=True, comment="#")
+        text = _text_lines(path)
+        titles = _title_lines(text)
+        frame = _io.read_table_csv(path, skipinitialspace=True, comment="#", skiprows=[n - 1 for n in titles])
     except FileNotFoundError:
         raise IdentifyInputError(f"{path}: no such file") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise IdentifyInputError(f"{path}: not a readable CSV table ({exc})") from None
-    lines = _data_lines(path)
+    lines = _data_lines(text, titles)
     if len(lines) != len(frame):  # a cell quoted across lines: rows counted from the header
         lines = np.arange(len(frame)) + 2
     return _table(str(path), path.name, frame, lines, "line")
@@ -353,7 +404,8 @@ def _table(label: str, kind_name: str, frame: pd.DataFrame, lines: np.ndarray, r
     """One table in SI from its cells as read (``label`` names it in messages, ``kind_name`` is searched for its
     kind, ``lines`` are its rows' numbers in the file, called ``row_word``)."""
     frame.columns = [str(c).strip() for c in frame.columns]
-    frame, lines = _cleaned(label, frame, lines, row_word)
+    frame, lines = _cleaned(label, *_below_title(frame, lines), row_word)
+    frame, lines = _units_row(frame, lines)
     values: dict[str, np.ndarray] = {}
     sd: dict[str, np.ndarray] = {}
     units: dict[str, str] = {}
