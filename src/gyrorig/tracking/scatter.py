@@ -114,6 +114,9 @@ class SigmaCheck:
     #: largest such factor
     local_frames: int = 0
     local_max_factor: float = 1.0
+    #: frames whose errors were widened after the check by a second view of the scene under the tip's edge
+    #: (:func:`~gyrorig.tracking.scene_spot.near_ring_move`)
+    scene_frames: int = 0
 
     def as_dict(self) -> dict:
         return {"factor": self.factor, "factor_se": self.factor_se, "coordinates": self.coordinates,
@@ -125,7 +128,8 @@ class SigmaCheck:
                 "residual_acf": list(self.residual_acf), "smooth_path": self.smooth_path,
                 "shared_px": self.shared_px, "shared_px_se": self.shared_px_se,
                 "omega_rad_s": None if math.isnan(self.omega_rad_s) else self.omega_rad_s,
-                "local_frames": self.local_frames, "local_max_factor": self.local_max_factor}
+                "local_frames": self.local_frames, "local_max_factor": self.local_max_factor,
+                "scene_frames": self.scene_frames}
 
 
 def check_summary(check: dict) -> str:
@@ -136,6 +140,8 @@ def check_summary(check: dict) -> str:
             f"{'applied' if check['applied'] else 'not applied'}: {check['reason']}; "
             + (f"widened further in {local} frame(s) where the scatter grew along the record (up to "
                f"{check['local_max_factor']:.3g}x); " if local else "")
+            + (f"widened in {check['scene_frames']} frame(s) where the scene under the tip's edge is not as its "
+               "ring shows; " if check.get("scene_frames") else "")
             + f"{check['outliers']} outlier frame(s)")
 
 

@@ -517,7 +517,8 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
 def near_ring_move(image: np.ndarray, fit: SpotFit, r0: float, cam: Camera) -> np.ndarray:
     """How far [px] (dx, dy) the centre of ``fit`` (:func:`fit_scene_spot`'s) moves when the disc is fitted again from
     there (start radius ``r0``) with the ring :data:`NEAR_RING_GAP_SIGMAS` beyond its edge, where that move exceeds
-    what the two fits' own errors allow (:data:`RING_MOVE_Z`); zeros where it does not, or where that fit fails.
+    what the two fits' own errors allow (:data:`RING_MOVE_Z`, or where they cannot be compared); zeros where it does
+    not, or where that fit fails.
 
     The two rings are two views of the scene under the disc's edge; where the scene changes between the edge and
     the far ring (the tip in front of a patch a little larger than itself) the far ring's view is wrong and the
@@ -526,9 +527,11 @@ def near_ring_move(image: np.ndarray, fit: SpotFit, r0: float, cam: Camera) -> n
     if near is None:
         return np.zeros(2)
     move = np.array([near.x_px - fit.x_px, near.y_px - fit.y_px])
-    if float(move @ np.linalg.solve(fit.cov_xy + near.cov_xy, move)) <= RING_MOVE_Z**2:
-        return np.zeros(2)
-    return move
+    try:
+        z2 = float(move @ np.linalg.solve(fit.cov_xy + near.cov_xy, move))
+    except np.linalg.LinAlgError:  # errors that cannot be compared: the move is kept
+        return move
+    return np.zeros(2) if z2 <= RING_MOVE_Z**2 else move
 
 
 def _fit_with_ring(image: np.ndarray, x0: float, y0: float, r0: float, cam: Camera, iterations: int,

@@ -463,7 +463,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
                                 capture_on_grid(angles, markers, rows.tip_px, rows.tip_cov, clock))
     check = _check_and_scale(angles, markers, rows, appearance.doubts(camera, lossy, follower.shape, tip), lossy,
                              tip.name, camera, tip.position_m[2], MAX_SIGMA_RADII * follower.r_expected)
-    rows.widen_by_scene(angles, markers, camera, tip.position_m[2], tip.name)
+    check = replace(check, scene_frames=rows.widen_by_scene(angles, markers, camera, tip.position_m[2], tip.name))
     source_problems += _off_pace_left_out(rows, angles, markers, tip.name, 1.0 / time_scale, source) + said
     source_problems += _caveats(source, appearance, tip, frame_types, lossy, rows, camera, angles, markers)
     own_pose = camera.pose_recording is not None and camera.pose_recording == fingerprint(source)
