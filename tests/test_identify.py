@@ -149,6 +149,7 @@ def _bad_table(tmp_path: Path, case: str) -> Path:
         "unit-ambiguous": "spin (1/s),precession period (s)\n400,3.0\n",
         "deviation-without-value": "sd (rpm),precession period (s)\n10,3.0\n",
         "values-without-header": "spin (rpm),precession period (s),\n4000,3.0,\n4500,2.6,7\n",
+        "one-header-of-two": "precession period (s),\n3.0,4000\n2.6,4500\n",
         "deviation-twice": "spin (rpm),spin sd (rpm),± (rpm),precession period (s)\n4000,10,10,3.0\n",
         "deviation-in-cell-and-column": "spin (rpm),± (rpm),precession period (s)\n4000 ± 10,10,3.0\n",
         "deviation-not-a-number": "spin (rpm),precession period (s)\n4000 ± ten,3.0\n",
@@ -163,6 +164,7 @@ def _bad_table(tmp_path: Path, case: str) -> Path:
 @pytest.mark.parametrize("case", ["unknown-unit", "negative-period", "no-spin", "too-few-rows", "not-a-number",
                                   "wrong-dimension", "tilt-200-deg", "tilt-negative", "times-all-equal",
                                   "unit-ambiguous", "deviation-without-value", "values-without-header",
+                                  "one-header-of-two",
                                   "deviation-twice", "deviation-in-cell-and-column", "deviation-not-a-number",
                                   "clock-not-a-time"])
 def test_bad_tables_are_refused_naming_the_file(tmp_path, case, capsys):

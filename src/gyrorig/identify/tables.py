@@ -7,9 +7,10 @@ standard deviation ``<name>_<unit>_sd``; or as a spreadsheet's header is written
 slash (``Spin (rpm)``, ``Precession period [s]``, ``t / s``, ``Tilt (°)``), the name's words joined by ``_``
 (``time`` for ``t``), a standard deviation marked ``sd``, ``std``, ``sigma`` or ``±`` after the name
 (``spin sd (rpm)``), or a column of its own (``± (rpm)``, ``sd [s]``) right of its value's column, or in each cell after
-its value (``4000 ± 10``); the units may stand in a row of their own under the header (``Time, Spin`` then ``s, rpm``).
-A time may be a stopwatch's reading (``1:05.5``).  Unit spellings: :data:`UNIT_WORDS`.  Every problem is an :class:`IdentifyInputError` naming the file, the row (as the line number
-in the file) and the column as written.
+its value (``4000 ± 10``); the units may stand in a row of their own under the header (``Time, Spin`` then
+``s, rpm``), or after ``in`` (DIN's ``t in s``), and a title may stand above the header.  A time may be a stopwatch's
+reading (``1:05.5``).  Unit spellings: :data:`UNIT_WORDS`.  Every problem is an :class:`IdentifyInputError` naming
+the file, the row (as the line number in the file) and the column as written.
 """
 
 from __future__ import annotations
@@ -164,7 +165,7 @@ def _unit_key(unit: str) -> str:
 
 def _below_title(frame: pd.DataFrame, lines: np.ndarray) -> tuple[pd.DataFrame, np.ndarray]:
     """A title read as the header (its first cell alone filled: ``Spin-down of gyro B,,`` as Excel writes a title
-    row): the first row under it that fills two cells or more is the header."""
+    row): the first row under it that fills two cells or more, none of them a number, is the header."""
     if len(frame.columns) < 2 or not all(c.startswith("Unnamed: ") for c in frame.columns[1:]):
         return frame, lines
     cells = frame.apply(lambda c: c.map(lambda v: "" if pd.isna(v) else str(v).strip()))
@@ -172,6 +173,9 @@ def _below_title(frame: pd.DataFrame, lines: np.ndarray) -> tuple[pd.DataFrame, 
     if len(rows) == 0:
         return frame, lines
     k = int(rows[0])
+    filled = cells.iloc[k][cells.iloc[k] != ""]
+    if pd.to_numeric(filled, errors="coerce").notna().any():  # values under a header with a column unnamed
+        return frame, lines
     out = frame.iloc[k + 1:].copy()
     out.columns = [v if v else f"Unnamed: {i}" for i, v in enumerate(cells.iloc[k])]
     return out.reset_index(drop=True), lines[k + 1:]
