@@ -113,8 +113,8 @@ class TrackRows:
             self.tip_px[row] = (fit.x_px, fit.y_px)
             self.tip_cov[row] = np.asarray(fit.cov_xy, float)
             self.scene_var.pop(row, None)
-            # a colour's image (the codec's half-resolution chroma) spreads beyond the disc's blurred edge, where the
-            # near ring would see the marker itself
+            # not on a colour's image (the codec's half-resolution chroma): there the two rings' views differ in front
+            # of a plain scene too
             if frame is not None and follower.shape == "sphere" and not camera.sensor_known and tip.colour == "any":
                 move = near_ring_move(frame, fit, follower.r_expected, camera)
                 if move.any():

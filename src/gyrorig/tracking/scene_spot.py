@@ -44,8 +44,8 @@ RING_WIDTH_PX = 2.0
 #: the ring starts this many PSF sigmas beyond the disc's edge (where the disc's light has fallen to 1e-3)
 RING_GAP_SIGMAS = 3.0
 #: a second view of the scene under the edge (:func:`near_ring_move`): a ring this many sigmas beyond the edge (the
-#: disc's light there 7 % of its contrast, 0.5-3 % over the ring's width, alike at every angle: it moves the ring's
-#: levels, not the centre)
+#: disc's light there 7 % of its contrast, 1-4 % averaged over the ring's width for a blur of 0.5-3.5 px, alike at
+#: every angle: it moves the ring's levels, not the centre)
 NEAR_RING_GAP_SIGMAS = 1.5
 #: the two views' centres differ when they are farther apart than this many of their errors (the two fits' covariances
 #: summed: their errors are correlated, so chance differences stay well inside this)
@@ -514,7 +514,7 @@ def fit_scene_spot(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     return _fit_with_ring(image, x0, y0, r0, cam, iterations, RING_GAP_SIGMAS)
 
 
-def near_ring_move(image: np.ndarray, fit: SpotFit, r0: float, cam: Camera) -> np.ndarray:
+def near_ring_move(image: np.ndarray, fit: SpotFit, r0: float, cam: Camera, *, iterations: int = 15) -> np.ndarray:
     """How far [px] (dx, dy) the centre of ``fit`` (:func:`fit_scene_spot`'s) moves when the disc is fitted again from
     there (start radius ``r0``) with the ring :data:`NEAR_RING_GAP_SIGMAS` beyond its edge, where that move exceeds
     what the two fits' own errors allow (:data:`RING_MOVE_Z`, or where they cannot be compared); zeros where it does
@@ -523,7 +523,7 @@ def near_ring_move(image: np.ndarray, fit: SpotFit, r0: float, cam: Camera) -> n
     The two rings are two views of the scene under the disc's edge; where the scene changes between the edge and
     the far ring (the tip in front of a patch a little larger than itself) the far ring's view is wrong and the
     centre moves by about its error, which neither fit's covariance holds."""
-    near = _fit_with_ring(image, fit.x_px, fit.y_px, r0, cam, 15, NEAR_RING_GAP_SIGMAS)
+    near = _fit_with_ring(image, fit.x_px, fit.y_px, r0, cam, iterations, NEAR_RING_GAP_SIGMAS)
     if near is None:
         return np.zeros(2)
     move = np.array([near.x_px - fit.x_px, near.y_px - fit.y_px])
