@@ -1,6 +1,7 @@
-"""Image sequences (issue 19): a folder of PNG or TIFF frames in name order, with frame times from its
-timestamps.csv or from camera.json's fps, tracks exactly like the video it was copied from; bad folders
-and timestamps are bad input (exit 2, the file, row and column named, nothing written)."""
+"""Image sequences (issue 19): a folder of PNG, TIFF or BMP frames in name order, or a multi-page TIFF stack, with
+frame times from a timestamps table or from camera.json's fps, tracks exactly like the video it was copied from
+(a folder of JPEGs as a lossy copy); bad folders and timestamps are bad input (exit 2, the file, row and column
+named, nothing written)."""
 
 import copy
 import json
@@ -40,10 +41,15 @@ def _write(folder, frames, suffix, dtype, names=None):
     return folder
 
 
-@pytest.mark.parametrize("suffix,dtype", [(".png", np.uint16), (".tif", np.uint8)])
+@pytest.mark.parametrize("suffix,dtype", [(".png", np.uint16), (".tif", np.uint8), (".bmp", np.uint8),
+                                          ("stack", np.uint16), ("stack", np.uint8)])
 def test_an_image_copy_tracks_like_the_video(rendered, tmp_path, suffix, dtype):
     out, protocol, cam, frames = rendered
-    folder = _write(tmp_path / "images", frames, suffix, dtype)
+    if suffix == "stack":  # one multi-page TIFF, as a scientific camera or ImageJ saves a recording
+        folder = tmp_path / "stack.tif"
+        assert cv2.imwritemulti(str(folder), [f.astype(dtype) for f in frames])
+    else:
+        folder = _write(tmp_path / "images", frames, suffix, dtype)
     from_video = track(out / "v" / "video.mkv", cam, protocol, frame_dots=False).angles
     from_images = track(folder, cam, protocol, frame_dots=False).angles
     assert from_images.frame.tolist() == from_video.frame.tolist()
@@ -60,6 +66,65 @@ def test_timestamps_with_dropped_frames_give_gaps(rendered, tmp_path):
     angles = track(folder, cam, protocol, frame_dots=False).angles
     assert angles.frame.tolist() == kept
     np.testing.assert_allclose(angles.t_s, np.array(kept) / cam.fps + cam.exposure_s / 2, rtol=0, atol=1e-12)
+
+
+def test_a_tiff_stacks_timestamps_beside_it_give_gaps(rendered, tmp_path):
+    out, protocol, cam, frames = rendered
+    kept = [k for k in range(len(frames)) if k not in {5, 6, 20}]
+    assert cv2.imwritemulti(str(tmp_path / "take.tif"), [frames[k] for k in kept])
+    pd.DataFrame({"frame": kept, "t_s": np.array(kept) / cam.fps}).to_csv(tmp_path / "take.timestamps.csv",
+                                                                         index=False)
+    angles = track(tmp_path / "take.tif", cam, protocol, frame_dots=False).angles
+    assert angles.frame.tolist() == kept
+
+
+@pytest.mark.parametrize("kind", ["not-a-tiff", "times-count", "folder-of-stacks"])
+def test_a_bad_tiff_stack_is_bad_input(rendered, tmp_path, kind):
+    out, protocol, cam, frames = rendered
+    stack = tmp_path / "take.tif"
+    if kind == "not-a-tiff":
+        stack.write_bytes(b"II*\0 not a tiff")
+    elif kind == "folder-of-stacks":  # each file many frames: not a folder of one image per frame
+        for name in ("a.tif", "b.tif"):
+            assert cv2.imwritemulti(str(tmp_path / name), frames[:10])
+        stack = tmp_path
+    else:
+        assert cv2.imwritemulti(str(stack), frames[:10])
+        pd.DataFrame({"frame": range(9), "t_s": np.arange(9) / 200.0}).to_csv(tmp_path / "take.timestamps.csv",
+                                                                              index=False)
+    with pytest.raises(BadInputError):
+        track(stack, cam, protocol, frame_dots=False)
+
+
+def test_a_folder_of_jpegs_is_tracked_as_a_lossy_copy(rendered, tmp_path):
+    """JPEG changes pixel values: the frames are read (all of them) and the sensor's noise model is not used;
+    each frame's angles stay within 5 of their errors of the lossless video's (whose own errors are far smaller)."""
+    out, protocol, cam, frames = rendered
+    folder = tmp_path / "jpeg"
+    folder.mkdir()
+    for k, f in enumerate(frames):
+        assert cv2.imwrite(str(folder / f"f{k:03d}.jpg"), f.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])
+    with ImageFolder(folder).open() as opened:
+        assert opened.lossy and opened.count == len(frames)
+    exact = track(out / "v" / "video.mkv", cam, protocol, frame_dots=False).angles
+    lossy = track(folder, cam, protocol, frame_dots=False).angles
+    m = exact.merge(lossy, on="frame", suffixes=("", "_jpeg")).dropna(subset=["theta_rad", "theta_rad_jpeg"])
+    assert len(m) >= len(frames) - 2
+    for angle in ("theta", "phi"):
+        pull = (m[f"{angle}_rad_jpeg"] - m[f"{angle}_rad"]) / m[f"{angle}_sigma_rad_jpeg"]
+        assert pull.abs().max() < 5
+
+
+def test_a_folder_of_several_image_kinds_is_read_as_its_most_numerous(rendered, tmp_path, caplog):
+    """A stray picture of another kind (a preview, a snapshot of the set-up) is left out, with a warning."""
+    out, protocol, cam, frames = rendered
+    folder = _write(tmp_path / "images", frames, ".png", np.uint8)
+    cv2.imwrite(str(folder / "setup.jpg"), frames[0][::2, ::2])
+    with caplog.at_level("WARNING", logger="gyrorig.tracking.images"):
+        source = ImageFolder(folder)
+    assert [f.suffix for f in source.files] == [".png"] * len(frames)
+    assert any(r.levelname == "WARNING" for r in caplog.records)
+    assert track(folder, cam, protocol, frame_dots=False).angles.frame.tolist() == list(range(len(frames)))
 
 
 def _bad_folder(tmp_path, frames, kind):

@@ -469,7 +469,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     constraints = _constraints(args)
     protocol = load_protocol(args.protocol) if args.protocol else None
     from ..analysis import VIDEO_SUFFIXES
-    from ..tracking.sources import IMAGE_SUFFIXES
+    from ..tracking.images import IMAGE_SUFFIXES
 
     # a folder of images with no videos is one image sequence; a folder of videos (or a manifest) a batch
     sequence = src.is_dir() and not any(p.suffix.lower() in VIDEO_SUFFIXES for p in src.iterdir()) and any(

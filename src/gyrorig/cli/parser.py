@@ -232,8 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
     po.set_defaults(func="_cmd_pose", out_is_file=True)
 
     k = sub.add_parser("track", help="track the markers: video -> angles.csv, markers.csv")
-    k.add_argument("video", help="any video OpenCV can decode, or a folder of PNG/TIFF images in name order "
-                                 "(frame times from its timestamps.csv: frame, t_s; else camera.json's fps), or the "
+    k.add_argument("video", help="any video FFmpeg can decode, a folder of PNG/TIFF/BMP/JPEG images in name order "
+                                 "(frame times from its timestamps.csv: frame, t_s; else camera.json's fps), a "
+                                 "multi-page TIFF stack (times from NAME.timestamps.csv beside it), or the "
                                  "tip's pixel track from another tool: an OSP Tracker .trk, or a CSV with frame, t_s, "
                                  "x_px, y_px[, sigma_px]")
     k.add_argument("--camera", required=True, help="camera.json with intrinsics and the pose relative to the pivot")

@@ -24,7 +24,8 @@ from .camera_file import load_camera
 from .errors import BadInputError, CameraFileError, TrackingError
 from .pose import camera_modes, estimate_pose
 from .rays import sphere_box, tip_from_pixel, tips_from_pixels
-from .sources import FrameArrays, ImageFolder, VideoFile
+from .images import ImageFolder, TiffStack
+from .sources import FrameArrays, VideoFile
 from .scatter import SigmaCheck, check_sigmas
 from .scene_spot import warm_up
 from .spot import SpotFit, fit_spot, spot_crb_px
@@ -32,4 +33,4 @@ from .tracker import TrackResult, track, track_video
 
 __all__ = ["Camera", "load_camera", "estimate_pose", "SpotFit", "fit_spot", "spot_crb_px", "warm_up",
            "tip_from_pixel", "tips_from_pixels", "camera_modes", "track", "track_video", "TrackResult",
-           "TrackingError", "BadInputError", "CameraFileError", "VideoFile", "ImageFolder", "FrameArrays", "sphere_box", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]
+           "TrackingError", "BadInputError", "CameraFileError", "VideoFile", "ImageFolder", "TiffStack", "FrameArrays", "sphere_box", "SigmaCheck", "check_sigmas", "ANGLE_COLUMNS", "MARKER_COLUMNS", "INTRINSIC_PARAMETERS"]

@@ -69,7 +69,7 @@ def bob(image: np.ndarray, first_row: int) -> np.ndarray:
 
 
 def field_frames(frames, order: str, half_interval_s: float):
-    """``frames`` (:class:`~gyrorig.tracking.sources.Frames` of interlaced pictures) as a source of fields: two
+    """``frames`` (:class:`~gyrorig.tracking.frames.Frames` of interlaced pictures) as a source of fields: two
     images per picture (:func:`bob`), the first exposed at the picture's time, the second ``half_interval_s``
     later; twice the rate and count; picture types and damaged stretches given per field."""
     if order not in FIELD_ORDERS:

@@ -1,97 +1,36 @@
-"""Where frames come from: a video file (decoded in a background thread), a folder of images, or
-frames held in memory.
+"""Where frames come from: a video file (decoded in a background thread), images (module
+:mod:`~gyrorig.tracking.images`: a folder of images, a TIFF stack), or frames held in memory.
 
-A source opens to :class:`Frames`: the image size, the nominal frame rate (NaN when unknown),
+A source opens to :class:`~gyrorig.tracking.frames.Frames`: the image size, the nominal frame rate (NaN when unknown),
 the frame count (0 when unknown) and an iterator of ``(image, t_s)`` pairs, ``image`` a 2-D
 array of luma (a colour frame's luma, not one of its channels) or, opened with ``colour=True``, an
 RGB array, and ``t_s`` the frame's start time from the
 container's timestamps (NaN when the source has none: the tracker then counts frames at the
 camera's rate).
-
-An image folder (:class:`ImageFolder`) holds one image per frame (PNG or TIFF, 8 or 16 bit; a
-16-bit file may carry 12-bit values), in name order (numbers in names compare as numbers:
-``f9.png`` before ``f10.png``); its frame times come from ``timestamps.csv`` in the folder (or a
-file given), with columns ``frame, t_s`` and one row per image in the same order (a camera that
-dropped frames leaves gaps in ``t_s``), or else from the camera's rate.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-import re
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from .decoding import _decoded_frames, _luma_levels
+from .frames import Frames, _as_wanted, file_fingerprint, grid_fit
 from .errors import BadInputError, TrackingError
 from .fields import field_order_of
+from .images import ImageFolder, TiffStack
 from .transfer import transfer_of_video
 
-__all__ = ["Frames", "VideoFile", "ImageFolder", "FrameArrays", "Clip", "Cut", "parse_cut", "as_source", "fingerprint",
-           "IMAGE_SUFFIXES", "video_stream"]
+__all__ = ["VideoFile", "FrameArrays", "Clip", "Cut", "parse_cut", "as_source", "fingerprint", "video_stream"]
 
 
 #: FFmpeg decoders of codecs that keep every pixel value (anything else changes them: H.264, HEVC, mp4v, MJPEG)
 LOSSLESS_CODECS = {"ffv1", "rawvideo", "huffyuv", "ffvhuff", "png", "apng", "tiff", "utvideo", "magicyuv", "qtrle",
                    "zlib", "v210", "v410", "r210", "y41p", "ayuv"}
-
-
-@dataclass
-class Frames:
-    """An opened source; iterate it for ``(image, t_s)``, close it when done (or use ``with``).
-
-    ``lossy``: the codec changes pixel values (mp4v, H.264, MJPEG ...): the sensor's noise model then
-    does not describe them.  ``bit_depth``: bits per value as stored (None when the source does not say;
-    16-bit files may carry fewer significant bits, as camera.json says)."""
-
-    width_px: int
-    height_px: int
-    fps: float
-    count: int
-    items: Iterator[tuple[np.ndarray, float]]
-    lossy: bool = False
-    bit_depth: int | None = None
-    #: each frame's picture type as the codec coded it (``I``, ``P``, ``B`` ...), filled as the frames are read;
-    #: None when the source has none (image files, frames in memory)
-    frame_types: list[str] | None = None
-    #: the luma values that mean black and white (a YUV video in the "limited" range most phones record, and
-    #: FFmpeg assumes when a file does not say, stores 16-235 at 8 bits, 64-940 at 10); None: 0 and the bit
-    #: depth's largest value.  RGB frames (``colour``) come converted to the full range.
-    levels: tuple[int, int] | None = None
-    #: the transfer characteristic the stream states (:func:`gyrorig.tracking.transfer.transfer_of_video`: ``bt709``,
-    #: ``hlg`` ...); None when it says none or the source is not a video
-    transfer: str | None = None
-    #: what went wrong while reading, filled as the frames are read (a stream that breaks off: the decoder's
-    #: message); the frames before it stand
-    problems: list[str] = field(default_factory=list)
-    #: stretches of pictures the decoder reported damaged data in, or predicted from such (``(first, end,
-    #: message)``, positions in the order delivered, ``end`` exclusive: up to the next key picture), filled when the
-    #: stream has been read
-    damaged: list[tuple[int, int, str]] = field(default_factory=list)
-    #: the field order (:data:`~gyrorig.tracking.fields.FIELD_ORDERS`) of a video whose decoder flags its pictures
-    #: interlaced; None: progressive, or not said
-    interlaced: str | None = None
-    #: the field order when these are the fields of interlaced pictures (:func:`~gyrorig.tracking.fields.field_frames`)
-    fields: str | None = None
-
-    def __iter__(self) -> Iterator[tuple[np.ndarray, float]]:
-        return self.items
-
-    def close(self) -> None:
-        close = getattr(self.items, "close", None)
-        if close is not None:
-            close()
-
-    def __enter__(self) -> "Frames":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 class VideoFile:
@@ -113,17 +52,7 @@ class VideoFile:
 
     def fingerprint(self) -> str:
         """The file's size and its first and last MiB, hashed: the same recording wherever it is copied."""
-        h = hashlib.sha256()
-        try:
-            size = self.path.stat().st_size
-            h.update(str(size).encode())
-            with open(self.path, "rb") as f:
-                h.update(f.read(_FINGERPRINT_BYTES))
-                f.seek(max(size - _FINGERPRINT_BYTES, 0))
-                h.update(f.read(_FINGERPRINT_BYTES))
-        except OSError as exc:
-            raise BadInputError(f"cannot read video {self.path}: {exc}") from exc
-        return h.hexdigest()
+        return file_fingerprint(self.path)
 
     def frame_interval_s(self) -> float:
         """The interval between the stream's frames [s] from its packets' presentation times, read without
@@ -278,163 +207,6 @@ class FrameArrays:
                       transfer=self.transfer)
 
 
-#: image files an :class:`ImageFolder` reads
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
-
-
-def _name_key(path: Path) -> list:
-    return [int(p) if p.isdigit() else p for p in re.split(r"(\d+)", path.name.lower())]
-
-
-class ImageFolder:
-    """A folder of images, one per frame (see the module docstring)."""
-
-    def __init__(self, path: str | Path, timestamps: str | Path | None = None):
-        self.path = Path(path)
-        if not self.path.is_dir():
-            raise BadInputError(f"{self.path}: not a folder of images")
-        self.files = sorted((f for f in self.path.iterdir() if f.suffix.lower() in IMAGE_SUFFIXES and f.is_file()),
-                            key=_name_key)
-        if not self.files:
-            raise BadInputError(f"{self.path}: no images ({', '.join(IMAGE_SUFFIXES)})")
-        stamps = Path(timestamps) if timestamps is not None else self.path / "timestamps.csv"
-        self.t_s = self._read_timestamps(stamps) if (timestamps is not None or stamps.exists()) else None
-
-    def _read_timestamps(self, path: Path) -> np.ndarray:
-        import pandas as pd
-
-        try:
-            table = pd.read_csv(path)
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
-            raise BadInputError(f"cannot read timestamps {path}: {exc}") from exc
-        if "t_s" not in table.columns:
-            raise BadInputError(f"{path}: needs a column t_s (and frame), one row per image")
-        t = pd.to_numeric(table["t_s"], errors="coerce").to_numpy(float)
-        if len(t) != len(self.files):
-            raise BadInputError(f"{path}: {len(t)} rows for {len(self.files)} images in {self.path}")
-        bad = np.flatnonzero(~np.isfinite(t))
-        if len(bad):
-            raise BadInputError(f"{path}: row {int(bad[0]) + 1}, column t_s: not a number")
-        back = np.flatnonzero(np.diff(t) <= 0)
-        if len(back):
-            raise BadInputError(f"{path}: row {int(back[0]) + 2}, column t_s: times must increase "
-                                f"({t[back[0]]:g} then {t[back[0] + 1]:g})")
-        return t
-
-    def __str__(self) -> str:
-        return str(self.path)
-
-    def fingerprint(self) -> str:
-        """The images' names and sizes and the frame times, hashed."""
-        h = hashlib.sha256()
-        for f in self.files:
-            h.update(f"{f.name}\0{f.stat().st_size}\0".encode())
-        if self.t_s is not None:
-            h.update(np.asarray(self.t_s, float).tobytes())
-        return h.hexdigest()
-
-    def frame_interval_s(self) -> float:
-        """The interval between the frames [s] from their times (:func:`grid_fit`; NaN without timestamps)."""
-        return self.frame_grid()[0]
-
-    def frame_grid(self) -> tuple[float, float, int]:
-        """:meth:`frame_interval_s` with its standard error and the number of frames (:func:`grid_fit`)."""
-        return grid_fit(self.t_s) if self.t_s is not None else (math.nan, math.nan, 0)
-
-    def _read(self, k: int) -> np.ndarray:
-        image = cv2.imread(str(self.files[k]), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise BadInputError(f"{self.files[k]}: unreadable image")
-        if image.dtype not in (np.uint8, np.uint16):
-            raise BadInputError(f"{self.files[k]}: {image.dtype} pixels; allowed 8- or 16-bit")
-        return image
-
-    def open(self, *, colour: bool = False) -> Frames:
-        first = self._read(0)
-        h, w = first.shape[:2]
-        times = self.t_s if self.t_s is not None else [math.nan] * len(self.files)
-
-        def items():
-            for k, t in enumerate(times):
-                image = first if k == 0 else self._read(k)
-                if image.shape[:2] != (h, w):
-                    raise BadInputError(f"{self.files[k]}: {image.shape[1]} x {image.shape[0]} pixels; the first "
-                                        f"image ({self.files[0].name}) is {w} x {h}")
-                yield np.ascontiguousarray(_as_wanted(image, colour, "BGR")), float(t)
-
-        return Frames(int(w), int(h), math.nan, len(self.files), items())
-
-
-def grid_fit(t_s) -> tuple[float, float, int]:
-    """The frames' interval: the slope of their times against their grid numbers, its standard error (from the times'
-    scatter about the line) and the number of frames: ``(interval, se, n)``; NaN for fewer than two frames (the error
-    for fewer than three).  The grid is found first as the rate at which the times line up best (their phases'
-    coherence, searched within :data:`GRID_SEARCH` of the median interval's rate on ever longer stretches, each
-    search narrowed to the last one's resolution), so that a clock's jitter, a first frame off the grid and dropped
-    frames neither bias the rate nor make a late frame's number slip by one."""
-    t = np.sort(np.asarray(t_s, float)[np.isfinite(np.asarray(t_s, float))])
-    dt = np.diff(t)
-    dt = dt[dt > 0]
-    if not len(dt):
-        return math.nan, math.nan, len(t)
-    t = t - t[0]
-    rate, width, m = 1.0 / float(np.median(dt)), GRID_SEARCH, min(len(t), 64)
-    while True:
-        part = t[:m]
-        if part[-1] <= 0:
-            break
-        # the coherence's peak is 1 / (the stretch's duration) wide: searched in eighths of that
-        count = int(math.ceil(2.0 * width * rate * part[-1] * 8.0)) + 1
-        rates = rate * (1.0 + np.linspace(-width, width, count))
-        rate = float(rates[np.argmax(_coherence(rates, part))])
-        if m == len(t):
-            break
-        width, m = 4.0 / (rate * part[-1]), min(len(t), 4 * m)
-    origin = float(np.angle(np.exp(2j * np.pi * rate * t).sum())) / (2.0 * np.pi * rate)
-    n = np.round((t - origin) * rate)
-    if len(np.unique(n)) < 2:
-        return 1.0 / rate, math.nan, len(t)
-    (step, _), resid = np.polyfit(n, t, 1, full=True)[:2]
-    spread = float(np.sum((n - n.mean()) ** 2))
-    se = math.sqrt(float(resid[0]) / (len(n) - 2) / spread) if len(resid) and len(n) > 2 else math.nan
-    return float(step), se, len(t)
-
-
-#: the frame rate :func:`grid_fit` looks for lies within this fraction of the median interval's
-GRID_SEARCH = 0.05
-
-
-def _coherence(rates: np.ndarray, t: np.ndarray, block: int = 1 << 20) -> np.ndarray:
-    """How well the times ``t`` line up on a grid of each rate: the length of the mean of their phases' unit vectors,
-    summed over blocks of the times (a long record's phases would not fit in memory at once)."""
-    step = max(1, block // max(len(rates), 1))
-    total = np.zeros(len(rates), complex)
-    for k in range(0, len(t), step):
-        total += np.exp(2j * np.pi * np.outer(rates, t[k:k + step])).sum(axis=1)
-    return np.abs(total) / max(len(t), 1)
-
-
-def _as_wanted(image: np.ndarray, colour: bool, order: str) -> np.ndarray:
-    """A frame as the tracker asked for it: luma (Rec. 601 weights) or RGB; ``order`` is a colour frame's
-    channel order (``RGB`` for frames in memory, ``BGR`` from OpenCV's image reader).  A grey frame asked
-    for in colour is three equal channels."""
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = image[:, :, :3]
-    if colour:
-        if image.ndim == 2:
-            return np.repeat(image[:, :, None], 3, axis=2)
-        return image[:, :, ::-1] if order == "BGR" else image
-    if image.ndim == 3:
-        if image.dtype in (np.uint8, np.uint16):
-            return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY if order == "BGR" else cv2.COLOR_RGB2GRAY)
-        return image @ (np.array([0.114, 0.587, 0.299]) if order == "BGR" else np.array([0.299, 0.587, 0.114]))
-    return image
-
-
-#: bytes read from each end of a video file for its fingerprint
-_FINGERPRINT_BYTES = 1 << 20
-
-
 def prepended(first, items):
     """``first``, then ``items``; closing it closes ``items`` (a video's decoding thread)."""
     try:
@@ -548,11 +320,14 @@ class Clip:
                       problems=inner.problems, damaged=damaged)
 
 
-def as_source(video) -> VideoFile | ImageFolder | FrameArrays:
-    """A path (str or Path) becomes a :class:`VideoFile`, or an :class:`ImageFolder` when it is a folder;
+def as_source(video):
+    """A path (str or Path) becomes a :class:`VideoFile`, an :class:`ImageFolder` when it is a folder, or a
+    :class:`TiffStack` when it is a TIFF file (of one page or many);
     a source is returned as it is."""
     if isinstance(video, (str, Path)):
-        return ImageFolder(video) if Path(video).is_dir() else VideoFile(video)
+        if Path(video).is_dir():
+            return ImageFolder(video)
+        return TiffStack(video) if Path(video).suffix.lower() in (".tif", ".tiff") else VideoFile(video)
     if hasattr(video, "open"):
         return video
     raise TypeError(f"expected a video path or a frame source, got {type(video).__name__}")
