@@ -164,7 +164,8 @@ class TipFollower:
         self.steps_since_gap = 0
         self.last_r = self.r_expected
         self.radii: deque[float] = deque(maxlen=15)
-        self.amplitudes: deque[float] = deque(maxlen=15)
+        self.amplitudes: deque[float] = deque(maxlen=15)  # the tip's levels in the first frame's light
+        self.raw_levels: deque[float] = deque(maxlen=15)  # ... and as they were seen
         self.chi2s: deque[float] = deque(maxlen=15)
         self.misses = 0
         self.pending: list[SpotFit] = []  # the last frame's candidates, when searching
@@ -221,12 +222,20 @@ class TipFollower:
         return fit.amplitude_adu / self.light.index
 
     def _as_bright(self, fit: SpotFit) -> bool:
-        """The fit's level (:meth:`_level`) within :data:`AMPLITUDE_CHANGE` of the tip's running median (True
-        without one)."""
+        """The fit's level (:meth:`_level`) within :data:`AMPLITUDE_CHANGE` of the tip's running median, in the light
+        the rows say or as seen (the rows' light changes with the scene behind them too: a fade, a person passing);
+        True without one."""
+        return self._brightness(fit) != (False, False)
+
+    def _brightness(self, fit: SpotFit) -> tuple[bool, bool]:
+        """Whether the fit is as bright as the tip in the rows' light and as seen (:meth:`_as_bright`)."""
         if len(self.amplitudes) < 3:
-            return True
-        a0 = statistics.median(self.amplitudes)
-        return AMPLITUDE_CHANGE[0] * a0 <= self._level(fit) <= AMPLITUDE_CHANGE[1] * a0
+            return True, True
+        level = self._level(fit)
+        lo, hi = AMPLITUDE_CHANGE[0] * statistics.median(self.amplitudes), AMPLITUDE_CHANGE[1] * statistics.median(
+            self.amplitudes)
+        seen, s0 = level * self.light.index, statistics.median(self.raw_levels)
+        return lo <= level <= hi, AMPLITUDE_CHANGE[0] * s0 <= seen <= AMPLITUDE_CHANGE[1] * s0
 
     def _see_light(self, frame: np.ndarray) -> None:
         """Follow the light at the tip's rows (:class:`~gyrorig.tracking.light.RowLight`).  A bright marker's only (a
@@ -594,7 +603,10 @@ class TipFollower:
         self.last.append((fit.x_px, fit.y_px))
         self.last_r = fit.radius_px
         self.radii.append(fit.radius_px)
+        if self._brightness(fit) == (False, True):  # the tip as bright as seen: the rows' light changed behind it
+            self.light.index = self._level(fit) * self.light.index / statistics.median(self.amplitudes)
         self.amplitudes.append(self._level(fit))
+        self.raw_levels.append(self._level(fit) * self.light.index)
         self.chi2s.append(fit.chi2_own)
         self.misses = 0
         self.had_lock = True
