@@ -96,6 +96,22 @@ def test_a_bad_tiff_stack_is_bad_input(rendered, tmp_path, kind):
         track(stack, cam, protocol, frame_dots=False)
 
 
+def test_a_colour_tiff_stack_keeps_its_channels(tmp_path):
+    """A colour stack's pages come as RGB (a red sticker's channel is the red one), 16-bit values as stored."""
+    from gyrorig.tracking.images import TiffStack
+
+    bgr = np.zeros((6, 8, 3), np.uint8)
+    bgr[..., 2] = 200  # red, in OpenCV's order
+    grey16 = np.arange(48, dtype=np.uint16).reshape(6, 8) * 1000
+    assert cv2.imwritemulti(str(tmp_path / "rgb.tif"), [bgr, bgr])
+    assert cv2.imwritemulti(str(tmp_path / "grey.tif"), [grey16] * 3)
+    with TiffStack(tmp_path / "rgb.tif").open(colour=True) as frames:
+        rgb = [f for f, _ in frames]
+    assert len(rgb) == 2 and rgb[0][..., 0].min() == 200 and rgb[0][..., 2].max() == 0
+    with TiffStack(tmp_path / "grey.tif").open() as frames:
+        assert all(np.array_equal(f, grey16) for f, _ in frames)
+
+
 def test_a_folder_of_jpegs_is_tracked_as_a_lossy_copy(rendered, tmp_path):
     """JPEG changes pixel values: the frames are read (all of them) and the sensor's noise model is not used;
     each frame's angles stay within 5 of their errors of the lossless video's (whose own errors are far smaller)."""

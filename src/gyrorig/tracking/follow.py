@@ -8,6 +8,7 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   :class:`~gyrorig.tracking.ellipse.DiscGeometry`); a blob of unknown appearance only a loose size range;
 - **appearance**: once the tip has been followed for a few frames, its fitted radius, amplitude and reduced
   chi-square must stay near their running medians (a different marker, or a neighbour's light under it, changes them);
+  its level is compared in the light at its rows or as seen (:meth:`TipFollower._as_bright`);
 - **motion**: the spot must lie within a gate around the position predicted from the last frames
   (the gate grows with the tip's observed speed and acceleration in pixels; once the tip has been seen to move
   more than its radius in a frame, it holds any step up to the fastest speed seen twice, :data:`SPEED_MEMORY`); a

@@ -14,14 +14,17 @@ dropped frames leaves gaps in ``t_s``): ``timestamps.csv`` in the folder, ``NAME
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import math
 import re
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from .errors import BadInputError
 from .frames import Frames, _as_wanted, file_fingerprint, grid_fit
@@ -36,8 +39,6 @@ IMAGE_KINDS = {"PNG": (".png",), "TIFF": (".tif", ".tiff"), "BMP": (".bmp",), "J
 IMAGE_SUFFIXES = tuple(s for suffixes in IMAGE_KINDS.values() for s in suffixes)
 #: image kinds whose pixel values are not the sensor's (lossy compression)
 LOSSY_KINDS = ("JPEG",)
-#: pages read from a TIFF stack at a time
-STACK_PAGES = 16
 
 
 def _name_key(path: Path) -> list:
@@ -87,6 +88,8 @@ class _Images:
     t_s: np.ndarray | None
     count: int
     lossy: bool = False
+    #: a colour image's channel order as read
+    order = "BGR"
 
     def __str__(self) -> str:
         return str(self.path)
@@ -122,7 +125,7 @@ class _Images:
                 if image.shape[:2] != (h, w):
                     raise BadInputError(f"{at}: {image.shape[1]} x {image.shape[0]} pixels; the first image "
                                         f"({where}) is {w} x {h}")
-                yield np.ascontiguousarray(_as_wanted(image, colour, "BGR")), float(t)
+                yield np.ascontiguousarray(_as_wanted(image, colour, self.order)), float(t)
 
         return Frames(int(w), int(h), math.nan, self.count, items(), lossy=self.lossy)
 
@@ -167,16 +170,29 @@ class ImageFolder(_Images):
             yield _checked(cv2.imread(str(f), cv2.IMREAD_UNCHANGED), str(f)), f.name
 
 
+@contextlib.contextmanager
+def _quiet():
+    """Pillow's warnings about a file's tags left unsaid (a page it cannot read raises; one it can is read)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
 class TiffStack(_Images):
-    """A TIFF file's pages, one per frame (see the module docstring), read a few at a time."""
+    """A TIFF file's pages, one per frame (see the module docstring), read in turn (Pillow: each page found from the
+    last, where OpenCV's reader walks the file from its first page for every read)."""
+
+    order = "RGB"
 
     def __init__(self, path: str | Path, timestamps: str | Path | None = None):
         self.path = Path(path)
         if not self.path.is_file():
             raise BadInputError(f"{self.path}: no such file")
-        self.count = int(cv2.imcount(str(self.path), cv2.IMREAD_UNCHANGED))
-        if self.count < 1:
-            raise BadInputError(f"{self.path}: unreadable TIFF")
+        try:
+            with _quiet(), Image.open(self.path) as image:
+                self.count = int(getattr(image, "n_frames", 1))
+        except (OSError, ValueError, EOFError) as exc:
+            raise BadInputError(f"{self.path}: unreadable TIFF ({exc})") from exc
         self.t_s = self._times(timestamps, self.path.with_name(self.path.stem + ".timestamps.csv"))
 
     def fingerprint(self) -> str:
@@ -187,10 +203,19 @@ class TiffStack(_Images):
         return h.hexdigest()
 
     def _images(self):
-        for start in range(0, self.count, STACK_PAGES):
-            n = min(STACK_PAGES, self.count - start)
-            ok, pages = cv2.imreadmulti(str(self.path), start, n, flags=cv2.IMREAD_UNCHANGED)
-            if not ok or len(pages) != n:
-                raise BadInputError(f"{self.path}: pages {start + 1}-{start + n} of {self.count} unreadable")
-            for k, page in enumerate(pages):
-                yield _checked(page, f"{self.path}, page {start + k + 1}"), f"page {start + k + 1}"
+        with _quiet():  # only around Pillow's calls: the filter is the process's, and frames are yielded between
+            image = Image.open(self.path)
+        try:
+            for k in range(self.count):
+                where = f"{self.path}, page {k + 1}"
+                try:
+                    with _quiet():
+                        image.seek(k)
+                        page = np.asarray(image.convert("L") if image.mode in ("P", "LA", "1") else image)
+                except (OSError, ValueError, EOFError) as exc:
+                    raise BadInputError(f"{where}: unreadable ({exc})") from exc
+                if page.dtype.byteorder == ">":  # a big-endian 16-bit TIFF
+                    page = page.astype(page.dtype.newbyteorder("="))
+                yield _checked(page, where), f"page {k + 1}"
+        finally:
+            image.close()
