@@ -232,11 +232,10 @@ class TipFollower:
         """Whether the fit is as bright as the tip in the rows' light and as seen (:meth:`_as_bright`)."""
         if len(self.amplitudes) < 3:
             return True, True
-        level = self._level(fit)
-        lo, hi = AMPLITUDE_CHANGE[0] * statistics.median(self.amplitudes), AMPLITUDE_CHANGE[1] * statistics.median(
-            self.amplitudes)
+        lo, hi = AMPLITUDE_CHANGE
+        level, a0 = self._level(fit), statistics.median(self.amplitudes)
         seen, s0 = level * self.light.index, statistics.median(self.raw_levels)
-        return lo <= level <= hi, AMPLITUDE_CHANGE[0] * s0 <= seen <= AMPLITUDE_CHANGE[1] * s0
+        return lo * a0 <= level <= hi * a0, lo * s0 <= seen <= hi * s0
 
     def _see_light(self, frame: np.ndarray) -> None:
         """Follow the light at the tip's rows (:class:`~gyrorig.tracking.light.RowLight`).  A bright marker's only (a
