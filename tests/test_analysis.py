@@ -66,6 +66,20 @@ def test_fit_refuses_a_table_without_sigmas_and_writes_nothing(rendered, tmp_pat
     assert not (tmp_path / "o" / "fit.json").exists()
 
 
+def test_a_folder_of_camcorder_files_is_a_batch(rendered, tmp_path):
+    """A camcorder's AVCHD file (``.MTS``, upper case as cameras name them) in a folder is one of its videos (the
+    folder was refused as holding no videos)."""
+    root, proto = rendered
+    folder = tmp_path / "card"
+    folder.mkdir()
+    (folder / "00001.MTS").symlink_to(root / "video" / "video.mkv")  # FFmpeg reads a file by its content
+    code = main(["-q", "analyze", str(folder), "--camera", str(root / "video" / "camera.json"), "--protocol",
+                 str(proto), "--out", str(tmp_path / "batch")])
+    assert code == 0
+    s = pd.read_csv(tmp_path / "batch" / "summary.csv")
+    assert list(s.status) == ["ok"] and s.video[0].endswith("00001.MTS")
+
+
 def test_batch_skips_an_unreadable_video_and_summarises(rendered, tmp_path, capsys):
     root, proto = rendered
     folder = tmp_path / "videos"

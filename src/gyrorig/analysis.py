@@ -40,7 +40,11 @@ __all__ = ["load_truth", "smooth_file", "fit_file", "analyze_video", "analyze_ba
            "VIDEO_SUFFIXES"]
 
 Progress = Callable[[int, int], None]
-VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".m4v", ".webm")
+#: the files of a folder analysed as videos (any case): common containers, a camcorder's AVCHD (``.mts``, ``.m2ts``),
+#: MPEG, Windows Media, raw streams, a Phantom high-speed camera's ``.cine``
+VIDEO_SUFFIXES = (".mkv", ".mp4", ".avi", ".mov", ".m4v", ".webm", ".mts", ".m2ts", ".ts", ".3gp", ".mpg", ".mpeg",
+                  ".wmv", ".asf", ".flv", ".mxf", ".ogv", ".dv", ".vob", ".nut", ".y4m", ".h264", ".264", ".hevc",
+                  ".265", ".cine")
 
 
 def load_truth(path: str | Path, marker: str = "tip") -> pd.DataFrame:
