@@ -303,9 +303,12 @@ NOTE_COLUMNS = ("note", "notes", "comment", "comments", "remark", "remarks")
 
 
 def _cell(frame: pd.DataFrame, column: str, row: int) -> str:
-    """A cell as its file wrote it, quoted (for messages)."""
+    """A cell as its file wrote it, quoted (for messages); one pandas read as missing may have held ``n/a`` or
+    ``NA`` as well as nothing."""
     value = frame[column].iloc[row]
-    return "an empty cell" if pd.isna(value) or str(value).strip() == "" else repr(str(value))
+    if pd.isna(value):
+        return "a cell without a reading (empty, n/a, NA or nan)"
+    return "an empty cell" if str(value).strip() == "" else repr(str(value))
 
 
 def _text_lines(path: Path) -> list[tuple[int, str]]:
