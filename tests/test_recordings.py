@@ -493,8 +493,8 @@ def _fading_recording(path, frames: int = 24, fps: int = 30) -> None:
 
 def test_a_scene_that_goes_dark_behind_the_tip_does_not_lose_it(tmp_path):
     """The scene behind the rig fades to black over 0.13 s while the tip's own light stays: the light at the tip's
-    rows falls 25-fold, which is not the tip's (it was taken for it: the tip then seemed 25 times too bright, every
-    frame after the fade refused).  The tip is followed through the fade and after it, none beyond 5 sigma `ok`."""
+    rows falls many-fold, which is not the tip's, and the tip keeps its level as seen.  The tip is followed through
+    the fade and after it, none beyond 5 sigma `ok`."""
     scene, user, _ = variant_protocols("sphere", 0.6)
     _fading_recording(tmp_path / "behind.mkv")
     style = PhoneStyle(photo=None, background_video=str(tmp_path / "behind.mkv"), background_level=0.6, codec="ffv1",

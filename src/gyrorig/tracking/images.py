@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import logging
 import math
 import re
@@ -118,14 +119,14 @@ class _Images:
         times = self.t_s if self.t_s is not None else [math.nan] * self.count
 
         def items():
-            image, at = first, where
-            for k, t in enumerate(times):
-                if k:
-                    image, at = next(images)
-                if image.shape[:2] != (h, w):
-                    raise BadInputError(f"{at}: {image.shape[1]} x {image.shape[0]} pixels; the first image "
-                                        f"({where}) is {w} x {h}")
-                yield np.ascontiguousarray(_as_wanted(image, colour, self.order)), float(t)
+            try:
+                for t, (image, at) in zip(times, itertools.chain([(first, where)], images)):
+                    if image.shape[:2] != (h, w):
+                        raise BadInputError(f"{at}: {image.shape[1]} x {image.shape[0]} pixels; the first image "
+                                            f"({where}) is {w} x {h}")
+                    yield np.ascontiguousarray(_as_wanted(image, colour, self.order)), float(t)
+            finally:
+                images.close()  # a stack's file, when the frames are closed before their end
 
         return Frames(int(w), int(h), math.nan, self.count, items(), lossy=self.lossy)
 
@@ -139,8 +140,8 @@ class ImageFolder(_Images):
             raise BadInputError(f"{self.path}: not a folder of images")
         kinds: dict[str, list[Path]] = {}
         for f in self.path.iterdir():
-            if _kind(f) is not None and f.is_file():
-                kinds.setdefault(_kind(f), []).append(f)
+            if (kind := _kind(f)) is not None and f.is_file():
+                kinds.setdefault(kind, []).append(f)
         if not kinds:
             raise BadInputError(f"{self.path}: no images ({', '.join(IMAGE_SUFFIXES)})")
         kind = max(kinds, key=lambda k: len(kinds[k]))
@@ -149,7 +150,7 @@ class ImageFolder(_Images):
             logger.warning("%s: the frames are taken to be its %d %s images; %s left out", self.path,
                            len(kinds[kind]), kind, ", ".join(f"{n} {k}" for k, n in others.items()))
         self.files = sorted(kinds[kind], key=_name_key)
-        pages = int(cv2.imcount(str(self.files[0]), cv2.IMREAD_UNCHANGED)) if kind == "TIFF" else 1
+        pages = _page_count(self.files[0]) if kind == "TIFF" else 1
         if pages > 1:
             raise BadInputError(f"{self.files[0]}: a stack of {pages} pages, not one frame: give each stack itself "
                                 "to track it")
@@ -178,6 +179,15 @@ def _quiet():
         yield
 
 
+def _page_count(path: Path) -> int:
+    """The pages of a TIFF file (BadInputError when it is not one Pillow can read)."""
+    try:
+        with _quiet(), Image.open(path) as image:
+            return int(getattr(image, "n_frames", 1))
+    except (OSError, ValueError, EOFError) as exc:
+        raise BadInputError(f"{path}: unreadable TIFF ({exc})") from exc
+
+
 class TiffStack(_Images):
     """A TIFF file's pages, one per frame (see the module docstring), read in turn (Pillow: each page found from the
     last, where OpenCV's reader walks the file from its first page for every read)."""
@@ -188,11 +198,7 @@ class TiffStack(_Images):
         self.path = Path(path)
         if not self.path.is_file():
             raise BadInputError(f"{self.path}: no such file")
-        try:
-            with _quiet(), Image.open(self.path) as image:
-                self.count = int(getattr(image, "n_frames", 1))
-        except (OSError, ValueError, EOFError) as exc:
-            raise BadInputError(f"{self.path}: unreadable TIFF ({exc})") from exc
+        self.count = _page_count(self.path)
         self.t_s = self._times(timestamps, self.path.with_name(self.path.stem + ".timestamps.csv"))
 
     def fingerprint(self) -> str:
