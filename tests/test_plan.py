@@ -240,6 +240,52 @@ def test_plan_respects_the_field_of_view(tmp_path):
     assert np.isnan(narrow.precession_rate_rad_s_relative_error)
 
 
+def test_a_camera_that_sees_the_tip_part_of_the_time_plans_with_noisy_draws():
+    """A lens that loses the tip for part of each precession turn: the noisy draws are the same record with its
+    gaps (they were drawn over every frame and the planner stopped on a shape mismatch)."""
+    p = _with_camera(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), focal_length_mm=13.0)
+    plan = plan_experiment(p, duration_s=4.0, simulate_damping=False, rng=np.random.default_rng(0))
+    assert 0.2 < plan.camera["marker_in_view_fraction"] < 0.95
+    draws = plan.recording["noisy_draws"]
+    assert draws["draws"] == 8 and draws["failed"] == 0 and draws["ok"]
+    # the linearised fit of the same gapped record is where the full fits land (to far below one s.e.)
+    assert max(draws["rms_departure_se"].values()) < 0.05
+    for name in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
+        assert 0 < plan.quantities[name].expected_standard_error < np.inf
+
+
+def test_a_steady_launch_is_planned_without_a_nutation():
+    """A top launched in steady precession (the paper's eq. 20 tested directly) does not nutate: the plan gives the
+    precession's error and no nutation figures (its zero nutation frequency stopped the planner)."""
+    from gyrorig.theory import steady_launch
+
+    p = steady_launch(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml"))
+    plan = plan_experiment(p, duration_s=4.0, simulate_damping=False, rng=np.random.default_rng(0))
+    assert "frames_per_nutation_period" not in plan.camera and not plan.advice_of(AdviceKind.FRAME_RATE)
+    q = plan.quantities
+    assert q["precession_rate_rad_s"].resolvable and 0 < q["precession_rate_rad_s"].expected_standard_error < 1e-3
+    assert not q["nutation_frequency_rad_s"].resolvable
+    assert plan.recording["noisy_draws"]["ok"]
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 180.0])
+def test_a_sleeping_top_measures_nothing_and_says_why(tmp_path, tilt_deg):
+    """A top launched on the vertical stays there: its azimuth is not defined, there is nothing to measure, and the
+    plan says so (exit 3) instead of stopping on a singular matrix."""
+    import tomllib
+
+    d = tomllib.loads((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text())
+    d["launch"]["tilt_deg"] = tilt_deg
+    plan = plan_experiment(parse_protocol(d), duration_s=2.0, draws=0)
+    assert plan.measures_nothing
+    (advice,) = plan.advice_of(AdviceKind.AZIMUTH_UNDEFINED)
+    assert advice.problem and advice.values["frames_on_vertical"] == 401
+    path = tmp_path / "sleeping.toml"
+    path.write_text((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
+                    .replace("tilt_deg = 45.0", f"tilt_deg = {tilt_deg}"))
+    assert main(["plan", str(path), "--duration", "2", "--draws", "0"]) == 3
+
+
 def test_plan_and_prediction_records_are_frozen_and_cross_processes():
     """The Monte Carlo hands the prediction to worker processes: the records pickle, and stay read-only."""
     import pickle

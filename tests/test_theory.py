@@ -48,6 +48,18 @@ def test_steady_launch_finds_the_exact_finite_tilt_rates():
     assert np.ptp(df.theta_rad) < 1e-9
 
 
+def test_a_horizontal_axis_has_one_steady_precession():
+    """At 90 degrees the steady-precession condition is linear: one (slow) root, which the simulator's steady
+    launch finds; no fast one (a tilt of 90 degrees in radians leaves a cosine of 6e-17, which gave 1e18 rad/s)."""
+    tilt = math.radians(90.0)
+    slow, fast = th.exact_steady_precession_rates(25.0, tilt, **KW)
+    assert math.isnan(fast)
+    p = make_protocol(tilt=tilt, spin=25.0)
+    assert th.steady_launch(p, mode="slow").launch.precession_rate_rad_s == pytest.approx(slow, rel=1e-9)
+    with pytest.raises(ValueError):
+        th.steady_launch(p, mode="fast")
+
+
 def test_eq20_slow_root_has_the_wrong_sign_and_the_corrected_form_agrees():
     rows = _sweep_steady_precession([30, 100], [0.1, 0.3])
     slow = [r for r in rows if r["quantity"] == "precession_rate_slow_rad_s"]

@@ -70,14 +70,24 @@ def project(setup: CameraSetup, pts: np.ndarray) -> np.ndarray:
 
 def _angle_covariance(setup: CameraSetup, lever_m: float, theta: np.ndarray, phi: np.ndarray,
                       sigma_px: float) -> np.ndarray:
-    """Per-frame covariance of (theta, phi) from an isotropic pixel error, through the camera."""
+    """Per-frame covariance of (theta, phi) from an isotropic pixel error, through the camera; NaN in a frame
+    whose azimuth's error would exceed :data:`AZIMUTH_SIGMA_LIMIT_RAD` (the tip within about its pixel error of the
+    vertical, where the azimuth barely moves the image, or exactly on it, where it does not move it at all)."""
     h = 1e-6
     p0 = project(setup, lever_m * tip_from_angles(theta, phi))
     jt = (project(setup, lever_m * tip_from_angles(theta + h, phi)) - p0) / h
     jp = (project(setup, lever_m * tip_from_angles(theta, phi + h)) - p0) / h
     J = np.stack([jt, jp], axis=-1)  # (n, 2 px, 2 angles)
     JTJ = np.einsum("nki,nkj->nij", J, J)
-    return np.linalg.inv(JTJ) * sigma_px**2
+    still = JTJ[:, 1, 1] <= 1e-12 * JTJ[:, 0, 0]
+    JTJ[still] = np.eye(2)
+    cov = np.linalg.inv(JTJ) * sigma_px**2
+    cov[still | (cov[:, 1, 1] > AZIMUTH_SIGMA_LIMIT_RAD**2)] = np.nan
+    return cov
+
+
+#: a frame whose azimuth's error exceeds half a turn has no azimuth: the planned record leaves it out [rad]
+AZIMUTH_SIGMA_LIMIT_RAD = math.pi
 
 
 @dataclass(frozen=True)
@@ -92,9 +102,9 @@ class ExpectedRecord:
     depth: float
     #: :func:`pixel_bound` at that depth
     spot: dict
-    #: per-frame covariance of (theta, phi), (n, 2, 2) [rad^2]
+    #: per-frame covariance of (theta, phi), (n, 2, 2) [rad^2]; NaN where the tip is on the vertical (no azimuth)
     cov: np.ndarray
-    #: the same as an angle table (:mod:`gyrorig.tables`): what the fit is given
+    #: the same as an angle table (:mod:`gyrorig.tables`): what the fit is given (no angles on the vertical)
     angles: pd.DataFrame
 
 
@@ -110,7 +120,9 @@ def expected_record(protocol: Protocol, duration_s: float) -> ExpectedRecord:
     depth = float(np.median(np.linalg.norm(pos - cam.centre_m, axis=1)))
     spot = pixel_bound(setup, marker, depth)
     cov = _angle_covariance(setup, lever, theta, phi, spot["sigma_px"])
-    angles = pd.DataFrame({"frame": np.arange(len(sim)), "t_s": sim.t_s, "theta_rad": theta, "phi_rad": phi,
+    on_axis = np.isnan(cov[:, 1, 1])
+    angles = pd.DataFrame({"frame": np.arange(len(sim)), "t_s": sim.t_s, "theta_rad": np.where(on_axis, np.nan, theta),
+                           "phi_rad": np.where(on_axis, np.nan, phi),
                            "theta_sigma_rad": np.sqrt(cov[:, 0, 0]), "phi_sigma_rad": np.sqrt(cov[:, 1, 1]),
                            "theta_phi_corr": cov[:, 0, 1] / np.sqrt(cov[:, 0, 0] * cov[:, 1, 1])})
     return ExpectedRecord(theta, phi, pos, depth, spot, cov, angles)

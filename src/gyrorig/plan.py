@@ -115,7 +115,8 @@ def noisy_draws(protocol: Protocol, ex: ExpectedRecord, fit: FitResult, pred: Pr
     departures: dict[str, list[float]] = {}
     for i in range(draws):
         e = np.einsum("nij,nj->ni", chol, rng.standard_normal((len(ex.theta), 2)))
-        noisy = ex.angles.assign(theta_rad=ex.theta + e[:, 0], phi_rad=ex.phi + e[:, 1])
+        # frames without the tip in view stay gaps (NaN in ex.angles), as in the noiseless record
+        noisy = ex.angles.assign(theta_rad=ex.angles.theta_rad + e[:, 0], phi_rad=ex.angles.phi_rad + e[:, 1])
         try:
             f = fit_angles(noisy, protocol, prediction=pred, terms=fit.terms, check_residuals=False)
         except FitError as exc:
@@ -161,13 +162,13 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, inside: np.ndarray, p
     blur_px = float(np.max(speed_px_s) * cam.exposure_s)
     skew_px = float(np.max(speed_px_s) * cam.readout_time_s) if cam.shutter == "rolling" else 0.0
     camera = {"fps": cam.fps, "exposure_s": cam.exposure_s, "lever_arm_m": lever, "marker_depth_m": ex.depth, **spot,
-              "theta_sigma_rad_median": float(np.median(np.sqrt(cov[:, 0, 0]))),
-              "phi_sigma_rad_median": float(np.median(np.sqrt(cov[:, 1, 1]))),
+              "theta_sigma_rad_median": _median_or_nan(np.sqrt(cov[:, 0, 0])),
+              "phi_sigma_rad_median": _median_or_nan(np.sqrt(cov[:, 1, 1])),
               "max_marker_speed_px_s": float(np.max(speed_px_s)), "motion_blur_px": blur_px,
               "rolling_shutter_skew_px": skew_px, "marker_in_view_fraction": float(inside.mean())}
     nut = pred.exact("nutation_frequency_rad_s")
     amp = pred.exact("nutation_amplitude_rad")
-    if nut is not None:
+    if nut is not None and nut > 0:  # 0: a steady launch (or a sleeping top) does not nutate
         nyq = math.pi * cam.fps
         camera["nutation_hz"] = nut / (2 * math.pi)
         camera["frames_per_nutation_period"] = 2 * math.pi * cam.fps / nut
@@ -353,6 +354,14 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         angles = ex.angles.copy()
         angles.loc[~inside, ["theta_rad", "phi_rad"]] = np.nan
         ex = replace(ex, angles=angles)
+    on_axis = np.isnan(ex.cov[:, 1, 1])
+    if (inside & ~on_axis).sum() < MIN_FRAMES_IN_VIEW <= inside.sum():
+        rec.append(Advice(AdviceKind.AZIMUTH_UNDEFINED, f"the tip stays on the vertical (a sleeping top) in "
+                          f"{int((inside & on_axis).sum())} of {len(inside)} frames, within its pixel error: its "
+                          "azimuth is not defined there, so there is no precession or nutation to measure; launch "
+                          "the top tilted (launch.tilt_deg) or moving (launch.tilt_rate_rad_s)", problem=True,
+                          values={"frames_on_vertical": int((inside & on_axis).sum())}))
+        return Plan(protocol.name, pred, rec, camera=out["camera"], wall_time_s=time.perf_counter() - start)
     if inside.sum() < MIN_FRAMES_IN_VIEW:
         rec.append(Advice(AdviceKind.FIELD_OF_VIEW, f"the tip marker's spot is wholly in the image in "
                           f"{int(inside.sum())} of {len(inside)} frames: nothing can be measured; widen the view (a "
@@ -430,6 +439,12 @@ def _parameter_advice(quantities: dict, pred: Prediction) -> list[Advice]:
 
 #: fewer frames with the tip in view than this and a plan measures nothing
 MIN_FRAMES_IN_VIEW = 10
+
+
+def _median_or_nan(values: np.ndarray) -> float:
+    """The median of the finite values (the frames with an azimuth); NaN when there are none."""
+    finite = values[np.isfinite(values)]
+    return float(np.median(finite)) if len(finite) else math.nan
 
 
 def _spot_in_view(protocol: Protocol, ex: ExpectedRecord) -> np.ndarray:

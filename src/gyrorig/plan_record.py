@@ -24,6 +24,8 @@ class AdviceKind(StrEnum):
     NO_CAMERA = "no-camera"
     #: the tip's spot leaves the image (in some frames, or in all: nothing measurable)
     FIELD_OF_VIEW = "field-of-view"
+    #: the tip stays on the vertical (a sleeping top): no azimuth, nothing to measure
+    AZIMUTH_UNDEFINED = "azimuth-undefined"
     #: the tip marker is off the symmetry axis
     MARKER_OFF_AXIS = "marker-off-axis"
     #: the frame rate against the nutation (``values``: ``minimum_fps``; a problem when it cannot resolve it)
@@ -168,7 +170,8 @@ class Plan:
 
     @property
     def measures_nothing(self) -> bool:
-        """True when there is a camera but it never sees the tip."""
+        """True when there is a camera but it measures nothing (it never sees the tip, or sees it only on the
+        vertical, where the tip has no azimuth)."""
         return self.camera is not None and not self.quantities
 
     def to_dict(self) -> dict:

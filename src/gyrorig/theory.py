@@ -92,9 +92,13 @@ def exact_steady_precession_rates(spin_rad_s: float, tilt_rad: float, *, inertia
     """Exact steady precession at finite tilt: ``Mgh = phi' (Io omega_o - I phi' cos theta)``.
 
     With ``omega_o = Omega + phi' cos theta``: ``(Io - I) cos(theta) phi'^2 + Io Omega phi' - Mgh = 0``
-    (Goldstein 3rd ed. eq. 5.76 rearranged).  (slow, fast); NaN where no steady precession exists. [rad/s]
+    (Goldstein 3rd ed. eq. 5.76 rearranged).  (slow, fast); NaN where no steady precession exists: at a
+    horizontal axis the condition is linear and has no fast root. [rad/s]
     """
-    return _quadratic_roots((inertia_axial - inertia) * math.cos(tilt_rad), inertia_axial * spin_rad_s, -mgh)
+    cos_tilt = math.cos(tilt_rad)
+    if abs(cos_tilt) < 1e-12:  # 90 degrees in radians leaves a cosine of 6e-17: the axis is horizontal
+        cos_tilt = 0.0
+    return _quadratic_roots((inertia_axial - inertia) * cos_tilt, inertia_axial * spin_rad_s, -mgh)
 
 
 # --------------------------------------------------------------------------------------

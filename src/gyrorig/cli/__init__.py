@@ -187,8 +187,14 @@ def _main(argv: Sequence[str] | None) -> int:
         with quiet, _output(args):
             return int(getattr(commands, args.func)(args))
     except (ProtocolError, ExactSolutionError, ValueError) as exc:  # includes tracking's BadInputError
-        code = getattr(exc, "exit_code", EXIT_BAD_INPUT)  # a ValueError that is a failed computation says so
-        print(f"gyrorig: {'error' if code == EXIT_BAD_INPUT else 'failed'}: {exc}", file=sys.stderr)
+        if args.debug:
+            raise
+        # a ValueError that is a failed computation says so; numpy's LinAlgError (a singular matrix) is one that no
+        # input check foresaw
+        unforeseen = type(exc).__name__ == "LinAlgError"
+        code = getattr(exc, "exit_code", EXIT_FAILED if unforeseen else EXIT_BAD_INPUT)
+        print(f"gyrorig: {'error' if code == EXIT_BAD_INPUT else 'failed'}: {exc}"
+              + (" (run with --debug for the traceback)" if unforeseen else ""), file=sys.stderr)
         return code
     except TrackingError as exc:
         shown = _show_first_look(exc, final_out)

@@ -366,6 +366,7 @@ def _cmd_bench_fit(args: argparse.Namespace) -> int:
 def _cmd_plan(args: argparse.Namespace) -> int:
     from ..montecarlo import monte_carlo_check
     from ..plan import DEFAULT_PLAN_DRAWS, parse_sweep, plan_experiment, sweep
+    from ..plan_record import AdviceKind
     from ..report import plot_sweep
 
     out = Path(args.out) if args.out else None
@@ -403,7 +404,10 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     # a camera that never sees the tip measures nothing: the plan says so, and the exit code too (and stderr: with -q
     # it is all the user sees)
     blind = plan.measures_nothing
-    if blind:
+    if blind and plan.advice_of(AdviceKind.AZIMUTH_UNDEFINED):
+        print("gyrorig: failed: the tip stays on the vertical (a sleeping top): the plan measures nothing (launch the "
+              "top tilted or moving)", file=sys.stderr)
+    elif blind:
         print("gyrorig: failed: the camera never sees the tip marker: the plan measures nothing (check the camera's "
               "placement and field of view against the tip's path)", file=sys.stderr)
     if args.json:

@@ -86,7 +86,7 @@ def print_plan(plan: Plan) -> None:
               f"; saturates: {cam['saturates']}")
         rec = plan.recording or {}
         if not rec:
-            print("  expected errors: none (the camera does not see the tip: see the advice)")
+            print("  expected errors: none (nothing to measure: see the advice)")
         else:
             print(f"  expected errors for a {rec['length_s']:g} s record (Cramer-Rao bound of the fit):")
         for name, q in plan.quantities.items():
