@@ -60,6 +60,19 @@ def test_a_horizontal_axis_has_one_steady_precession():
         th.steady_launch(p, mode="fast")
 
 
+@pytest.mark.parametrize("tilt", [0.0, math.pi])
+def test_a_damped_top_launched_on_the_vertical_has_no_tilt_growth_to_predict(tilt):
+    """Upright or hanging, a damped top launched on the vertical stays there (the simulator says so): the prediction
+    has no simulated growth rate, where the hanging top's steady-precession search stopped on a bracket."""
+    p = make_protocol(tilt=tilt, spin=40.0, duration=2.0, frame_inertia=0.05,
+                      damping={"model": "eddy-field", "coefficient_N_m_s": 0.3, "field_direction": [0, 0, 1],
+                               "spin_compensated": True})
+    df = simulate(p, rtol=1e-12, rate_hz=50.0)
+    assert np.ptp(df.theta_rad) < 1e-9
+    growth = th.predict(p).get("tilt_growth_rate_per_s")
+    assert math.isnan(growth.exact) and growth.paper is not None
+
+
 def test_eq20_slow_root_has_the_wrong_sign_and_the_corrected_form_agrees():
     rows = _sweep_steady_precession([30, 100], [0.1, 0.3])
     slow = [r for r in rows if r["quantity"] == "precession_rate_slow_rad_s"]

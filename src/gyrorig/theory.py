@@ -324,6 +324,8 @@ def steady_launch(protocol: Protocol, *, mode: str = "slow") -> Protocol:
     guess = roots[0] if mode == "slow" else roots[1]
     if not math.isfinite(guess):
         raise ValueError(f"no steady {mode} precession exists at tilt {lau.tilt_rad:.4g} rad for this spin")
+    if abs(math.sin(lau.tilt_rad)) < 1e-12:  # on the vertical the axis stays put whatever the rate: nothing to search
+        return replace(protocol, launch=replace(lau, tilt_rate_rad_s=0.0, precession_rate_rad_s=guess))
     l3 = abs(rig.inertia_axial_kg_m2 * lau.spin_rate_rad_s)
     scale = max(l3 / rig.inertia_transverse_kg_m2, abs(guess), 1e-3)
     t = np.linspace(0.0, 2 * math.pi / scale, 101)
@@ -376,7 +378,10 @@ def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dic
     corr_rate = corrected_damped_tilt_rate(spin, gamma, **kw)
     sim_rate = math.nan
     source = "simulator, from steady slow precession at the launch tilt"
-    if simulate_damping and (acc is None or acc.is_constant):
+    on_vertical = acc is None and abs(math.sin(protocol.launch.tilt_rad)) < 1e-12
+    if on_vertical:
+        source = "none: the launch is on the vertical and stays there (no tilt to grow)"
+    elif simulate_damping and (acc is None or acc.is_constant):
         up = exact_accelerated_equilibrium_tip(a_vec, g)
         if acc is None:
             start = steady_launch(protocol)
