@@ -73,6 +73,18 @@ def test_a_damped_top_launched_on_the_vertical_has_no_tilt_growth_to_predict(til
     assert math.isnan(growth.exact) and growth.paper is not None
 
 
+def test_a_damped_top_too_slow_to_precess_steadily_is_still_predicted():
+    """Below the spin that allows a steady precession at the launch tilt the damped prediction has no simulated
+    growth (no steady launch to start from), and the rest of the prediction stands (it was refused whole)."""
+    p = make_protocol(tilt=0.7, spin=1.0, duration=2.0, frame_inertia=0.05,
+                      damping={"model": "eddy-field", "coefficient_N_m_s": 0.3, "field_direction": [0, 0, 1],
+                               "spin_compensated": True})
+    assert all(math.isnan(r) for r in th.exact_steady_precession_rates(1.0, 0.7, **KW))
+    pred = th.predict(p)
+    assert math.isnan(pred.get("tilt_growth_rate_per_s").exact)
+    assert pred.exact("nutation_frequency_rad_s") > 0
+
+
 def test_eq20_slow_root_has_the_wrong_sign_and_the_corrected_form_agrees():
     rows = _sweep_steady_precession([30, 100], [0.1, 0.3])
     slow = [r for r in rows if r["quantity"] == "precession_rate_slow_rad_s"]

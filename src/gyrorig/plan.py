@@ -513,6 +513,11 @@ def _damping_advice(protocol: Protocol, pred: Prediction) -> list[Advice]:
     if growth is None:
         return []
     paper = growth.paper if growth.paper is not None else float("nan")
+    if not math.isfinite(growth.exact):  # theory's source says why ("none: ..."), else the drift was not simulated
+        why = growth.exact_source.split(": ", 1)[1] if growth.exact_source.startswith("none: ") else "not simulated"
+        return [Advice(AdviceKind.DAMPING, values=values, text=(
+            f"damping ({', '.join(models)}): no simulated tilt drift ({why}), so this launch cannot test eqs. "
+            "25a/26"))]
     if not assessment.tests_tilt_drift:
         return [Advice(AdviceKind.DAMPING, values=values, text=(
             f"damping ({', '.join(models)}) shows no tilt drift: the simulated drift is {growth.exact:+.2g} 1/s "

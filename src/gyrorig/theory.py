@@ -384,12 +384,16 @@ def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dic
     elif simulate_damping and (acc is None or acc.is_constant):
         up = exact_accelerated_equilibrium_tip(a_vec, g)
         if acc is None:
-            start = steady_launch(protocol)
+            try:
+                start = steady_launch(protocol)
+            except ValueError:  # the spin is too slow for a steady precession at this tilt: the top falls
+                start = None
+                source = "none: no steady slow precession at the launch tilt for this spin (the top is too slow)"
         else:
             start, source = protocol, "simulator, from the protocol's launch (about the effective vertical)"
-        duration = min(protocol.scene.duration_s, 20.0)
-        df = simulate(start, duration_s=duration, rate_hz=20.0)
-        sim_rate = measure_tilt_growth_rate(df, axis=up)
+        if start is not None:
+            df = simulate(start, duration_s=min(protocol.scene.duration_s, 20.0), rate_hz=20.0)
+            sim_rate = measure_tilt_growth_rate(df, axis=up)
     note = f"damping law {law}; paper eq. 25a with gamma = {gamma:.4g} 1/s (slow mode)"
     if law != "paper" and law != "magnet-in-ball":
         note += "; the paper's law differs from this scene's, compare with the simulated value"
