@@ -286,6 +286,20 @@ def test_a_sleeping_top_measures_nothing_and_says_why(tmp_path, tilt_deg):
     assert main(["plan", str(path), "--duration", "2", "--draws", "0"]) == 3
 
 
+def test_a_tip_that_nods_past_the_limb_of_its_sphere_is_a_problem_of_the_camera_placement():
+    """From 0.75 m above, the camera's rays graze the tip's sphere at 79 deg from the vertical: a release at 80 deg
+    is read at a wrong tilt (the tracker flags it ``near-limb``), and the plan says so before anything is built."""
+    import tomllib
+
+    d = tomllib.loads((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text())
+    assert not plan_experiment(parse_protocol(d), duration_s=2.0, draws=0).advice_of(AdviceKind.LIMB)
+    d["launch"]["tilt_deg"] = 80.0
+    plan = plan_experiment(parse_protocol(d), duration_s=2.0, draws=0)
+    (advice,) = plan.advice_of(AdviceKind.LIMB)
+    assert advice.problem and advice.values["limb_deg"] == pytest.approx(79.2, abs=0.1)
+    assert 0.5 < plan.camera["near_limb_fraction"] <= plan.camera["marker_in_view_fraction"]
+
+
 def test_plan_and_prediction_records_are_frozen_and_cross_processes():
     """The Monte Carlo hands the prediction to worker processes: the records pickle, and stay read-only."""
     import pickle

@@ -26,6 +26,8 @@ class AdviceKind(StrEnum):
     FIELD_OF_VIEW = "field-of-view"
     #: the tip stays on the vertical (a sleeping top): no azimuth, nothing to measure
     AZIMUTH_UNDEFINED = "azimuth-undefined"
+    #: the tip comes near (or beyond) the limb of its sphere as the camera sees it: read at a wrong tilt there
+    LIMB = "limb"
     #: the tip marker is off the symmetry axis
     MARKER_OFF_AXIS = "marker-off-axis"
     #: the frame rate against the nutation (``values``: ``minimum_fps``; a problem when it cannot resolve it)

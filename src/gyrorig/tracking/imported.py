@@ -21,6 +21,7 @@ tracker adds them.  Times are the frames' start times plus half camera.json's ex
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import replace
 import xml.etree.ElementTree as ET
@@ -33,11 +34,14 @@ from .. import _io
 from ..protocols import Protocol
 from ..camera import Camera
 from .errors import BadInputError
-from .rays import angle_covariances
+from .rays import angle_covariances, near_limb
+from .rows import with_flag
 from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, check_sigmas
 from .pose import add_camera_modes
 from .tracker import SIGMA_CHECK_Z, tip_marker
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["read_pixel_track", "angles_from_pixel_track", "import_pixel_track", "is_pixel_track", "POINT_MASS"]
 
@@ -228,6 +232,10 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
     th[outliers] = np.nan
     quality[outliers] = "outlier"
     tips[~np.isfinite(th)] = np.nan
+    near, limb = near_limb(tips, camera, length)
+    quality[near] = [with_flag(q, "near-limb") for q in quality[near]]
+    if limb:
+        logger.warning("%s", limb)
     sth, sph = np.sqrt(c[:, 0, 0]), np.sqrt(c[:, 1, 1])
     ok = np.isfinite(th)
     phi = np.full(len(t), np.nan)
@@ -248,7 +256,7 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
                "off_sphere": int(np.sum(quality == "off-sphere")), "sigma_px": float(np.median(sigma)),
                "sigma_source": source, "sigma_check": check.as_dict(), "camera_sigma_rad": camera_sigma,
                "checked_by": "neighbours" if check.smooth_path else ("sinusoids" if followed else "unchecked"),
-               "tip_distance_m": length}
+               "tip_distance_m": length, "near_limb": int(near.sum())}
     return angles, summary
 
 

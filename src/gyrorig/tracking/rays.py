@@ -9,7 +9,10 @@ from ..geometry import angles_from_tip, ray_sphere_distances
 from ..camera import Camera
 
 __all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "sphere_box", "angles_with_covariance",
-           "angle_covariances"]
+           "angle_covariances", "limb_margins_rad", "near_limb", "LIMB_MARGIN_RAD"]
+
+#: a tip nearer than this to the limb of its sphere as the camera sees it is flagged ``near-limb`` [rad]
+LIMB_MARGIN_RAD = 0.1
 
 
 def pixel_rays(xy_px: np.ndarray, cam: Camera) -> np.ndarray:
@@ -94,3 +97,34 @@ def angle_covariances(xy_px: np.ndarray, cov_xy: np.ndarray, cam: Camera, radius
     th[bad], ph[bad] = np.nan, np.nan
     cov[bad] = np.nan
     return th, ph, tips[:, 0], cov
+
+
+def limb_margins_rad(tips: np.ndarray, cam: Camera, radius_m: float) -> np.ndarray:
+    """Per unit tip (n, 3): its angle from the limb of the sphere ``|X| = radius_m`` as the camera sees it (the
+    circle where the camera's rays graze the sphere), positive on the camera's side; NaN for a NaN tip.
+
+    Every ray through the tip's image meets the sphere twice, and the tracker takes the nearer point: a tip beyond
+    the limb is read as a point on the camera's side, at a tilt it does not have, with error bars that cannot show
+    it (one picture cannot tell the two points apart; near the limb they meet)."""
+    c = np.asarray(cam.centre_m, float).ravel()
+    distance = float(np.linalg.norm(c))
+    if distance <= radius_m:  # the camera inside the sphere sees no limb
+        return np.full(len(tips), np.inf)
+    limb = np.arccos(radius_m / distance)
+    return limb - np.arccos(np.clip(np.asarray(tips, float) @ (c / distance), -1.0, 1.0))
+
+
+def near_limb(tips: np.ndarray, cam: Camera, radius_m: float) -> tuple[np.ndarray, str]:
+    """The tips (n, 3) within :data:`LIMB_MARGIN_RAD` of the limb (:func:`limb_margins_rad`), and what to say about
+    them (empty when none is)."""
+    margins = limb_margins_rad(tips, cam, radius_m)
+    near = np.isfinite(margins) & (margins < LIMB_MARGIN_RAD)
+    if not near.any():
+        return near, ""
+    distance = float(np.linalg.norm(cam.centre_m))
+    limb_deg = np.degrees(np.arccos(radius_m / distance))
+    return near, (f"the tip came within {np.degrees(np.nanmin(margins[near])):.2g} deg of the limb of its sphere as "
+                  f"this camera sees it ({int(near.sum())} frames flagged near-limb): beyond {limb_deg:.3g} deg from "
+                  "the camera's direction (seen from the pivot) the ray through the tip meets its sphere first nearer "
+                  "the camera, and the tip is read there, at a tilt it does not have, with error bars that cannot "
+                  "show it; film a top that tilts this far from lower or further to the side")

@@ -307,10 +307,13 @@ def _caveats(source, appearance: MarkerImage, tip: Marker, frame_types: dict, lo
              camera: Camera, angles: pd.DataFrame, markers: pd.DataFrame) -> tuple[str, ...]:
     """What the record's error bars may not hold, warned about: a coloured marker's drift in a lossy file, a tip
     streaked by its motion during the exposure (those frames flagged, :meth:`TrackRows.flag_streaks`, once their
-    times are the capture's and the record's outliers are out)."""
+    times are the capture's and the record's outliers are out), a tip near the limb of its sphere as the camera sees
+    it (:meth:`TrackRows.flag_near_limb`)."""
     drift = appearance.drift_caveat(tip, frame_types.values()) if lossy else ""
     streaks = rows.flag_streaks(angles, markers, camera.exposure_s, camera.fps, tip.name)
-    return _said(source, drift) + _said(source, streak_caveat(*streaks, rows.tip_radius_px, camera.exposure_s))
+    limb = rows.flag_near_limb(angles, markers, camera, tip.position_m[2], tip.name)
+    return (_said(source, drift) + _said(source, streak_caveat(*streaks, rows.tip_radius_px, camera.exposure_s))
+            + _said(source, limb))
 
 
 def _rounded(values) -> str:
