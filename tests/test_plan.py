@@ -300,6 +300,25 @@ def test_a_tip_that_nods_past_the_limb_of_its_sphere_is_a_problem_of_the_camera_
     assert 0.5 < plan.camera["near_limb_fraction"] <= plan.camera["marker_in_view_fraction"]
 
 
+def test_a_record_the_fit_model_cannot_converge_on_is_a_plan_without_errors(tmp_path):
+    """The accelerated pivot at 20,000 rad/s precesses through 0.7 % of a turn in 1 s: the tilted axis, the cone and
+    the rate are nearly degenerate and the noiseless fit finds no minimum.  The plan says so (exit 3) with its
+    camera checks, where it stopped on the fit's error."""
+    import tomllib
+
+    text = (PROTOCOL_DIR / "accelerated-pivot.toml").read_text()
+    d = tomllib.loads(text)
+    spin = d["launch"]["spin_rate_rad_s"]
+    d["launch"]["spin_rate_rad_s"] = 20000.0
+    plan = plan_experiment(parse_protocol(d), duration_s=1.0, draws=0)
+    assert plan.measures_nothing and plan.camera["marker_in_view_fraction"] == 1.0
+    (advice,) = plan.advice_of(AdviceKind.FIT_FAILED)
+    assert advice.problem and advice.values["length_s"] == 1.0
+    path = tmp_path / "fast.toml"
+    path.write_text(text.replace(f"spin_rate_rad_s = {spin}", "spin_rate_rad_s = 20000.0"))
+    assert main(["plan", str(path), "--duration", "1", "--draws", "0"]) == 3
+
+
 def test_plan_and_prediction_records_are_frozen_and_cross_processes():
     """The Monte Carlo hands the prediction to worker processes: the records pickle, and stay read-only."""
     import pickle

@@ -41,7 +41,7 @@ import pandas as pd
 from . import _io, protocols
 from .expectation import ExpectedRecord, expected_record, plan_fit_terms, project, tip_setup
 from .tracking.rays import LIMB_MARGIN_RAD, near_limb
-from .fit import FitError, FitResult, fit_angles, linear_response
+from .fit import FitConvergenceError, FitError, FitResult, fit_angles, linear_response
 from .geometry import wrap_angle
 from .plan_record import Advice, AdviceKind, DampingAssessment, ExpectedQuantity, Plan
 from .prediction import Prediction
@@ -380,7 +380,13 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
                           problem=True, values={"marker_in_view_fraction": float(inside.mean())}))
         return Plan(protocol.name, pred, rec, camera=out["camera"], wall_time_s=time.perf_counter() - start)
     # the expected errors: Cramér-Rao bound of the fit model for this motion and camera
-    fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
+    try:
+        fit = fit_angles(ex.angles, protocol, prediction=pred, check_residuals=False, terms="noiseless")
+    except FitConvergenceError as exc:
+        rec.append(Advice(AdviceKind.FIT_FAILED, f"the scene's fit model finds no minimum on the simulated {T:g} s "
+                          f"record itself ({exc}): no expected errors; a record of another length, or a camera that "
+                          "resolves the motion, may be described", problem=True, values={"length_s": T}))
+        return Plan(protocol.name, pred, rec, camera=out["camera"], wall_time_s=time.perf_counter() - start)
     misfit = {"noiseless_chi2": float(fit.chi2), "dof": int(fit.dof), "chi2_per_dof": float(fit.chi2 / max(fit.dof, 1))}
     nut = pred.exact("nutation_frequency_rad_s")
     quantities, recording = _expected_errors(fit, T, nut)

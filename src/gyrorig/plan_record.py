@@ -41,6 +41,8 @@ class AdviceKind(StrEnum):
     MARKER_PLACEMENT = "marker-placement"
     #: the length for every quantity's target precision (``values``: ``length_s``, ``quantity``)
     RECORDING_LENGTH = "recording-length"
+    #: the fit model finds no minimum on the simulated record: no expected errors
+    FIT_FAILED = "fit-failed"
     #: the fit model misses part of the simulated motion
     MODEL_MISFIT = "model-misfit"
     #: noisy records needed a term the plan left out
@@ -172,8 +174,8 @@ class Plan:
 
     @property
     def measures_nothing(self) -> bool:
-        """True when there is a camera but it measures nothing (it never sees the tip, or sees it only on the
-        vertical, where the tip has no azimuth)."""
+        """True when there is a camera but the plan has no expected errors (the camera never sees the tip, or sees
+        it only on the vertical, where the tip has no azimuth, or the fit model finds no minimum on the record)."""
         return self.camera is not None and not self.quantities
 
     def to_dict(self) -> dict:

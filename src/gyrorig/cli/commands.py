@@ -407,6 +407,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if blind and plan.advice_of(AdviceKind.AZIMUTH_UNDEFINED):
         print("gyrorig: failed: the tip stays on the vertical (a sleeping top): the plan measures nothing (launch the "
               "top tilted or moving)", file=sys.stderr)
+    elif blind and plan.advice_of(AdviceKind.FIT_FAILED):
+        print(f"gyrorig: failed: {plan.advice_of(AdviceKind.FIT_FAILED)[0].text}", file=sys.stderr)
     elif blind:
         print("gyrorig: failed: the camera never sees the tip marker: the plan measures nothing (check the camera's "
               "placement and field of view against the tip's path)", file=sys.stderr)
