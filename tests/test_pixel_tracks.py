@@ -302,3 +302,20 @@ def test_a_tip_beyond_the_limb_of_its_sphere_is_not_flagged_ok(tilt_deg):
         assert (pull.abs() > 5).sum() > 50  # the trap is real: most of the 101 frames are read at the wrong tilt
         assert not ((pull.abs() > 5) & (angles.quality == "ok")).any()
         assert summary["near_limb"] == int(angles.quality.str.contains("near-limb").sum()) > 0
+
+
+def test_a_sleeping_tops_cone_angle_is_not_claimed():
+    """Upright, the tip's measured distance from the vertical is the noise's (a Rice variable, biased upwards):
+    the precession and the cone angle are both undetermined, where the cone angle was given with error bars
+    that missed the truth by about 10 of them."""
+    import tomllib
+
+    d = tomllib.loads(HEAVY.read_text())
+    d["launch"]["tilt_deg"] = 0.0
+    p = parse_protocol(d)
+    table, truth, cam = _pixels(p, 0.05, 0, duration_s=2.0)
+    angles, _ = angles_from_pixel_track(table.assign(sigma_px=0.05), cam, p)
+    fit = fit_angles(angles, p, prediction=predict(p, simulate_damping=False),
+                     truth=truth[["t_s", "theta_rad", "phi_rad"]])
+    for name in ("precession_rate_rad_s", "cone_angle_rad"):
+        assert not fit.quantities[name].determined

@@ -192,7 +192,10 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
         notes += _prior_conflicts(constraints, sol, data)
     at_pole = _azimuth_undefined(data, sol.spec)
     if at_pole is not None:
-        undetermined = {**undetermined, "precession_rate_rad_s": at_pole}
+        # the tilt's size too: a mean distance from the vertical within a few errors is mostly the noise's (biased up)
+        undetermined = {**undetermined, "precession_rate_rad_s": at_pole,
+                        "cone_angle_rad": Reason(Undetermined.AZIMUTH_UNDEFINED, at_pole.text + "; the cone angle, a "
+                                                 "tilt this near the errors, is mostly the noise's (biased upwards)")}
     fns = quantity_functions(sol.spec)
     error_kind, bootstrap, bootstrap_sd, error_notes = choose_errors(
         sol.spec, sol.x, sol.chi2, sol.dof, data, fns, rng, bootstrap_replicates, check_residuals)
