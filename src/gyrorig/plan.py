@@ -192,16 +192,17 @@ def _camera_checks(protocol: Protocol, ex: ExpectedRecord, inside: np.ndarray, p
                           f"{1 - inside.mean():.0%} of the frames (gaps in the expected record): widen the view (a "
                           "shorter camera.focal_length_mm, or the camera further away)", problem=True,
                           values={"marker_in_view_fraction": float(inside.mean())}))
-    near = near_limb(ex.pos / lever, cam, lever)[0] & inside
+    near = near_limb(ex.pos / lever, cam, lever) & inside
     camera["near_limb_fraction"] = float(near.mean())
     if near.any():
         limb_deg = math.degrees(math.acos(min(1.0, lever / float(np.linalg.norm(cam.centre_m)))))
         rec.append(Advice(AdviceKind.LIMB, f"the tip comes within {math.degrees(LIMB_MARGIN_RAD):.2g} deg of the limb "
-                          f"of its sphere as the camera sees it in {near.mean():.0%} of the frames: beyond {limb_deg:.3g} "
-                          "deg from the camera's direction (seen from the pivot) the ray through the tip meets the "
-                          "sphere first nearer the camera, and the tracker reads the tip there, at a wrong tilt; "
-                          "place the camera lower or further to the side (camera.position_m)", problem=True,
-                          values={"near_limb_fraction": float(near.mean()), "limb_deg": limb_deg}))
+                          f"of its sphere as the camera sees it, or passes beyond it, in {near.mean():.0%} of the "
+                          f"frames: beyond {limb_deg:.3g} deg from the camera's direction (seen from the pivot) the ray "
+                          "through the tip meets the sphere first nearer the camera, and the tracker cannot tell where "
+                          f"the tip is (it flags the record near-limb); film from above: the camera's direction within "
+                          f"{limb_deg:.3g} deg less the top's largest tilt of the vertical (camera.position_m)",
+                          problem=True, values={"near_limb_fraction": float(near.mean()), "limb_deg": limb_deg}))
     if spot["saturates"]:
         rec.append(Advice(AdviceKind.SATURATION, "the marker saturates the sensor: shorten the exposure or dim the "
                           "marker (saturated pixels carry no position information)", problem=True))

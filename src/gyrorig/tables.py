@@ -48,9 +48,9 @@ MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma
 #: another frame's, a codec's skipped block: its error holds the tip's motion between them, see
 #: :mod:`gyrorig.tracking.copies`); ``streaked`` (the tip moved more than its image radius during the exposure: a
 #: streak, which the round spot fit does not describe; its error bars may be too small, see
-#: :meth:`gyrorig.tracking.rows.TrackRows.flag_streaks`); ``near-limb`` (the tip near the limb of its sphere as
-#: the camera sees it, beyond which it is read at the wrong one of the two points its ray meets: see
-#: :func:`gyrorig.tracking.rays.limb_margins_rad`)
+#: :meth:`gyrorig.tracking.rows.TrackRows.flag_streaks`); ``near-limb`` (every tracked frame of a record whose tip
+#: came near the limb of its sphere as the camera sees it, beyond which a tip is read at the wrong one of the two
+#: points its ray meets: see :func:`gyrorig.tracking.rays.limb_flags`)
 QUALITY_FLAGS = ("ok", "blended", "saturated", "reacquired", "missing", "off-sphere", "duplicate", "outlier",
                  "damaged", "off-pace", "copied", "streaked", "near-limb")
 

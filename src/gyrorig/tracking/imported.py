@@ -34,7 +34,7 @@ from .. import _io
 from ..protocols import Protocol
 from ..camera import Camera
 from .errors import BadInputError
-from .rays import angle_covariances, near_limb
+from .rays import angle_covariances, limb_flags
 from .rows import with_flag
 from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, check_sigmas
@@ -232,7 +232,7 @@ def angles_from_pixel_track(track: pd.DataFrame, camera: Camera, protocol: Proto
     th[outliers] = np.nan
     quality[outliers] = "outlier"
     tips[~np.isfinite(th)] = np.nan
-    near, limb = near_limb(tips, camera, length)
+    near, limb = limb_flags(tips, camera, length)
     quality[near] = [with_flag(q, "near-limb") for q in quality[near]]
     if limb:
         logger.warning("%s", limb)

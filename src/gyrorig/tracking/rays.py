@@ -9,9 +9,9 @@ from ..geometry import angles_from_tip, ray_sphere_distances
 from ..camera import Camera
 
 __all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "sphere_box", "angles_with_covariance",
-           "angle_covariances", "limb_margins_rad", "near_limb", "LIMB_MARGIN_RAD"]
+           "angle_covariances", "limb_margins_rad", "near_limb", "limb_flags", "LIMB_MARGIN_RAD"]
 
-#: a tip nearer than this to the limb of its sphere as the camera sees it is flagged ``near-limb`` [rad]
+#: a tip nearer than this to the limb of its sphere as the camera sees it may be read on the wrong side of it [rad]
 LIMB_MARGIN_RAD = 0.1
 
 
@@ -114,17 +114,28 @@ def limb_margins_rad(tips: np.ndarray, cam: Camera, radius_m: float) -> np.ndarr
     return limb - np.arccos(np.clip(np.asarray(tips, float) @ (c / distance), -1.0, 1.0))
 
 
-def near_limb(tips: np.ndarray, cam: Camera, radius_m: float) -> tuple[np.ndarray, str]:
-    """The tips (n, 3) within :data:`LIMB_MARGIN_RAD` of the limb (:func:`limb_margins_rad`), and what to say about
-    them (empty when none is)."""
+def near_limb(tips: np.ndarray, cam: Camera, radius_m: float) -> np.ndarray:
+    """Whether each tip (n, 3) lies within :data:`LIMB_MARGIN_RAD` of the limb or beyond it (:func:`limb_margins_rad`;
+    False for a NaN tip)."""
     margins = limb_margins_rad(tips, cam, radius_m)
-    near = np.isfinite(margins) & (margins < LIMB_MARGIN_RAD)
-    if not near.any():
-        return near, ""
-    distance = float(np.linalg.norm(cam.centre_m))
-    limb_deg = np.degrees(np.arccos(radius_m / distance))
-    return near, (f"the tip came within {np.degrees(np.nanmin(margins[near])):.2g} deg of the limb of its sphere as "
-                  f"this camera sees it ({int(near.sum())} frames flagged near-limb): beyond {limb_deg:.3g} deg from "
-                  "the camera's direction (seen from the pivot) the ray through the tip meets its sphere first nearer "
-                  "the camera, and the tip is read there, at a tilt it does not have, with error bars that cannot "
-                  "show it; film a top that tilts this far from lower or further to the side")
+    return np.isfinite(margins) & (margins < LIMB_MARGIN_RAD)
+
+
+def limb_flags(tips: np.ndarray, cam: Camera, radius_m: float) -> tuple[np.ndarray, str]:
+    """The tracked tips (n, 3; NaN where untracked) to flag ``near-limb``, and what to say (empty when none is).
+
+    Tracked tips are all on the camera's side; one within :data:`LIMB_MARGIN_RAD` of the limb may be the reading of
+    a tip beyond it, and a path that reaches the limb may cross it: after that, and before it, either side may be the
+    true one, which one view cannot tell.  So when any tracked tip is that near, every tracked frame is flagged."""
+    margins = limb_margins_rad(tips, cam, radius_m)
+    tracked = np.isfinite(margins)
+    if not np.any(tracked & (margins < LIMB_MARGIN_RAD)):
+        return np.zeros(len(margins), bool), ""
+    limb_deg = np.degrees(np.arccos(radius_m / float(np.linalg.norm(cam.centre_m))))
+    return tracked, (f"the tip came within {np.degrees(np.nanmin(margins)):.2g} deg of the limb of its sphere as this "
+                     f"camera sees it ({limb_deg:.3g} deg from the camera's direction, seen from the pivot): every ray "
+                     "through the tip meets the sphere twice and the nearer point is taken, so a tip beyond the limb "
+                     "is read at a wrong tilt and azimuth with error bars that cannot show it, and one view cannot tell "
+                     f"which frames are: all {int(tracked.sum())} tracked frames are flagged near-limb; film the top "
+                     f"from above (the camera's direction within {limb_deg:.3g} deg less the top's largest tilt of the "
+                     "vertical)")

@@ -15,7 +15,7 @@ from .copies import RecentPictures, copy_extents, copy_groups
 from .detect import Detection
 from .dots import DotTracker
 from .follow import ANCHOR_FRAMES, TipFollower
-from .rays import angle_covariances, angles_with_covariance, near_limb
+from .rays import angle_covariances, angles_with_covariance, limb_flags
 from .scene_spot import near_ring_move
 from .spot import SpotFit
 
@@ -178,9 +178,9 @@ class TrackRows:
 
     def flag_near_limb(self, angles: pd.DataFrame, markers: pd.DataFrame, camera: Camera, length_m: float,
                        tip_name: str) -> str:
-        """The frames whose tip is near the limb of its sphere as the camera sees it flagged ``near-limb``
-        (:func:`~gyrorig.tracking.rays.near_limb`); what to say about them (empty when none is)."""
-        near, said = near_limb(angles[["tip_x", "tip_y", "tip_z"]].to_numpy(float), camera, length_m)
+        """The tracked frames flagged ``near-limb`` when the tip came near the limb of its sphere as the camera sees
+        it (:func:`~gyrorig.tracking.rays.limb_flags`); what to say about them (empty when it did not)."""
+        near, said = limb_flags(angles[["tip_x", "tip_y", "tip_z"]].to_numpy(float), camera, length_m)
         if near.any():
             angles.loc[near, "quality"] = angles.quality[near].map(lambda q: with_flag(q, "near-limb"))
             sel = (markers.marker == tip_name) & markers.frame.isin(angles.frame[near])
