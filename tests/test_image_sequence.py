@@ -380,3 +380,27 @@ def test_a_track_call_parses_the_markers_once(rendered, monkeypatch):
     result = track(out / "v" / "video.mkv", cam, protocol)
     assert result.angles.theta_rad.notna().any()
     assert len(calls) == 1
+
+
+def test_tracking_needs_only_the_markers(rendered, tmp_path):
+    """A recording's rig need not be known to track it: a protocol of its markers alone (no [rig], [launch],
+    [scene]) gives the same track as the whole protocol; the fit, which compares with theory, still needs the rig."""
+    out, protocol, cam, frames = rendered
+    text = (PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text()
+    kept, keep = [], True
+    for line in text.splitlines():
+        if line.startswith("["):
+            keep = line.strip() not in ("[rig]", "[launch]", "[scene]")
+        if keep:
+            kept.append(line)
+    markers_only = tmp_path / "markers-only.toml"
+    markers_only.write_text("\n".join(kept) + "\n")
+    assert "rig" not in tomllib.loads(markers_only.read_text())
+    video, camera = str(out / "v" / "video.mkv"), str(out / "v" / "camera.json")
+    for name, path in (("whole", PROTOCOL_DIR / "air-cushion-heavy-top.toml"), ("markers", markers_only)):
+        assert main(["track", video, "--camera", camera, "--protocol", str(path), "--out", str(tmp_path / name)]) == 0
+    whole, markers = (pd.read_csv(tmp_path / name / "angles.csv") for name in ("whole", "markers"))
+    assert whole.theta_rad.notna().sum() > 0.9 * len(whole)
+    pd.testing.assert_frame_equal(whole, markers)
+    assert main(["fit", str(tmp_path / "markers" / "angles.csv"), "--protocol", str(markers_only),
+                 "--out", str(tmp_path / "fit")]) == 2

@@ -27,28 +27,10 @@ from .parameters import Uncertainty, split_uncertain
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "ProtocolError",
-    "Rig",
-    "Launch",
-    "PaperDamping",
-    "EddyFieldDamping",
-    "MagnetInBallDamping",
-    "AirDamping",
-    "Damping",
-    "PivotAcceleration",
-    "Pivot",
-    "Scene",
-    "Protocol",
-    "load_protocol",
-    "parse_protocol",
-    "top_protocol",
-    "protocol_summary",
-    "BUNDLED_PROTOCOL_DIR",
-    "bundled_protocols", "protocol_path",
-    "Uncertainty",
-    "checked_rig",
-]
+__all__ = ["ProtocolError", "Rig", "Launch", "PaperDamping", "EddyFieldDamping", "MagnetInBallDamping", "AirDamping",
+           "Damping", "PivotAcceleration", "Pivot", "Scene", "Protocol", "load_protocol", "load_tracking_protocol",
+           "parse_protocol", "read_protocol_tables", "top_protocol", "protocol_summary", "BUNDLED_PROTOCOL_DIR",
+           "bundled_protocols", "protocol_path", "Uncertainty", "checked_rig"]
 
 
 #: the bundled protocol files: the repository's ``protocols/``, installed as the package
@@ -283,6 +265,7 @@ class Protocol:
 
     name: str
     description: str
+    #: rig, launch and scene are None only in a protocol read for tracking alone (:func:`load_tracking_protocol`)
     rig: Rig
     launch: Launch
     pivot: Pivot
@@ -488,7 +471,7 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
         raise ProtocolError(f"unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}")
     for sec in ("rig", "launch", "scene"):
         if sec not in data:
-            raise ProtocolError(f"missing required section [{sec}]")
+            raise ProtocolError(f"missing required section [{sec}] (tracking alone needs only [markers])")
     meta = data.get("protocol", {})
     check_keys("protocol", meta, set(), {"name", "description"})
     rig = _parse_rig(data["rig"])
@@ -516,23 +499,9 @@ def protocol_path(path: str | Path) -> Path:
     return bundled if named and bundled.is_file() else path
 
 
-def load_protocol(path: str | Path) -> Protocol:
-    """Read and validate a protocol TOML file.
-
-    Parameters
-    ----------
-    path : str or Path
-        A TOML file, or the name of a bundled protocol (:func:`bundled_protocols`) where no such file exists.
-
-    Returns
-    -------
-    Protocol
-
-    Raises
-    ------
-    ProtocolError
-        If the file cannot be read or parsed, or a value is invalid.
-    """
+def read_protocol_tables(path: str | Path) -> tuple[Path, dict]:
+    """The protocol file (or the bundled protocol of that name where no such file exists) and its tables as parsed
+    TOML; ProtocolError when it cannot be read or parsed."""
     path = protocol_path(path)
     from . import _io
 
@@ -541,7 +510,7 @@ def load_protocol(path: str | Path) -> Protocol:
     except _io.InputTooLarge as exc:
         raise ProtocolError(str(exc)) from None
     try:
-        data = tomllib.loads(_io.read_settings_text(path))
+        return path, tomllib.loads(_io.read_settings_text(path))
     except FileNotFoundError as exc:
         raise ProtocolError(f"protocol file not found: {path}") from exc
     except IsADirectoryError as exc:
@@ -552,6 +521,12 @@ def load_protocol(path: str | Path) -> Protocol:
         raise ProtocolError(f"{path}: not UTF-8 text: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise ProtocolError(f"{path}: not valid TOML: {exc}") from exc
+
+
+def load_protocol(path: str | Path) -> Protocol:
+    """Read and validate a protocol TOML file: a file, or the name of a bundled protocol (:func:`bundled_protocols`)
+    where no such file exists.  ProtocolError if the file cannot be read or parsed, or a value is invalid."""
+    path, data = read_protocol_tables(path)
     try:
         protocol = parse_protocol(data, source=str(path))
     except ProtocolError as exc:
@@ -561,6 +536,30 @@ def load_protocol(path: str | Path) -> Protocol:
     for doubt in protocol_doubts(protocol):
         logger.warning("%s: %s", path, doubt)
     return protocol
+
+
+def load_tracking_protocol(path: str | Path) -> Protocol:
+    """A protocol for tracking, which reads only ``[markers]`` (and ``[camera]``'s placement, ``[pivot]``): the whole
+    protocol when it has ``[rig]``, ``[launch]`` and ``[scene]``, else those sections alone, with ``rig``, ``launch``
+    and ``scene`` None (a recording's rig need not be known to track it)."""
+    path, data = read_protocol_tables(path)
+    if all(sec in data for sec in ("rig", "launch", "scene")):
+        return load_protocol(path)
+    known = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty", "gimbal"} | _LATER_SECTIONS
+    try:
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ProtocolError(f"unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}")
+        if "markers" not in data:
+            raise ProtocolError("missing section [markers]: tracking needs the tip marker (markers.tip)")
+        data, uncertainty = split_uncertain(data)
+        meta = data.get("protocol", {})
+        check_keys("protocol", meta, set(), {"name", "description"})
+        pivot = _parse_pivot(data.get("pivot", {}))
+    except ProtocolError as exc:
+        raise ProtocolError(f"{path}: {exc}") from None
+    return Protocol(str(meta.get("name", path.stem)), str(meta.get("description", "")), None, None, pivot, None,
+                    str(path), {k: v for k, v in data.items() if k in _LATER_SECTIONS}, uncertainty)
 
 
 def bundled_protocols() -> dict[str, str]:

@@ -161,14 +161,14 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
     from dataclasses import replace
 
     from ..camera import placement_pose
-    from ..protocols import load_protocol
+    from ..protocols import load_tracking_protocol
     from ..tracking.motion_pose import fix_azimuth, pose_from_motion
     from .printing import progress_printer
 
     if args.protocol is None:
         raise ValueError("--protocol is required with --video (the tip's marker, and its [camera] placement as the "
                          "rough starting pose)")
-    protocol = load_protocol(args.protocol)
+    protocol = load_tracking_protocol(args.protocol)
     if "camera" not in protocol.extra:
         raise ValueError(f"{args.protocol}: no [camera] section; its position_m and look_at_m give the rough pose the "
                          "fit starts from")

@@ -217,10 +217,11 @@ def _with_capture_fps(camera, capture_fps: float | None):
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
+    from ..protocols import load_tracking_protocol
     from ..tracking import load_camera, track_video
     from ..tracking.scatter import check_summary
 
-    protocol = load_protocol(args.protocol)
+    protocol = load_tracking_protocol(args.protocol)
     camera = _with_capture_fps(load_camera(args.camera, require_pose=False), args.capture_fps)
     from ..tracking.imported import import_pixel_track, is_pixel_track
 
