@@ -639,3 +639,16 @@ def test_bootstrap_errors_hold_when_each_frames_error_differs():
             pulls.setdefault(name, []).append(q.pull)
     for name, values in pulls.items():
         assert 0.65 <= np.std(values) <= 1.45, (name, np.std(values))
+
+
+@pytest.mark.parametrize("tilt", [0.0, math.pi])
+def test_a_top_on_the_vertical_up_or_down_has_no_precession(tilt):
+    """Upright or hanging straight down, the measured azimuth is the noise's direction: the precession and the cone
+    are undetermined at either pole (the hanging top's were fitted, from the noise)."""
+    p = make_protocol(tilt=tilt, spin=60.0)
+    angles, _ = _noisy(p, 2.0)
+    angles["theta_rad"] = np.clip(angles.theta_rad, 0.0, math.pi)
+    fit = fit_angles(angles, p, prediction=predict(p, simulate_damping=False))
+    for name in ("precession_rate_rad_s", "cone_angle_rad"):
+        q = fit.quantities[name]
+        assert not q.determined and q.reason_kind == Undetermined.AZIMUTH_UNDEFINED
