@@ -168,3 +168,17 @@ def test_files_saved_by_a_windows_editor_load_as_written(tmp_path):
     loaded = load_camera(json_path)
     assert loaded.camera_matrix.tolist() == cam.camera_matrix.tolist()
     assert loaded.centre_m == pytest.approx(cam.centre_m)
+
+
+def test_a_recordings_protocol_states_only_what_its_analysis_needs():
+    """A recording's analysis compares with theory from the rig, the launch tilt and the spin: a protocol without
+    [scene] and without the launch's azimuth and rates (a top released from rest) reads with those defaults, where
+    each was refused as missing."""
+    d = tomllib.loads((PROTOCOL_DIR / "air-cushion-heavy-top.toml").read_text())
+    whole = parse_protocol(d)
+    del d["scene"]
+    for key in ("azimuth_rad", "tilt_rate_rad_s", "precession_rate_rad_s"):
+        del d["launch"][key]
+    p = parse_protocol(d)
+    assert p.launch == whole.launch  # the bundled rig is released from rest at azimuth 0
+    assert p.scene.duration_s > 0 and p.rig == whole.rig

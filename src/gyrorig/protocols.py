@@ -245,15 +245,8 @@ class Pivot:
 
 @dataclass(frozen=True, slots=True)
 class Scene:
-    """What is simulated.
-
-    Attributes
-    ----------
-    duration_s : float
-        Length of the run. [s]
-    output_rate_hz : float
-        Rate of the rows written to ``trajectory.csv``. [Hz]
-    """
+    """What is simulated: ``duration_s``, the length of the run [s]; ``output_rate_hz``, the rate of the rows written
+    to ``trajectory.csv`` [Hz]."""
 
     duration_s: float
     output_rate_hz: float = 1000.0
@@ -348,9 +341,10 @@ def _parse_launch(t: Mapping[str, Any], rig: Rig) -> Launch:
         "tilt_rad", "tilt_deg", "azimuth_rad", "azimuth_deg", "spin_angle_rad", "spin_angle_deg",
         "frame_spin_rate_rad_s",
     }
-    check_keys(s, t, {"tilt_rate_rad_s", "precession_rate_rad_s", "spin_rate_rad_s"}, optional)
+    # released from rest at azimuth 0 unless said otherwise: a recording's launch is rarely known better
+    check_keys(s, t, {"spin_rate_rad_s"}, optional | {"tilt_rate_rad_s", "precession_rate_rad_s"})
     tilt = angle(s, t, "tilt", lo=0.0, hi=math.pi, required=True)
-    azimuth = angle(s, t, "azimuth", lo=-1e6, hi=1e6, required=True)
+    azimuth = angle(s, t, "azimuth", lo=-1e6, hi=1e6, required=False)
     spin_angle = angle(s, t, "spin_angle", lo=-1e6, hi=1e6, required=False)
     if "frame_spin_rate_rad_s" in t and not rig.is_gyrostat:
         raise ProtocolError(
@@ -359,8 +353,8 @@ def _parse_launch(t: Mapping[str, Any], rig: Rig) -> Launch:
     return Launch(
         tilt_rad=tilt,
         azimuth_rad=azimuth,
-        tilt_rate_rad_s=number(s, "tilt_rate_rad_s", t["tilt_rate_rad_s"]),
-        precession_rate_rad_s=number(s, "precession_rate_rad_s", t["precession_rate_rad_s"]),
+        tilt_rate_rad_s=number(s, "tilt_rate_rad_s", t.get("tilt_rate_rad_s", 0.0)),
+        precession_rate_rad_s=number(s, "precession_rate_rad_s", t.get("precession_rate_rad_s", 0.0)),
         spin_rate_rad_s=number(s, "spin_rate_rad_s", t["spin_rate_rad_s"]),
         spin_angle_rad=spin_angle,
         frame_spin_rate_rad_s=number(s, "frame_spin_rate_rad_s", t.get("frame_spin_rate_rad_s", 0.0)),
@@ -433,11 +427,15 @@ def _parse_pivot(t: Mapping[str, Any]) -> Pivot:
     return Pivot(damping, acceleration)
 
 
+#: the simulated length when a protocol does not state scene.duration_s (a recording's analysis needs none) [s]
+DEFAULT_DURATION_S = 20.0
+
+
 def _parse_scene(t: Mapping[str, Any]) -> Scene:
     s = "scene"
-    check_keys(s, t, {"duration_s"}, {"output_rate_hz"})
+    check_keys(s, t, set(), {"duration_s", "output_rate_hz"})
     return Scene(
-        number(s, "duration_s", t["duration_s"], lo=0.0, lo_open=True, hi=1e7),
+        number(s, "duration_s", t.get("duration_s", DEFAULT_DURATION_S), lo=0.0, lo_open=True, hi=1e7),
         number(s, "output_rate_hz", t.get("output_rate_hz", 1000.0), lo=0.0, lo_open=True, hi=1e7),
     )
 
@@ -449,7 +447,7 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     ----------
     data : mapping
         Top-level tables ``protocol`` (optional: ``name``, ``description``), ``rig``,
-        ``launch``, ``scene`` (required), ``pivot``, ``gimbal`` (optional), ``uncertainty`` (optional:
+        ``launch`` (required), ``scene``, ``pivot``, ``gimbal`` (optional), ``uncertainty`` (optional:
         correlations of the numbers given as ``{ value, sd }``, :mod:`gyrorig.parameters`), and
         the sections read by later stages (``camera``, ``markers``, ``measure``).
     source : str
@@ -469,7 +467,7 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     data, uncertainty = split_uncertain(data)
     if unknown:
         raise ProtocolError(f"unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}")
-    for sec in ("rig", "launch", "scene"):
+    for sec in ("rig", "launch"):
         if sec not in data:
             raise ProtocolError(f"missing required section [{sec}] (tracking alone needs only [markers])")
     meta = data.get("protocol", {})
@@ -477,7 +475,7 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     rig = _parse_rig(data["rig"])
     launch = _parse_launch(data["launch"], rig)
     pivot = _parse_pivot(data.get("pivot", {}))
-    scene = _parse_scene(data["scene"])
+    scene = _parse_scene(data.get("scene", {}))
     if pivot.acceleration is not None and rig.com_distance_m == 0.0:
         raise ProtocolError("pivot acceleration given but rig.com_distance_m = 0: it would exert no torque")
     extra = {k: v for k, v in data.items() if k in _LATER_SECTIONS}
@@ -543,7 +541,7 @@ def load_tracking_protocol(path: str | Path) -> Protocol:
     protocol when it has ``[rig]``, ``[launch]`` and ``[scene]``, else those sections alone, with ``rig``, ``launch``
     and ``scene`` None (a recording's rig need not be known to track it)."""
     path, data = read_protocol_tables(path)
-    if all(sec in data for sec in ("rig", "launch", "scene")):
+    if all(sec in data for sec in ("rig", "launch")):
         return load_protocol(path)
     known = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty", "gimbal"} | _LATER_SECTIONS
     try:
