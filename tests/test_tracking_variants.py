@@ -48,6 +48,7 @@ def test_lossy_gamma_footage_takes_its_errors_from_the_data():
     assert r["sigma_scaled"] and r["sigma_factor"] > 1.0
 
 
+@pytest.mark.slow  # renders and tracks 8 s of 1280x720 HEVC; the path of sinusoids is checked on pixel tracks
 def test_a_phone_at_30_frames_per_second_has_its_errors_checked_on_the_record():
     """At a phone's 30 frames/s (HEVC, coffee, 8 s) the nod moves the tip by up to three radii between frames: no
     path through a frame's neighbours follows it, and the errors were the spot fits' own, too small for the codec
