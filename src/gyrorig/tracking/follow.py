@@ -92,24 +92,20 @@ SCENE_MOTION_PX = 0.5
 #: a reacquired tip lies within this many expected radii of where it was lost, plus this many times its speed for every
 #: frame since: the :data:`REACQUIRE_QUANTILE` of its steps remembered (:data:`SPEED_MEMORY`), or its last steps'
 #: median if more (a heavy top's tip stops at each cusp of its nod, where it is often lost)
-REACQUIRE_RADII = 3.0
-REACQUIRE_SPEEDS = 2.0
-REACQUIRE_QUANTILE = 0.9
+REACQUIRE_RADII, REACQUIRE_SPEEDS, REACQUIRE_QUANTILE = 3.0, 2.0, 0.9
 #: a spot whose centre is known worse than this fraction of the tip's expected radius is not a clean image of it
 #: (a texture's blob, a tip partly hidden)
 MAX_SIGMA_RADII = 0.25
 #: when searching, the candidates of highest contrast considered, and how many of them (the nearest the tip's size)
 #: are fitted: a faint tip on a pale road ranks 16th-21st by contrast among people walking past
-ACQUIRE_CANDIDATES = 32
-ACQUIRE_FITS = 12
+ACQUIRE_CANDIDATES, ACQUIRE_FITS = 32, 12
 #: frames the follower coasts on its prediction after a rejected frame before it searches anew
 COAST_FRAMES = 3
 #: a spot within this tilt of the vertical is a sleeping top's tip, taken without moving [rad]
 SLEEPING_TILT_RAD = 0.05
 #: while searching, a candidate's anchor (where it was first seen, :meth:`TipFollower._anchor_of`) is the nearest one
 #: within this many expected radii, and is forgotten after this many frames searched
-ANCHOR_REACH_RADII = 4.0
-ANCHOR_FRAMES = 240
+ANCHOR_REACH_RADII, ANCHOR_FRAMES = 4.0, 240
 #: once the tip has been followed this many frames after an acquisition and seen to move fast (:data:`SPEED_MEMORY`),
 #: it is followed back through the frames before in which it was not taken (:meth:`TipFollower._follow_back`): at a
 #: frame rate low for the motion it is found only where it turns until a speed has been seen
@@ -245,8 +241,11 @@ class TipFollower:
             self.light.see(frame, None if at is None else at[1])
 
     def _looks_like_tip(self, fit: SpotFit) -> bool:
-        """The shape and size test for a fit whose position is already the tip's (see the module docstring)."""
+        """The shape and size test for a fit whose position is already the tip's (see the module docstring); not one
+        where a lab marker appears, nearer its size (the rougher radius of its blob may have let it through)."""
         if not math.sqrt(max(float(np.max(np.linalg.eigvalsh(fit.cov_xy))), 0.0)) <= MAX_SIGMA_RADII * self.r_expected:
+            return False
+        if self._on_lab_marker(fit.x_px, fit.y_px, fit.radius_px):
             return False
         if self.disc is None:
             lo, hi = SIZE_RANGE[self.shape]
@@ -335,11 +334,15 @@ class TipFollower:
         sx, sy = self.shift_px
         return [(x + sx, y + sy, r) for x, y, r in self.lab_px]
 
+    def _on_lab_marker(self, x: float, y: float, r: float) -> bool:
+        """Whether a spot at ``(x, y)`` of radius ``r`` [px] sits where a lab marker appears and is nearer its size."""
+        return any(math.hypot(x - lx, y - ly) <= lr + 2 and self._nearer_size(r, lr) for lx, ly, lr in self._lab_now())
+
     def _verdict(self, x: float, y: float, r: float, on_sphere: bool | None = None) -> Verdict | None:
         """Why a spot at ``(x, y)`` of radius ``r`` [px] cannot be the tip whatever its size: where a lab marker
         appears and nearer its size (the tip may pass in front of one, visible or not), or off the tip's sphere
         (``on_sphere``: whether its ray meets the sphere, if already known); None when it can be."""
-        if any(math.hypot(x - lx, y - ly) <= lr + 2.0 and self._nearer_size(r, lr) for lx, ly, lr in self._lab_now()):
+        if self._on_lab_marker(x, y, r):
             return Verdict.LAB_MARKER
         if on_sphere is None:
             on_sphere = tip_from_pixel(x, y, self.camera, self.length_m) is not None
