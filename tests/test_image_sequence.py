@@ -404,3 +404,13 @@ def test_tracking_needs_only_the_markers(rendered, tmp_path):
     pd.testing.assert_frame_equal(whole, markers)
     assert main(["fit", str(tmp_path / "markers" / "angles.csv"), "--protocol", str(markers_only),
                  "--out", str(tmp_path / "fit")]) == 2
+
+
+def test_a_clip_ended_early_reports_no_damage(rendered):
+    """A lossless recording cut at --end: the packets in the decoder's threads when reading stops have no pictures
+    yet, which is no damage (they were reported as packets the decoder skipped)."""
+    from gyrorig.tracking.sources import Clip, parse_cut
+
+    out, protocol, cam, frames = rendered
+    res = track(Clip(out / "v" / "video.mkv", None, parse_cut("12f", "--end")), cam, protocol)
+    assert len(res.angles) == 13 and res.source_problems == ()

@@ -190,6 +190,8 @@ def _decoded_frames(container, stream, colour: bool, types: list[str], depth: in
             try:
                 lag = max(int(stream.codec_context.thread_count or 1), 1) + 1
                 known, whole, skipped = _refused_stretches(refused, packets, shown, lag, refusing)
+                if stop.is_set():  # closed before the stream's end: the packets in flight have no pictures yet
+                    skipped = 0
                 if damaged is not None and (errors or known):
                     damaged.extend(_damaged_stretches(errors, keys, len(shown), known))
                 if problems is not None and whole + skipped:
