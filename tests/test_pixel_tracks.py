@@ -17,7 +17,7 @@ import pytest
 
 from conftest import PROTOCOL_DIR
 from gyrorig.cli import main
-from gyrorig.fit import fit_angles
+from gyrorig.fit import NoteKind, fit_angles
 from gyrorig.physics.simulate import simulate
 from gyrorig.protocols import load_protocol, parse_protocol
 from gyrorig.theory import predict
@@ -307,6 +307,9 @@ def test_a_tip_beyond_the_limb_of_its_sphere_is_not_flagged_ok(view):
         assert wrong.sum() > 100  # the trap is real: many of the 401 frames are read at the wrong place
         assert not (wrong & (angles.quality == "ok")).any()
         assert summary["near_limb"] == int(angles.quality.str.contains("near-limb").sum()) > 0
+    # and the fit of such a table says so, whatever its chi-square
+    fit = fit_angles(angles, p, prediction=predict(p, simulate_damping=False))
+    assert any(n.kind == NoteKind.NEAR_LIMB for n in fit.notes) == (view != "above-45")
 
 
 def test_a_sleeping_tops_cone_angle_is_not_claimed():

@@ -69,6 +69,19 @@ def _standard_errors(sol: Solution, data: FitData, fns: dict, error_kind: ErrorK
     return values, formal, camera_se
 
 
+def _limb_note(angles: pd.DataFrame) -> list[Note]:
+    """A note when the tracker flagged the record ``near-limb`` (:func:`gyrorig.tracking.rays.limb_flags`)."""
+    if "quality" not in angles.columns:
+        return []
+    flagged = angles.quality.astype(str).str.contains("near-limb") & angles.theta_rad.notna()
+    if not flagged.any():
+        return []
+    return [Note(NoteKind.NEAR_LIMB, f"{int(flagged.sum())} of the record's frames are flagged near-limb: the tip came "
+                 "near the edge of its sphere as the camera saw it, beyond which it is read on the wrong side, and the "
+                 "fitted values may describe a motion the top did not make, whatever the chi-square says; film from "
+                 "above")]
+
+
 def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, check_residuals: bool) -> list[Note]:
     """Notes on the record: too short for the model, a dominating systematic, the camera's share."""
     notes = []
@@ -201,7 +214,7 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
         sol.spec, sol.x, sol.chi2, sol.dof, data, fns, rng, bootstrap_replicates, check_residuals)
     phases = phase_uncertainty(sol.spec, sol.x, sol.cov, data)
     values, formal, camera_se = _standard_errors(sol, data, fns, error_kind, bootstrap_sd)
-    notes += error_notes + _record_notes(sol, data, phases, camera_se, check_residuals)
+    notes += error_notes + _record_notes(sol, data, phases, camera_se, check_residuals) + _limb_note(angles)
     truth_vals = truth_values(truth, data, sol.spec, sol.x) if truth is not None else {}
     quantities = build_quantities(sol.spec, values, formal, camera_se, undetermined, protocol, prediction, truth_vals)
     notes += check_notes(sol, data, protocol, quantities)

@@ -115,6 +115,8 @@ class NoteKind(StrEnum):
     GEOMETRY = "geometry"
     #: the smoother gated more frames than its model allows: the fit's own model judged which to leave out
     OUTLIERS_BY_FIT = "outliers-by-fit"
+    #: the track is flagged near-limb: the tip may have been read on the wrong side of its sphere
+    NEAR_LIMB = "near-limb"
 
 
 @dataclass(frozen=True)
