@@ -414,3 +414,28 @@ def test_a_clip_ended_early_reports_no_damage(rendered):
     out, protocol, cam, frames = rendered
     res = track(Clip(out / "v" / "video.mkv", None, parse_cut("12f", "--end")), cam, protocol)
     assert len(res.angles) == 13 and res.source_problems == ()
+
+
+def test_a_grey_quicktime_raw_file_reads_its_own_levels(tmp_path):
+    """An 8-bit grey raw QuickTime file (a scientific camera's export) is decoded as a palette of greys (inverted):
+    its levels are read through that palette exactly, where FFmpeg's grey conversion put some 1 off."""
+    import av
+
+    from gyrorig.tracking.sources import VideoFile
+
+    rng = np.random.default_rng(0)
+    written = [rng.integers(0, 256, (48, 64), dtype=np.uint8) for _ in range(3)]
+    path = tmp_path / "grey.mov"
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("rawvideo", rate=30)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "gray"
+        for f in written:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(f, format="gray")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    with VideoFile(path).open() as frames:
+        read = [np.asarray(image) for image, _ in frames]
+    assert len(read) == 3
+    for a, b in zip(read, written):
+        np.testing.assert_array_equal(a, b)

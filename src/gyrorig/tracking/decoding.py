@@ -51,6 +51,11 @@ def _plane_image(frame, colour: bool) -> np.ndarray:
         dtype = np.uint16 if bits > 8 else np.uint8
         row = np.frombuffer(plane, dtype=dtype).reshape(frame.height, -1)
         return np.array(row[:, :frame.width])  # a copy: the decoder reuses its buffers
+    if fmt.name == "pal8":  # a grey palette (QuickTime's 8-bit grey, inverted) gives its levels exactly
+        index = np.frombuffer(frame.planes[0], np.uint8).reshape(frame.height, -1)[:, :frame.width]
+        palette = np.frombuffer(frame.planes[1], np.uint8)[:1024].reshape(256, 4)  # B, G, R, A
+        if (palette[:, 0] == palette[:, 1]).all() and (palette[:, 1] == palette[:, 2]).all():
+            return palette[index, 2]
     return _at_depth(frame.to_ndarray(format="gray16le" if bits > 8 else "gray"), bits)
 
 
