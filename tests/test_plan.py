@@ -298,6 +298,7 @@ def test_a_tip_that_nods_past_the_limb_of_its_sphere_is_a_problem_of_the_camera_
     (advice,) = plan.advice_of(AdviceKind.LIMB)
     assert advice.problem and advice.values["limb_deg"] == pytest.approx(79.2, abs=0.1)
     assert 0.5 < plan.camera["near_limb_fraction"] <= plan.camera["marker_in_view_fraction"]
+    assert plan.quantities and not any(q.reliable for q in plan.quantities.values())
 
 
 def test_a_record_the_fit_model_cannot_converge_on_is_a_plan_without_errors(tmp_path):

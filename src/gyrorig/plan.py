@@ -414,6 +414,9 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
         out["recording"]["linear_regime"] = None  # not assessed: the model does not describe the record
     else:
         _reliability(protocol, ex, fit, T, pred, draws, draw_seed, out, rec, progress)
+    if out["camera"]["near_limb_fraction"] > 0:  # the tracker flags such a record: it may be read on the wrong side
+        for entry in quantities.values():
+            entry["reliable"] = False
     rec.extend(_parameter_advice(quantities, pred))
     rec.extend(_damping_advice(protocol, pred))
     return Plan(protocol.name, pred, rec, camera=out["camera"],

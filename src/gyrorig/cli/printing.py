@@ -98,7 +98,7 @@ def print_plan(plan: Plan) -> None:
                   + (f" (paper {q.predicted_paper:.6g}: {pe:+.3g} s.e. from exact)" if pe is not None else "")
                   + (f"; theory itself +- {q.prediction_standard_error:.2g} from the rig's parameters"
                      if q.prediction_standard_error else "")
-                  + ("" if q.reliable else "  [not reliable at this length]"))
+                  + ("" if q.reliable else "  [not reliable: see the advice]"))
         mf = rec.get("model_misfit")
         if mf:
             print(f"  fit model on the simulated record: chi-square {mf['noiseless_chi2']:.3g} for {mf['dof']} degrees "
