@@ -3,7 +3,9 @@
 A protocol states only what its scene has.  A missing section or key means the
 corresponding physics is *absent*, never a silently supplied default: a protocol
 without ``gravity_m_s2`` has no gravity torque, one without ``[pivot.damping]`` is
-undamped, one without ``acceleration_m_s2`` has a pivot at rest.
+undamped, one without ``acceleration_m_s2`` has a pivot at rest, a launch without rates
+is a release from rest (at azimuth 0).  Without ``[scene]`` a simulation or render runs
+:data:`DEFAULT_DURATION_S` (a recording's analysis uses no scene).
 
 Every problem is reported as a :class:`ProtocolError` naming the key, the value
 found and the range allowed.  The full format, with every key and unit, is
@@ -285,7 +287,6 @@ class Protocol:
 # --------------------------------------------------------------------------------------
 # parsing
 
-# sections read by later pipeline stages; accepted as tables, validated there
 def protocol_summary(p: Protocol) -> dict:
     """The protocol as parsed (its physics sections as plain dicts), for manifests."""
     out = {"name": p.name, "source": p.source, "description": p.description, "rig": asdict(p.rig),
@@ -297,7 +298,15 @@ def protocol_summary(p: Protocol) -> dict:
     return out
 
 
-_LATER_SECTIONS = {"camera", "markers", "measure", "configuration"}
+_LATER_SECTIONS = {"camera", "markers", "measure", "configuration"}  # read by later stages, validated there
+_SECTIONS = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty", "gimbal"} | _LATER_SECTIONS
+
+
+def _check_sections(data: Mapping[str, Any]) -> None:
+    """ProtocolError naming the sections a protocol does not know."""
+    unknown = sorted(set(data) - _SECTIONS)
+    if unknown:
+        raise ProtocolError(f"unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_SECTIONS))}")
 
 
 def _parse_rig(t: Mapping[str, Any]) -> Rig:
@@ -462,11 +471,8 @@ def parse_protocol(data: Mapping[str, Any], *, source: str = "") -> Protocol:
     ProtocolError
         Naming the offending key, its value and the allowed range.
     """
-    known = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty", "gimbal"} | _LATER_SECTIONS
-    unknown = sorted(set(data) - known)
+    _check_sections(data)
     data, uncertainty = split_uncertain(data)
-    if unknown:
-        raise ProtocolError(f"unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}")
     for sec in ("rig", "launch"):
         if sec not in data:
             raise ProtocolError(f"missing required section [{sec}] (tracking alone needs only [markers])")
@@ -522,9 +528,12 @@ def read_protocol_tables(path: str | Path) -> tuple[Path, dict]:
 
 
 def load_protocol(path: str | Path) -> Protocol:
-    """Read and validate a protocol TOML file: a file, or the name of a bundled protocol (:func:`bundled_protocols`)
-    where no such file exists.  ProtocolError if the file cannot be read or parsed, or a value is invalid."""
-    path, data = read_protocol_tables(path)
+    """A protocol TOML file (or bundled protocol's name) read and validated; ProtocolError naming what is wrong."""
+    return _validated(*read_protocol_tables(path))
+
+
+def _validated(path: Path, data: dict) -> Protocol:
+    """The protocol file's tables parsed (:func:`parse_protocol`), its doubts logged as warnings."""
     try:
         protocol = parse_protocol(data, source=str(path))
     except ProtocolError as exc:
@@ -538,16 +547,13 @@ def load_protocol(path: str | Path) -> Protocol:
 
 def load_tracking_protocol(path: str | Path) -> Protocol:
     """A protocol for tracking, which reads only ``[markers]`` (and ``[camera]``'s placement, ``[pivot]``): the whole
-    protocol when it has ``[rig]``, ``[launch]`` and ``[scene]``, else those sections alone, with ``rig``, ``launch``
-    and ``scene`` None (a recording's rig need not be known to track it)."""
+    protocol when it has ``[rig]`` and ``[launch]``, else those sections alone, with ``rig``, ``launch`` and ``scene``
+    None (a recording's rig need not be known to track it)."""
     path, data = read_protocol_tables(path)
     if all(sec in data for sec in ("rig", "launch")):
-        return load_protocol(path)
-    known = {"protocol", "rig", "launch", "pivot", "scene", "uncertainty", "gimbal"} | _LATER_SECTIONS
+        return _validated(path, data)
     try:
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ProtocolError(f"unknown section(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}")
+        _check_sections(data)
         if "markers" not in data:
             raise ProtocolError("missing section [markers]: tracking needs the tip marker (markers.tip)")
         data, uncertainty = split_uncertain(data)
@@ -605,13 +611,10 @@ def top_protocol(
         pivot["acceleration_m_s2"] = list(acceleration_m_s2)
     if damping is not None:
         pivot["damping"] = dict(damping)
-    data: dict[str, Any] = {
-        "protocol": {"name": name},
-        "rig": rig,
-        "launch": dict(tilt_rad=tilt_rad, azimuth_rad=azimuth_rad, tilt_rate_rad_s=tilt_rate_rad_s,
-                       precession_rate_rad_s=precession_rate_rad_s, spin_rate_rad_s=spin_rate_rad_s),
-        "scene": dict(duration_s=duration_s),
-    }
+    launch = dict(tilt_rad=tilt_rad, azimuth_rad=azimuth_rad, tilt_rate_rad_s=tilt_rate_rad_s,
+                  precession_rate_rad_s=precession_rate_rad_s, spin_rate_rad_s=spin_rate_rad_s)
+    data: dict[str, Any] = {"protocol": {"name": name}, "rig": rig, "launch": launch,
+                            "scene": {"duration_s": duration_s}}
     if pivot:
         data["pivot"] = pivot
     return parse_protocol(data)

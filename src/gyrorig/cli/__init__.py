@@ -191,7 +191,9 @@ def _main(argv: Sequence[str] | None) -> int:
             raise
         # a ValueError that is a failed computation says so; numpy's LinAlgError (a singular matrix) is one that no
         # input check foresaw
-        unforeseen = type(exc).__name__ == "LinAlgError"
+        from numpy.linalg import LinAlgError
+
+        unforeseen = isinstance(exc, LinAlgError)
         code = getattr(exc, "exit_code", EXIT_FAILED if unforeseen else EXIT_BAD_INPUT)
         print(f"gyrorig: {'error' if code == EXIT_BAD_INPUT else 'failed'}: {exc}"
               + (" (run with --debug for the traceback)" if unforeseen else ""), file=sys.stderr)

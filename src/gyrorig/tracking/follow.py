@@ -363,8 +363,8 @@ class TipFollower:
             fit = self._fit(frame, float(predicted[0]), float(predicted[1]), self.last_r)
             if (fit is not None and not fit.blended
                     and math.hypot(fit.x_px - predicted[0], fit.y_px - predicted[1]) < max(2.0, 0.3 * fit.radius_px)
-                    and self._verdict(fit.x_px, fit.y_px, fit.radius_px) is None
-                    and self._acceptable(fit, predicted, gate, threshold)):
+                    and tip_from_pixel(fit.x_px, fit.y_px, self.camera, self.length_m) is not None
+                    and self._acceptable(fit, predicted, gate, threshold)):  # (the lab markers: _looks_like_tip)
                 return fit
         cand = self._candidates(frame, threshold, predicted, int(2 * self.r_expected + 10 + gate))
         cand.sort(key=lambda c: (c[0] - predicted[0]) ** 2 + (c[1] - predicted[1]) ** 2)
