@@ -20,7 +20,10 @@ kind, ``int_0^tau dtau / (1 - n sn^2) = tau + (n/3) sn^3 R_J(cn^2, dn^2, 1, 1 - 
 on ``|tau| <= K`` (Carlson's symmetric form, DLMF 19.25.14), continued periodically.
 The cubic's roots are found in the shifted variable ``x = u - u0`` whose constant
 coefficient ``f(u0) = u'(0)^2`` is known exactly, so a turning-point launch
-(release from rest) has its root exactly at the launch tilt.
+(release from rest) has its root exactly at the launch tilt.  Near a pole ``u`` rounds to
+``+-1`` (below about 1e-8 rad it holds no tilt at all), so the distances from the poles,
+``1 - u = 2 sin^2(theta/2)`` and ``1 + u``, are carried from the launch's tip direction
+through the shifted roots, and ``sin(theta)``, ``phi'`` and the tilts are formed from them.
 
 A trajectory through a pole (``b = a`` with ``u2 = 1``, or ``b = -a`` with ``u1 = -1``)
 is handled with a signed ``sin(theta)`` so the tip moves smoothly across it.
@@ -118,6 +121,13 @@ class LagrangeTopSolution:
         Effective vertical (lab coordinates) about which the top precesses.
     u1, u2, u3 : float
         Roots of the cubic (cosines of the turning tilts about ``up``; ``u3 >= 1``).
+    one_minus_u1, one_plus_u1, spread, u1_minus_u0 : float
+        ``1 - u1``, ``1 + u1``, ``u2 - u1`` and ``u1 - u0``, each to its own relative precision (near a pole
+        ``u`` rounds).
+    sin2_0 : float
+        ``sin^2`` of the launch tilt about ``up``.
+    wz_per_s : float
+        ``b - a u0``: the component of the launch's transverse angular velocity along ``up``. [rad/s]
     a_per_s, b_per_s : float
         ``L3 / I`` and ``L_up / I``. [rad/s]
     modulus_m : float
@@ -134,6 +144,12 @@ class LagrangeTopSolution:
     u1: float
     u2: float
     u3: float
+    one_minus_u1: float
+    one_plus_u1: float
+    spread: float
+    u1_minus_u0: float
+    sin2_0: float
+    wz_per_s: float
     a_per_s: float
     b_per_s: float
     bma_per_s: float
@@ -166,7 +182,9 @@ class LagrangeTopSolution:
         """Smallest and largest tilt from the effective vertical. [rad]"""
         if self.kind == "free":
             return (math.nan, math.nan)
-        return (math.acos(min(1.0, self.u2)), math.acos(max(-1.0, self.u1)))
+        w1, v1 = self.one_minus_u1, self.one_plus_u1
+        w2, v2 = max(w1 - self.spread, 0.0), max(v1 + self.spread, 0.0)
+        return (2.0 * math.atan2(math.sqrt(w2), math.sqrt(v2)), 2.0 * math.atan2(math.sqrt(w1), math.sqrt(v1)))
 
     @property
     def mean_precession_rate_rad_s(self) -> float:
@@ -174,8 +192,7 @@ class LagrangeTopSolution:
         if self.kind == "free":
             return float(np.linalg.norm(self.l_over_i))
         if self.kind == "steady":
-            s2 = 1.0 - self.u0 * self.u0
-            return 0.0 if s2 == 0.0 else (self.b_per_s - self.a_per_s * self.u0) / s2
+            return 0.0 if self.sin2_0 == 0.0 else self.wz_per_s / self.sin2_0
         k = float(ellipk(self.modulus_m))
         return float(self._phi_increment(np.array([2.0 * k]))[0] / (2.0 * k / self.lam_per_s))
 
@@ -198,15 +215,15 @@ class LagrangeTopSolution:
 
     def _integrals(self, tau: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``int_0^t dt / (1 - u)`` and ``int_0^t dt / (1 + u)`` as functions of tau."""
-        u1, u2, lam = self.u1, self.u2, self.lam_per_s
+        w1, v1, lam = self.one_minus_u1, self.one_plus_u1, self.lam_per_s
         zero = np.zeros_like(tau)
         j1 = j2 = zero
         if not self.pole_north:
-            n1 = (u2 - u1) / (1.0 - u1)
-            j1 = (self._p_integral(n1, tau) - self._p_integral(n1, np.array([self.tau0]))) / (lam * (1.0 - u1))
+            n1 = self.spread / w1
+            j1 = (self._p_integral(n1, tau) - self._p_integral(n1, np.array([self.tau0]))) / (lam * w1)
         if not self.pole_south:
-            n2 = -(u2 - u1) / (1.0 + u1)
-            j2 = (self._p_integral(n2, tau) - self._p_integral(n2, np.array([self.tau0]))) / (lam * (1.0 + u1))
+            n2 = -self.spread / v1
+            j2 = (self._p_integral(n2, tau) - self._p_integral(n2, np.array([self.tau0]))) / (lam * v1)
         return j1, j2
 
     # ----------------------------------------------------------------------------------
@@ -219,7 +236,7 @@ class LagrangeTopSolution:
         a = self.a_per_s
         if self.kind == "steady":
             u = np.full_like(t, self.u0)
-            sin_th = np.full_like(t, math.sqrt(max(0.0, 1.0 - self.u0 * self.u0)))
+            sin_th = np.full_like(t, math.sqrt(self.sin2_0))
             phidot = self.mean_precession_rate_rad_s
             phi = self.phi0_rad + phidot * t
             dpsi = (om - phidot * self.u0) * t
@@ -227,7 +244,8 @@ class LagrangeTopSolution:
             thetadot = np.zeros_like(t)
             phidot_sin = phidot * sin_th
         else:
-            u1, u2, lam, m = self.u1, self.u2, self.lam_per_s, self.modulus_m
+            u1, spread, lam, m = self.u1, self.spread, self.lam_per_s, self.modulus_m
+            w1, v1 = self.one_minus_u1, self.one_plus_u1
             tau = lam * t + self.tau0
             k = float(ellipk(m))
             jper = np.round(tau / (2.0 * k))
@@ -235,26 +253,27 @@ class LagrangeTopSolution:
             sn_r, cn_r, dn, _ = ellipj(tau - 2.0 * k * jper, m)
             sn, cn = sign * sn_r, sign * cn_r
             sn2 = sn * sn
-            u = u1 + (u2 - u1) * sn2
-            n1 = (u2 - u1) / (1.0 - u1) if not self.pole_north else 1.0
-            n2 = -(u2 - u1) / (1.0 + u1) if not self.pole_south else 0.0
+            u = u1 + spread * sn2
+            n1 = spread / w1 if not self.pole_north else 1.0
+            n2 = -spread / v1 if not self.pole_south else 0.0
             # signed sqrt(1 - u) = p1 g1 and sqrt(1 + u) = p2 g2
-            p1 = math.sqrt(1.0 - u1)
+            p1 = math.sqrt(w1)
             g1 = cn if self.pole_north else np.sqrt(1.0 - n1 * sn2)
-            p2 = math.sqrt(u2 - u1) if self.pole_south else math.sqrt(1.0 + u1)
+            p2 = math.sqrt(spread) if self.pole_south else math.sqrt(v1)
             g2 = sn if self.pole_south else np.sqrt(1.0 - n2 * sn2)
             sin_th = p1 * g1 * p2 * g2
             cn_over_g1 = np.ones_like(t) if self.pole_north else cn / g1
             sn_over_g2 = np.ones_like(t) if self.pole_south else sn / g2
             # theta' = -u' / sin(theta), u' = 2 (u2 - u1) lam sn cn dn
-            thetadot = -2.0 * (u2 - u1) * lam * dn * cn_over_g1 * sn_over_g2 / (p1 * p2)
+            thetadot = -2.0 * spread * lam * dn * cn_over_g1 * sn_over_g2 / (p1 * p2)
             # phi' sin(theta) = (b - a u) / sin(theta), simplified at a pole
             if self.pole_north:
                 phidot_sin = a * (p1 * g1) / (p2 * g2) if not self.pole_south else np.zeros_like(t)
             elif self.pole_south:
                 phidot_sin = -a * (p2 * g2) / (p1 * g1)
             else:
-                phidot_sin = (self.b_per_s - a * u) / sin_th
+                # b - a u = (b - a u0) - a (u - u0), with u - u0 = (u1 - u0) + spread sn^2 kept small near a pole
+                phidot_sin = (self.wz_per_s - a * (self.u1_minus_u0 + spread * sn2)) / sin_th
             j1, j2 = self._integrals(tau)
             common = 0.5 * self.bpa_per_s * j2 - 0.5 * self.bma_per_s * j1
             phi = self.phi0_rad + 0.5 * self.bma_per_s * j1 + 0.5 * self.bpa_per_s * j2
@@ -311,6 +330,19 @@ def exact_solution(protocol: Protocol, t_s: ArrayLike | None = None) -> Lagrange
     return sol if t_s is None else sol.evaluate(t_s)
 
 
+def _launch_phase(x1: float, x2: float, m: float, udot0: float) -> float:
+    """``tau0`` of a launch at ``u0`` between the turning points ``u0 + x1 <= u0 <= u0 + x2``, moving as ``udot0``
+    says (``u = u1 + (u2 - u1) sn^2(tau)``: ``sn^2(tau0) = -x1 / (x2 - x1)``, on the rising or falling side)."""
+    s = math.sqrt(-x1 / (x2 - x1))
+    c = math.sqrt(x2 / (x2 - x1))
+    f_inc = s * float(elliprf(c * c, 1.0 - m * s * s, 1.0)) if s > 0 else 0.0
+    if udot0 > 0:
+        return f_inc
+    if udot0 < 0:
+        return -f_inc
+    return float(ellipk(m)) if x2 == 0.0 else 0.0
+
+
 def _build(protocol: Protocol) -> LagrangeTopSolution:
     rig, lau = protocol.rig, protocol.launch
     i_t = rig.inertia_transverse_kg_m2
@@ -336,7 +368,8 @@ def _build(protocol: Protocol) -> LagrangeTopSolution:
         ell = w_perp + a * c_hat
         return LagrangeTopSolution(
             kind="free", up=np.array([0.0, 0.0, 1.0]), basis=np.eye(3), u0=float(c_hat[2]), u1=math.nan,
-            u2=math.nan, u3=math.nan, b_per_s=float(ell[2]), bma_per_s=math.nan, bpa_per_s=math.nan,
+            u2=math.nan, u3=math.nan, one_minus_u1=math.nan, one_plus_u1=math.nan, spread=math.nan,
+            u1_minus_u0=math.nan, sin2_0=math.nan, wz_per_s=math.nan, b_per_s=float(ell[2]), bma_per_s=math.nan, bpa_per_s=math.nan,
             modulus_m=0.0, lam_per_s=0.0, tau0=0.0, phi0_rad=lau.azimuth_rad, psi0_rad=lau.spin_angle_rad,
             psi_frame0_rad=0.0, pole_north=False, pole_south=False, l_over_i=ell, **common,
         )
@@ -377,34 +410,35 @@ def _build(protocol: Protocol) -> LagrangeTopSolution:
         _, _, pf = euler_from_matrix((basis.T @ frame0)[None], phi_hint_rad=[phi0], pole_tolerance=pole_tol)
         psi_f0 = float(pf[0])
     spread = x2 - x1
-    kw = dict(up=up, basis=basis, u0=u0, b_per_s=b, bma_per_s=bma, bpa_per_s=bpa, phi0_rad=phi0,
-              psi0_rad=float(psi0[0]), psi_frame0_rad=psi_f0, l_over_i=np.zeros(3), **common)
-    if spread <= 1e-14:
-        return LagrangeTopSolution(kind="steady", u1=u0, u2=u0, u3=u3, modulus_m=0.0, lam_per_s=0.0, tau0=0.0,
+    kw = dict(up=up, basis=basis, u0=u0, sin2_0=s2, wz_per_s=wz, b_per_s=b, bma_per_s=bma, bpa_per_s=bpa,
+              phi0_rad=phi0, psi0_rad=float(psi0[0]), psi_frame0_rad=psi_f0, l_over_i=np.zeros(3), **common)
+    # the roots' rounding scales with sin^2 of the launch tilt (every coefficient but the cubic's does)
+    if spread <= 1e-14 * s2:
+        return LagrangeTopSolution(kind="steady", u1=u0, u2=u0, u3=u3, one_minus_u1=one_minus, one_plus_u1=one_plus,
+                                   spread=0.0, u1_minus_u0=0.0, modulus_m=0.0, lam_per_s=0.0, tau0=0.0,
                                    pole_north=False, pole_south=False, **kw)
     m = min(max(spread / (x3 - x1), 0.0), 1.0)
     lam = 0.5 * math.sqrt(beta * (x3 - x1))
-    scale = max(abs(a), math.sqrt(wperp2), 1e-300)
-    pole_north = abs(bma) <= 1e-13 * scale and u2 > 1.0 - 1e-12
-    pole_south = abs(bpa) <= 1e-13 * scale and u1 < -1.0 + 1e-12
+    # through a pole: b -+ a = 0 and the turning tilt on the pole, both to rounding (of the tilts' own size)
+    one_minus_u1, one_plus_u1 = one_minus - x1, one_plus + x1
+    one_plus_u2 = one_plus + x2
+    pole_north = (abs(bma) <= 1e-13 * max(abs(a) * one_minus_u1, abs(wz), 1e-300)
+                  and one_minus - x2 <= 1e-12 * one_minus_u1)
+    pole_south = (abs(bpa) <= 1e-13 * max(abs(a) * one_plus_u2, abs(wz), 1e-300)
+                  and one_plus_u1 <= 1e-12 * one_plus_u2)
     if pole_north:
         u2 = 1.0
+        spread = one_minus_u1
+    x1_shift = x1
     if pole_south:
-        u1 = -1.0
-    k = float(ellipk(m))
-    if at_pole and pole_north:
-        tau0 = -k  # tip leaves the north pole along +theta
-    elif at_pole and pole_south:
-        tau0 = 0.0
+        u1, one_minus_u1, one_plus_u1 = -1.0, 2.0, 0.0
+        x1_shift = -one_plus
+        spread = x2 - x1_shift
+    if at_pole and (pole_north or pole_south):
+        tau0 = -float(ellipk(m)) if pole_north else 0.0  # the tip leaves the north pole along +theta
     else:
-        s = math.sqrt(-x1 / spread)
-        c = math.sqrt(x2 / spread)
-        f_inc = s * float(elliprf(c * c, 1.0 - m * s * s, 1.0)) if s > 0 else 0.0
-        if udot0 > 0:
-            tau0 = f_inc
-        elif udot0 < 0:
-            tau0 = -f_inc
-        else:
-            tau0 = k if x2 == 0.0 else 0.0
-    return LagrangeTopSolution(kind="nutating", u1=u1, u2=u2, u3=u3, modulus_m=m, lam_per_s=lam, tau0=tau0,
+        tau0 = _launch_phase(x1, x2, m, udot0)
+    return LagrangeTopSolution(kind="nutating", u1=u1, u2=u2, u3=u3, one_minus_u1=one_minus_u1,
+                               one_plus_u1=one_plus_u1, spread=spread, u1_minus_u0=x1_shift, modulus_m=m, lam_per_s=lam,
+                               tau0=tau0,
                                pole_north=pole_north, pole_south=pole_south, **kw)
