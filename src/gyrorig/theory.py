@@ -26,6 +26,7 @@ import pandas as pd
 from scipy.optimize import brentq
 
 from .physics import exact_solution, simulate
+from .drag import rotor_spin_decay_rate_per_s
 from .prediction import EquilibriumTip, PredictedQuantity, Prediction, PredictionFlags
 from .protocols import Pivot, Protocol, ProtocolError
 
@@ -46,6 +47,7 @@ __all__ = [
     "fast_top_ratio",
     "measure_nutation",
     "measure_tilt_growth_rate",
+    "measure_precession_growth_rate",
     "measure_cone_axis",
     "NutationMeasurement",
 ]
@@ -193,8 +195,10 @@ def paper_damped_time_constant(spin_rad_s: float, gamma_per_s: float, *, inertia
     """Eq. (26): ``tau = (I^2 gamma^2 + Io^2 Omega^2) / (gamma I Mgh)``. [s]
 
     The paper calls it the decay time of the tilt; with the corrected sign it is the
-    e-folding time of its growth.
+    e-folding time of its growth.  Without transverse damping (``gamma = 0``: a drag on the spin alone) infinite.
     """
+    if gamma_per_s == 0.0:
+        return math.inf
     return (inertia**2 * gamma_per_s**2 + inertia_axial**2 * spin_rad_s**2) / (gamma_per_s * inertia * mgh)
 
 
@@ -291,6 +295,14 @@ def measure_tilt_growth_rate(trajectory: pd.DataFrame, *, axis: np.ndarray | Non
     return float(np.polyfit(trajectory.t_s.to_numpy(), np.log(tilt), 1)[0])
 
 
+def measure_precession_growth_rate(trajectory: pd.DataFrame) -> float:
+    """Exponential rate of the precession rate, ``d ln(phi') / dt`` by least squares over the run (a run without
+    nutation: a steady launch). [1/s]"""
+    t = trajectory.t_s.to_numpy()
+    rate = np.gradient(np.unwrap(trajectory.phi_rad.to_numpy()), t)
+    return float(np.polyfit(t, np.log(np.abs(rate)), 1)[0])
+
+
 def measure_cone_axis(trajectory: pd.DataFrame) -> np.ndarray:
     """Axis of the cone the tip sweeps: normal of the least-squares plane through the tip points.
 
@@ -376,7 +388,7 @@ def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dic
     gamma, law = _damping_gamma(protocol)
     paper_rate = paper_damped_tilt_rate(spin, gamma, **kw)
     corr_rate = corrected_damped_tilt_rate(spin, gamma, **kw)
-    sim_rate = math.nan
+    sim_rate = growth = math.nan
     source = "simulator, from steady slow precession at the launch tilt"
     on_vertical = acc is None and abs(math.sin(protocol.launch.tilt_rad)) < 1e-12
     if on_vertical:
@@ -394,11 +406,16 @@ def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dic
         if start is not None:
             df = simulate(start, duration_s=min(protocol.scene.duration_s, 20.0), rate_hz=20.0)
             sim_rate = measure_tilt_growth_rate(df, axis=up)
+            growth = measure_precession_growth_rate(df) if acc is None else math.nan
     note = f"damping law {law}; paper eq. 25a with gamma = {gamma:.4g} 1/s (slow mode)"
     if law != "paper" and law != "magnet-in-ball":
         note += "; the paper's law differs from this scene's, compare with the simulated value"
     tau = paper_damped_time_constant(spin, gamma, **kw)
-    return [_entry("tilt_growth_rate_per_s", paper_rate, sim_rate, source=source, corrected=corr_rate, note=note),
+    spin_decay = rotor_spin_decay_rate_per_s(protocol)
+    spin_down = [_entry("precession_growth_rate_per_s", spin_decay, growth, source=source,
+                        note="the rotor's spin decays (a drag no motor holds) at this rate, 1/s: eq. 20's "
+                             "precession, Mgh / (Io omega), grows at it")] if spin_decay > 0 else []
+    return spin_down + [_entry("tilt_growth_rate_per_s", paper_rate, sim_rate, source=source, corrected=corr_rate, note=note),
             PredictedQuantity("tilt_time_constant_s", paper=tau, exact=1.0 / abs(sim_rate) if sim_rate else math.inf,
                               exact_source="1 / |simulated growth rate|", direction_paper="decay",
                               direction_exact=_direction(sim_rate),

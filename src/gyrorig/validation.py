@@ -194,6 +194,24 @@ def _sweep_damped(ratios, gammas, tilt=0.3) -> list[dict]:
     return rows
 
 
+def _sweep_spin_down(ratios, decays, tilt=0.3) -> list[dict]:
+    """A rotor slowed by a drag no motor holds (``-k omega_o``: the spin decays at ``k / Io``), launched in steady
+    precession: eq. 20's ``Mgh / (Io omega)`` grows as the spin decays, at ``k / Io``; the simulator's precession
+    rate's growth ``d ln(phi')/dt`` judges it."""
+    rows = []
+    for r in ratios:
+        spin = spin_for_ratio(r)
+        for decay in decays:
+            p = _top(tilt=tilt, spin=spin, damping={"model": "air", "coefficient_N_m_s": 0.0,
+                                                    "axial_coefficient_N_m_s": decay * 0.6, "spin_compensated": False})
+            duration = float(np.clip(0.3 / decay, 2.0, 30.0))
+            sim = th.measure_precession_growth_rate(simulate(th.steady_launch(p), duration_s=duration, rate_hz=50.0))
+            rows.append(_row("spinning-down top: precession growth", "20", "precession_growth_rate_per_s",
+                             paper=decay, simulator=sim, ratio=r, tilt=tilt, in_regime=r >= FAST_TOP_MIN_RATIO,
+                             decay=decay, spin=spin))
+    return rows
+
+
 def _sweep_accelerated(accels, ratio=10.0) -> list[dict]:
     rows = []
     g = TEST_TOP["gravity"]
@@ -249,6 +267,8 @@ SWEEPS: dict[str, Callable[[bool], list[dict]]] = {
                                                [0.05] if q else [0.02, 0.1, 0.3]),
     "damped top (eqs. 25a, 26)": lambda q: _sweep_damped([5, 30] if q else [5, 30, 100],
                                                          [0.5] if q else [0.05, 0.5, 5.0]),
+    "spinning-down top (eq. 20)": lambda q: _sweep_spin_down([5, 30] if q else [5, 10, 30, 100],
+                                                             [0.05] if q else [0.01, 0.05]),
     "accelerated pivot (eq. 31)": lambda q: _sweep_accelerated([2.0] if q else [0.5, 2.0, 5.0]),
     "phasor formulation (eqs. 5, 9)": _phasor_rows,
 }

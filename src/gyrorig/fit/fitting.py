@@ -11,7 +11,7 @@ import pandas as pd
 
 from .._format import with_error
 from ..prediction import Prediction
-from ..protocols import Protocol
+from ..protocols import AirDamping, Protocol
 from .checks import check_notes
 from .constraints import Constraints
 from .data import FitData, FitError, fit_data_from_angles
@@ -29,6 +29,10 @@ __all__ = ["fit_angles", "linear_response", "record_state", "state_values", "TER
 TERM_CHOICES = ("data", "noiseless")
 #: above this reduced chi-square the residuals are dominated by a systematic, and the report says so
 SYSTEMATIC_CHI2_RED = 10.0
+#: an undamped scene's record is said to show a changing spin when the spin-down model lowers its chi-square this many
+#: times and finds the precession's growth this many standard errors from 0
+SPIN_DOWN_CHI2_GAIN = 4.0
+SPIN_DOWN_SIGMAS = 5.0
 
 
 def _choose_model(data: FitData, scene, terms: FitTerms | str) -> tuple[Solution, list[Note], dict, FitTerms]:
@@ -215,6 +219,8 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
     phases = phase_uncertainty(sol.spec, sol.x, sol.cov, data)
     values, formal, camera_se = _standard_errors(sol, data, fns, error_kind, bootstrap_sd)
     notes += error_notes + _record_notes(sol, data, phases, camera_se, check_residuals) + _limb_note(angles)
+    if check_residuals and not sol.spec.damped and protocol.has_gravity and sol.chi2 > SYSTEMATIC_CHI2_RED * sol.dof:
+        notes += _spin_down_note(angles, protocol, prediction, exclude, constraints, sol, data)
     truth_vals = truth_values(truth, data, sol.spec, sol.x) if truth is not None else {}
     quantities = build_quantities(sol.spec, values, formal, camera_se, undetermined, protocol, prediction, truth_vals)
     notes += check_notes(sol, data, protocol, quantities)
@@ -225,6 +231,33 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
                      residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, error_kind=error_kind,
                      notes=tuple(notes), x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time,
                      terms=chosen, phase_uncertainty_rad=phases, bootstrap=bootstrap, constraints=constraints)
+
+
+def _spin_down_note(angles: pd.DataFrame, protocol: Protocol, prediction: Prediction | None,
+                    exclude: np.ndarray | None, constraints: Constraints, sol: Solution, data: FitData) -> list[Note]:
+    """A note when an undamped scene's record is far better described with the rates a changing spin gives
+    (:data:`SPIN_DOWN_CHI2_GAIN`, :data:`SPIN_DOWN_SIGMAS`): the same angles fitted as if a drag no motor holds acted
+    on the rotor (the spin-down model: the precession and nutation rates exponential in time)."""
+    drag = AirDamping(0.0, 1e-12, spin_compensated=False)  # its size does not enter the model, only that it acts
+    spinning = replace(protocol, pivot=replace(protocol.pivot, damping=protocol.pivot.damping + (drag,)))
+    try:
+        trial = fit_angles(angles, spinning, prediction=prediction, exclude=exclude, check_residuals=False,
+                           constraints=constraints)
+    except FitError:
+        return []
+    growth = trial.quantities.get("precession_growth_rate_per_s")
+    if (growth is None or not growth.determined or not growth.standard_error
+            or trial.chi2 * SPIN_DOWN_CHI2_GAIN > sol.chi2
+            or abs(growth.value) < SPIN_DOWN_SIGMAS * growth.standard_error):
+        return []
+    g, span = growth.value, float(data.t_s[-1] - data.t_s[0])
+    return [Note(NoteKind.SPIN_DOWN,
+                 f"the precession rate changes by {100 * g:+.2g} % per second along the record ({100 * math.expm1(g * span):+.2g} "
+                 f"% over its {span:.3g} s) and the nutation frequency the other way: the rotor's spin "
+                 f"{'decays' if g > 0 else 'grows'}, which the protocol does not say; fitted with the rates a changing "
+                 f"spin gives, the reduced chi-square is {trial.chi2_red:.3g} (here {sol.chi2 / max(sol.dof, 1):.3g}): state "
+                 f"the drag on the rotor in [pivot.damping] (model = \"air\", spin_compensated = false, "
+                 f"axial_coefficient_N_m_s = Io times the spin's decay rate, about {g:.2g} 1/s) and fit again")]
 
 
 def _constraint_note(constraints: Constraints, spec) -> Note:

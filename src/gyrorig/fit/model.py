@@ -16,11 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import angles_from_tip, axis_rotation, tip_from_angles, wrap_angle
+from ..drag import rotor_spin_decay_rate_per_s
 from ..prediction import Prediction
 from ..protocols import Protocol
 from .data import FitData, FitError
 from .spec import ModelSpec
-from .terms import TERMS, BFrameShrink, RollingShutter
+from .terms import NUTATION_CURVATURE, TERMS, BFrameShrink, RollingShutter, rate_phase
 
 __all__ = ["FitModel", "Residuals", "SceneModel", "model_for_scene", "whitener"]
 
@@ -51,11 +52,22 @@ class FitModel:
         return np.exp(-p[self.index["nutation_decay_rate_per_s"]] * (tau - self.spec.nutation_origin_s))
 
     def nutation_phase(self, p: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """``psi = w tau (+ w' tau^2 / 2 when damped)``."""
-        psi = p[self.index["nutation_frequency_rad_s"]] * tau
+        """``psi = w tau (+ w' tau^2 / 2 when damped; a spin decaying: exponential in time, see
+        :func:`~gyrorig.fit.terms.rate_phase`, plus w'' tau^3 / 3)``."""
+        return self.nutation_phase_terms(p, tau)[0]
+
+    def nutation_phase_terms(self, p: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """:meth:`nutation_phase` and its derivative with respect to each parameter it has (by name)."""
+        ix = self.index
+        chirp = p[ix["nutation_chirp_rad_s2"]] if self.spec.damped else 0.0
+        psi, d_rate, d_change = rate_phase(p[ix["nutation_frequency_rad_s"]], chirp, tau, self.spec.spin_decay)
+        columns = {"nutation_frequency_rad_s": d_rate}
         if self.spec.damped:
-            psi = psi + 0.5 * p[self.index["nutation_chirp_rad_s2"]] * tau**2
-        return psi
+            columns["nutation_chirp_rad_s2"] = d_change
+        if self.spec.spin_decay:
+            psi = psi + p[ix[NUTATION_CURVATURE]] * tau**3 / 3
+            columns[NUTATION_CURVATURE] = tau**3 / 3
+        return psi, columns
 
     def _fast_part(self, p: np.ndarray, tau: np.ndarray, segment: np.ndarray):
         """theta', phi' in the axis frame, and the part of them the fast terms make."""
@@ -328,6 +340,6 @@ def model_for_scene(protocol: Protocol, prediction: Prediction | None = None) ->
     prec_key = "mean_precession_rate_rad_s" if gravity else "precession_rate_rad_s"
     nut = prediction.exact("nutation_frequency_rad_s") if gravity and prediction is not None else None
     prec = prediction.exact(prec_key) if prediction is not None else None
-    spec = ModelSpec(fit_axis=fit_axis, damped=damped)
+    spec = ModelSpec(fit_axis=fit_axis, damped=damped, spin_decay=damped and rotor_spin_decay_rate_per_s(protocol) > 0)
     return SceneModel(spec=spec, nutation_expected=gravity, nutation_frequency_hint_rad_s=nut,
                       precession_hint_rad_s=prec, reasons=tuple(reasons))

@@ -3,7 +3,8 @@
 ``precession_rate_rad_s``, ``nutation_frequency_rad_s``, ``nutation_amplitude_rad`` (half the
 peak-to-peak of the periodic tilt; under damping, at the first frame, the third-order term
 included), ``tilt_growth_rate_per_s`` and ``tilt_time_constant_s = 1 / rate`` (damping),
-``equilibrium_tilt_rad`` / ``equilibrium_azimuth_rad`` (a fitted axis), ``cone_angle_rad``.
+``equilibrium_tilt_rad`` / ``equilibrium_azimuth_rad`` (a fitted axis), ``cone_angle_rad``, and where the rotor's spin
+decays ``precession_growth_rate_per_s`` (the precession rate's relative change at t_ref, ``d ln(Omega)/dt``).
 """
 
 from __future__ import annotations
@@ -61,6 +62,9 @@ def quantity_functions(spec: ModelSpec) -> dict:
         fns["nutation_amplitude_rad"] = lambda x: nutation_amplitude(spec, names, x)
     if spec.damped:
         fns["tilt_growth_rate_per_s"] = lambda x: x[ix["tilt_growth_rate_per_s"]]
+    if spec.spin_decay:
+        fns["precession_growth_rate_per_s"] = lambda x: x[ix["precession_acceleration_rad_s2"]] / x[
+            ix["precession_rate_rad_s"]]
     if spec.fit_axis:
         fns["equilibrium_tilt_rad"] = lambda x: x[ix["axis_tilt_rad"]]
         fns["equilibrium_azimuth_rad"] = lambda x: wrap_angle(x[ix["axis_azimuth_rad"]])
@@ -74,7 +78,7 @@ def theory_values(prediction: Prediction | None) -> dict[str, PredictedQuantity]
         return {}
     out = {}
     for key in ("nutation_frequency_rad_s", "nutation_amplitude_rad", "tilt_growth_rate_per_s",
-                "tilt_time_constant_s"):
+                "tilt_time_constant_s", "precession_growth_rate_per_s"):
         if key in prediction.quantities:
             out[key] = prediction.quantities[key]
     precession = prediction.get("mean_precession_rate_rad_s") or prediction.get("precession_rate_rad_s")

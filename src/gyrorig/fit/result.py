@@ -28,6 +28,7 @@ QUANTITY_UNITS = {
     "nutation_amplitude_rad": "rad",
     "tilt_growth_rate_per_s": "1/s",
     "tilt_time_constant_s": "s",
+    "precession_growth_rate_per_s": "1/s",
     "equilibrium_tilt_rad": "rad",
     "equilibrium_azimuth_rad": "rad",
     "cone_angle_rad": "rad",
@@ -117,6 +118,9 @@ class NoteKind(StrEnum):
     OUTLIERS_BY_FIT = "outliers-by-fit"
     #: the track is flagged near-limb: the tip may have been read on the wrong side of its sphere
     NEAR_LIMB = "near-limb"
+    #: an undamped scene's record whose precession and nutation rates change as a changing spin makes them: the
+    #: rotor spins down (or up), which the protocol does not say
+    SPIN_DOWN = "spin-down"
 
 
 @dataclass(frozen=True)
@@ -300,7 +304,8 @@ class FitResult:
         spec = self.spec
         lines = ["[[Fit]]",
                  f"    model: {spec.harmonics} nutation harmonic(s), axis {'fitted' if spec.fit_axis else 'vertical'}, "
-                 f"{'damped' if spec.damped else 'undamped'}, {len(self.params)} parameters",
+                 f"{'damped' if spec.damped else 'undamped'}{', spin decaying' if spec.spin_decay else ''}, "
+                 f"{len(self.params)} parameters",
                  f"    chi-square: {self.chi2:.5g} for {self.dof} degrees of freedom (reduced {self.chi2_red:.4g}, "
                  f"p = {self.p_value:.2g})",
                  f"    errors: {self.errors}",

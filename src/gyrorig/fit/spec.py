@@ -16,6 +16,9 @@ class ModelSpec:
 
     fit_axis: bool = False
     damped: bool = False
+    #: (damped) the rotor's spin decays (a drag on it no motor holds): the precession rate and the nutation frequency
+    #: change exponentially in time, each at its own rate (:func:`~gyrorig.fit.terms.rate_phase`), not linearly
+    spin_decay: bool = False
     harmonics: int = 0
     segments: int = 1
     persistent: bool = False
@@ -46,7 +49,8 @@ class ModelSpec:
 
     def summary(self) -> dict:
         """The model's terms for ``fit.json``."""
-        out = {"fit_axis": self.fit_axis, "damped": self.damped, "nutation_harmonics": self.harmonics,
+        out = {"fit_axis": self.fit_axis, "damped": self.damped, "spin_decay": self.spin_decay,
+               "nutation_harmonics": self.harmonics,
                "azimuth_segments": self.segments}
         out.update({term.summary_key: bool(getattr(self, term.flag)) for term in OPTIONAL.values()})
         out["camera_modes"] = self.camera_modes

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit
 
-__all__ = ["Term", "TERMS", "BFrameShrink", "RollingShutter", "OPTIONAL", "OPTIONAL_TERMS", "MAX_HARMONICS", "SHAPE_DRIFT_NAMES", "transient_rate"]
+__all__ = ["Term", "TERMS", "rate_phase", "NUTATION_CURVATURE", "PRECESSION_CURVATURE", "BFrameShrink", "RollingShutter", "OPTIONAL", "OPTIONAL_TERMS", "MAX_HARMONICS", "SHAPE_DRIFT_NAMES", "transient_rate"]
 
 MAX_HARMONICS = 6
 #: the drifting nutation shape's two parameters (real and imaginary part of ``s``, 1/s); see :class:`ShapeDrift`
@@ -31,6 +31,32 @@ def transient_rate(spec, logit: float) -> float:
     """The transient's decay rate, bounded smoothly between the spec's minimum and maximum. [1/s]"""
     return spec.transient_min_rate_per_s + (spec.transient_max_rate_per_s - spec.transient_min_rate_per_s) * \
         float(expit(logit))
+
+
+#: a spin-down's cubic phase terms (a rate's departure from an exponential law, second order in time)
+PRECESSION_CURVATURE = "precession_rate_curvature_rad_s3"
+NUTATION_CURVATURE = "nutation_frequency_curvature_rad_s3"
+#: |a tau| below which :func:`rate_phase` sums its series (the closed form loses digits to cancellation there)
+_SERIES_LIMIT = 1e-3
+#: |a tau| beyond which :func:`rate_phase` holds the exponential (a start far off: no overflow)
+_EXP_LIMIT = 50.0
+
+
+def rate_phase(rate: float, change: float, tau: np.ndarray, exponential: bool
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The phase ``int_0^tau w(t) dt`` of a rate ``w`` that is ``rate`` at ``tau = 0`` and changes there at ``change``
+    per second, and its derivatives with respect to ``rate`` and ``change``: ``w`` linear in time (``rate tau +
+    change tau^2 / 2``), or with ``exponential`` (a rate proportional to a decaying spin or to its inverse) ``w =
+    rate exp(a t)``, ``a = change / rate``: the phase ``rate (exp(a tau) - 1) / a``."""
+    if not exponential or rate == 0.0:
+        return rate * tau + 0.5 * change * tau**2, tau, 0.5 * tau**2
+    a = change / rate
+    x = np.clip(a * tau, -_EXP_LIMIT, _EXP_LIMIT)
+    series = np.abs(x) < _SERIES_LIMIT
+    safe_a = a if a != 0.0 else 1.0
+    f = np.where(series, tau * (1.0 + x / 2 + x * x / 6 + x**3 / 24), np.expm1(x) / safe_a)
+    f_a = np.where(series, tau**2 * (0.5 + x / 3 + x * x / 8), (tau * np.exp(x) - f) / safe_a)
+    return rate * f, f - a * f_a, f_a
 
 
 def _pair_names(stem: str, prefixed: bool = True) -> list[str]:
@@ -56,10 +82,10 @@ def _sinusoid_columns(m, p, tau, dth, dph, freq: str, names: list[str], factor: 
         d[:, ix[freq]] += factor * tau * (-p[ix[nc]] * sn + p[ix[ns]] * c)
 
 
-def _nutation_phase_columns(d, ix, dpsi, tau) -> None:
-    """Add a damped nutation term's derivative along its phase ``dpsi`` to the frequency and chirp columns."""
-    d[:, ix["nutation_frequency_rad_s"]] += dpsi * tau
-    d[:, ix["nutation_chirp_rad_s2"]] += dpsi * 0.5 * tau**2
+def _nutation_phase_columns(m, p, d, ix, dpsi, tau) -> None:
+    """Add a nutation term's derivative along its phase ``dpsi`` to the columns of the phase's parameters."""
+    for name, column in m.nutation_phase_terms(p, tau)[1].items():
+        d[:, ix[name]] += dpsi * column
 
 
 class Term:
@@ -111,6 +137,8 @@ class Slow(Term):
         n = ["log_cone_angle", "precession_rate_rad_s"]
         if spec.damped:
             n += ["tilt_growth_rate_per_s", "tilt_growth_curvature_per_s2", "precession_acceleration_rad_s2"]
+        if spec.spin_decay:
+            n += [PRECESSION_CURVATURE]
         return n + [f"azimuth_offset_{s}_rad" for s in range(spec.segments)]
 
     @staticmethod
@@ -125,22 +153,27 @@ class Slow(Term):
         ix, s = m.index, m.spec
         th = th + self._log_tilt(m, p, tau)
         offsets = p[[ix[f"azimuth_offset_{k}_rad"] for k in range(s.segments)]]
-        slow_ph = offsets[segment] + p[ix["precession_rate_rad_s"]] * tau
-        if s.damped:
-            slow_ph = slow_ph + 0.5 * p[ix["precession_acceleration_rad_s2"]] * tau**2
-        return th, ph + slow_ph
+        change = p[ix["precession_acceleration_rad_s2"]] if s.damped else 0.0
+        phase, _, _ = rate_phase(p[ix["precession_rate_rad_s"]], change, tau, s.spin_decay)
+        if s.spin_decay:
+            phase = phase + p[ix[PRECESSION_CURVATURE]] * tau**3 / 3
+        return th, ph + offsets[segment] + phase
 
     def jacobian(self, m, p, tau, segment, dth, dph) -> None:
         ix, s = m.index, m.spec
         e = self._log_tilt(m, p, tau)
         dth[:, ix["log_cone_angle"]] = e
-        dph[:, ix["precession_rate_rad_s"]] = tau
+        change = p[ix["precession_acceleration_rad_s2"]] if s.damped else 0.0
+        _, d_rate, d_change = rate_phase(p[ix["precession_rate_rad_s"]], change, tau, s.spin_decay)
+        dph[:, ix["precession_rate_rad_s"]] = d_rate
         for k in range(s.segments):
             dph[:, ix[f"azimuth_offset_{k}_rad"]] = segment == k
         if s.damped:
             dth[:, ix["tilt_growth_rate_per_s"]] = tau * e
             dth[:, ix["tilt_growth_curvature_per_s2"]] = tau**2 * e
-            dph[:, ix["precession_acceleration_rad_s2"]] = 0.5 * tau**2
+            dph[:, ix["precession_acceleration_rad_s2"]] = d_change
+        if s.spin_decay:
+            dph[:, ix[PRECESSION_CURVATURE]] = tau**3 / 3
 
 
 class Nutation(Term):
@@ -158,8 +191,11 @@ class Nutation(Term):
     def names(self, spec) -> list[str]:
         n = ["nutation_frequency_rad_s"]
         if spec.damped:
-            n += ["nutation_decay_rate_per_s", "nutation_chirp_rad_s2", "tilt_decaying_offset_rad",
-                  "azimuth_decaying_offset_rad"]
+            n += ["nutation_decay_rate_per_s", "nutation_chirp_rad_s2", "tilt_decaying_offset_rad"]
+            if spec.spin_decay:
+                n += [NUTATION_CURVATURE]
+            if not spec.spin_decay:  # a spin decaying: the precession's own exponential change holds it
+                n += ["azimuth_decaying_offset_rad"]
         for k in range(1, spec.harmonics + 1):
             n += [f"tilt_cos_{k}_rad", f"tilt_sin_{k}_rad", f"azimuth_cos_{k}_rad", f"azimuth_sin_{k}_rad"]
         return n
@@ -170,7 +206,8 @@ class Nutation(Term):
         if s.damped:
             env2 = env1 * env1
             th = th + p[ix["tilt_decaying_offset_rad"]] * env2
-            ph = ph + p[ix["azimuth_decaying_offset_rad"]] * env2
+            if not s.spin_decay:
+                ph = ph + p[ix["azimuth_decaying_offset_rad"]] * env2
         env = env1
         psi = m.nutation_phase(p, tau)
         for k in range(1, s.harmonics + 1):
@@ -188,9 +225,11 @@ class Nutation(Term):
         psi = m.nutation_phase(p, tau)
         if s.damped:
             env2 = env1 * env1
-            a0, c0 = p[ix["tilt_decaying_offset_rad"]], p[ix["azimuth_decaying_offset_rad"]]
+            a0 = p[ix["tilt_decaying_offset_rad"]]
+            c0 = 0.0 if s.spin_decay else p[ix["azimuth_decaying_offset_rad"]]
             dth[:, ix["tilt_decaying_offset_rad"]] = env2
-            dph[:, ix["azimuth_decaying_offset_rad"]] = env2
+            if not s.spin_decay:
+                dph[:, ix["azimuth_decaying_offset_rad"]] = env2
             dth[:, ix["nutation_decay_rate_per_s"]] += -2 * dt0 * env2 * a0
             dph[:, ix["nutation_decay_rate_per_s"]] += -2 * dt0 * env2 * c0
         env = env1
@@ -204,11 +243,9 @@ class Nutation(Term):
             dph[:, ix[f"azimuth_sin_{k}_rad"]] = env * sn
             dpsi_t = env * k * (-a * sn + b * c)  # d/d psi of the tilt term
             dpsi_p = env * k * (-cc * sn + dd * c)
-            dth[:, ix["nutation_frequency_rad_s"]] += dpsi_t * tau
-            dph[:, ix["nutation_frequency_rad_s"]] += dpsi_p * tau
+            _nutation_phase_columns(m, p, dth, ix, dpsi_t, tau)
+            _nutation_phase_columns(m, p, dph, ix, dpsi_p, tau)
             if s.damped:
-                dth[:, ix["nutation_chirp_rad_s2"]] += dpsi_t * 0.5 * tau**2
-                dph[:, ix["nutation_chirp_rad_s2"]] += dpsi_p * 0.5 * tau**2
                 dth[:, ix["nutation_decay_rate_per_s"]] += -k * dt0 * env * (a * c + b * sn)
                 dph[:, ix["nutation_decay_rate_per_s"]] += -k * dt0 * env * (cc * c + dd * sn)
                 env = env * env1
@@ -344,7 +381,7 @@ class Sidebands(Term):
                 d[:, ix[f"{q}_{side}_cos_rad"]] = c
                 d[:, ix[f"{q}_{side}_sin_rad"]] = sn
                 darg = -a * sn + b * c  # d/d arg
-                _nutation_phase_columns(d, ix, darg, tau)
+                _nutation_phase_columns(m, p, d, ix, darg, tau)
                 d[:, ix["precession_rate_rad_s"]] += darg * sign * tau
                 d[:, ix["nutation_decay_rate_per_s"]] += -dt0 * (a * c + b * sn)
 
@@ -409,7 +446,7 @@ class ShapeDrift(Term):
             dph[:, ix[name]] += dcoef[2, j] * c + dcoef[3, j] * sn
         for d, a, b in ((dth, at, bt), (dph, ap, bp)):
             dpsi = -a * sn + b * c
-            _nutation_phase_columns(d, ix, dpsi, tau)
+            _nutation_phase_columns(m, p, d, ix, dpsi, tau)
             d[:, ix["nutation_decay_rate_per_s"]] += -dt0 * (a * c + b * sn)
 
 
@@ -453,7 +490,7 @@ class ThirdOrder(Term):
             d[:, ix[nc]] = c
             d[:, ix[ns]] = sn
             dpsi = -a * sn + b * c
-            _nutation_phase_columns(d, ix, dpsi, tau)
+            _nutation_phase_columns(m, p, d, ix, dpsi, tau)
             d[:, ix["nutation_decay_rate_per_s"]] += -3 * dt0 * (a * c + b * sn)
 
 

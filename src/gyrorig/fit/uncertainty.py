@@ -30,7 +30,8 @@ __all__ = ["delta_se", "phase_uncertainty", "lag1_autocorrelation", "block_boots
 RATE_PARAMETERS = (("precession_rate_rad_s", 1), ("nutation_frequency_rad_s", 1), ("persistent_frequency_rad_s", 1),
                    ("nutation_decay_rate_per_s", 1), ("tilt_growth_rate_per_s", 1),
                    ("precession_acceleration_rad_s2", 2), ("nutation_chirp_rad_s2", 2),
-                   ("tilt_growth_curvature_per_s2", 2))
+                   ("tilt_growth_curvature_per_s2", 2), ("precession_rate_curvature_rad_s3", 3),
+                   ("nutation_frequency_curvature_rad_s3", 3))
 
 
 def delta_se(f, x: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
@@ -48,7 +49,7 @@ def delta_se(f, x: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
 
 def phase_uncertainty(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data: FitData) -> dict[str, float]:
     """For each rate-like parameter, one standard error times the longest ``|tau|`` (``tau^2 / 2``
-    for second-order terms): the phase or log-amplitude it leaves uncertain at the record's
+    for second-order terms, ``tau^3 / 3`` for third-order ones): the phase or log-amplitude it leaves uncertain at the record's
     ends, in radians.  The least-squares errors are Cramér-Rao bounds only while these are
     well below 1 (the model is linear over one standard error); above
     :data:`gyrorig.fit.result.NONLINEAR_PHASE_RAD` the record is too short for the model."""
@@ -59,7 +60,7 @@ def phase_uncertainty(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data: Fit
         if name in names:
             i = names.index(name)
             se = math.sqrt(max(float(cov[i, i]), 0.0))
-            out[name] = se * (tau if power == 1 else 0.5 * tau * tau)
+            out[name] = se * {1: tau, 2: tau**2 / 2, 3: tau**3 / 3}[power]
     return out
 
 
