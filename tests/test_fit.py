@@ -16,8 +16,9 @@ import pytest
 
 from gyrorig.fit import (ErrorKind, FitError, FitModel, FitTerms, NoteKind, Residuals, Undetermined, fit_angles,
                          fit_data_from_angles, model_for_scene, plan_terms)
-from gyrorig.geometry import wrap_angle
+from gyrorig.geometry import angles_from_tip, wrap_angle
 from gyrorig.physics.exact import exact_solution
+from gyrorig.physics.rotations import euler_to_matrix
 from gyrorig.physics.simulate import simulate
 from gyrorig.protocols import load_protocol
 from gyrorig.theory import predict
@@ -696,19 +697,25 @@ def test_a_rotor_spinning_down_is_fitted_with_a_precession_that_speeds_up():
     assert abs(q.diff_paper_se) > 10
 
 
-def test_a_spin_down_the_protocol_does_not_state_is_said_and_a_wrong_pose_is_not_taken_for_one():
+def test_a_spin_down_the_protocol_does_not_state_is_said_and_a_marker_off_the_axis_is_not_taken_for_one():
     """A teaching gyroscope spun up by hand slows down; its protocol, written as for a motor-held rotor, states no drag.
     Its record's precession speeds up 1.1 %/s: the undamped model misses it by far, and the note says what the
-    record shows and what to state.  A record whose misfit is a pose stated wrong (a tilted cone) gets no such note."""
+    record shows and what to state.  A record whose misfit has another cause gets no such note: a tip marker 0.5 mm
+    off the axis, turning with the frame (the spin-down model's freedom lowered its chi-square 150 times, to a reduced
+    425: the first version of the note said the spin decayed)."""
     from gyrorig.protocols import AirDamping, Pivot
 
     p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     spinning = replace(p, pivot=Pivot((AirDamping(0.0, 5.2e-6, spin_compensated=False),)))
     pred = predict(p, simulate_damping=False)
-    angles, _ = _noisy(spinning, 5.0, rate=100.0, seed=0)
-    kinds = {n.kind for n in fit_angles(angles, p, prediction=pred).notes}
+    angles, _ = _noisy(spinning, 4.0, rate=80.0, seed=0)
+    kinds = {n.kind for n in fit_angles(angles, p, prediction=pred, bootstrap_replicates=5).notes}
     assert {NoteKind.SYSTEMATIC, NoteKind.SPIN_DOWN} <= kinds
-    tilted, _ = _noisy(p, 5.0, rate=100.0, seed=0)
-    tilted["theta_rad"] += 2e-3 * np.cos(tilted.phi_rad)
-    kinds = {n.kind for n in fit_angles(tilted, p, prediction=pred).notes}
+    off_axis, truth = _noisy(p, 4.0, rate=80.0, seed=0)
+    frame = euler_to_matrix(truth.phi_rad.to_numpy(), truth.theta_rad.to_numpy(), truth.psi_frame_rad.to_numpy())
+    tip = frame @ np.array([0.0005, 0.0, 0.14])
+    theta, phi = angles_from_tip(tip / np.linalg.norm(tip, axis=1)[:, None])
+    off_axis["theta_rad"] += theta - truth.theta_rad.to_numpy()
+    off_axis["phi_rad"] = wrap_angle(off_axis.phi_rad + phi - truth.phi_rad.to_numpy())
+    kinds = {n.kind for n in fit_angles(off_axis, p, prediction=pred, bootstrap_replicates=5).notes}
     assert NoteKind.SYSTEMATIC in kinds and NoteKind.SPIN_DOWN not in kinds
