@@ -21,7 +21,8 @@ from ..prediction import Prediction
 from ..protocols import Protocol
 from .data import FitData, FitError
 from .spec import ModelSpec
-from .terms import NUTATION_CURVATURE, TERMS, BFrameShrink, RollingShutter, rate_phase
+from .phases import rate_phase
+from .terms import NUTATION_CURVATURE, TERMS, BFrameShrink, RollingShutter
 
 __all__ = ["FitModel", "Residuals", "SceneModel", "model_for_scene", "whitener"]
 
@@ -53,7 +54,7 @@ class FitModel:
 
     def nutation_phase(self, p: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """``psi = w tau (+ w' tau^2 / 2 when damped; a spin decaying: exponential in time, see
-        :func:`~gyrorig.fit.terms.rate_phase`, plus w'' tau^3 / 3)``."""
+        :func:`~gyrorig.fit.phases.rate_phase`, plus w'' tau^3 / 3)``."""
         return self.nutation_phase_terms(p, tau)[0]
 
     def nutation_phase_terms(self, p: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -340,6 +341,8 @@ def model_for_scene(protocol: Protocol, prediction: Prediction | None = None) ->
     prec_key = "mean_precession_rate_rad_s" if gravity else "precession_rate_rad_s"
     nut = prediction.exact("nutation_frequency_rad_s") if gravity and prediction is not None else None
     prec = prediction.exact(prec_key) if prediction is not None else None
-    spec = ModelSpec(fit_axis=fit_axis, damped=damped, spin_decay=damped and rotor_spin_decay_rate_per_s(protocol) > 0)
+    gyrostat = protocol.rig.is_gyrostat
+    spec = ModelSpec(fit_axis=fit_axis, damped=damped, spin_decay=damped and rotor_spin_decay_rate_per_s(protocol) > 0,
+                     gyrostat=gyrostat, frame_spin_rad_s=protocol.launch.frame_spin_rate_rad_s if gyrostat else 0.0)
     return SceneModel(spec=spec, nutation_expected=gravity, nutation_frequency_hint_rad_s=nut,
                       precession_hint_rad_s=prec, reasons=tuple(reasons))

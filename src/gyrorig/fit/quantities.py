@@ -4,7 +4,8 @@
 peak-to-peak of the periodic tilt; under damping, at the first frame, the third-order term
 included), ``tilt_growth_rate_per_s`` and ``tilt_time_constant_s = 1 / rate`` (damping),
 ``equilibrium_tilt_rad`` / ``equilibrium_azimuth_rad`` (a fitted axis), ``cone_angle_rad``, and where the rotor's spin
-decays ``precession_growth_rate_per_s`` (the precession rate's relative change at t_ref, ``d ln(Omega)/dt``).
+decays ``precession_growth_rate_per_s`` (the precession rate's relative change at t_ref, ``d ln(Omega)/dt``), and
+where the tip marker is found off the stem's axis ``tip_offset_rad`` (its distance from the axis over the pivot's).
 """
 
 from __future__ import annotations
@@ -62,6 +63,8 @@ def quantity_functions(spec: ModelSpec) -> dict:
         fns["nutation_amplitude_rad"] = lambda x: nutation_amplitude(spec, names, x)
     if spec.damped:
         fns["tilt_growth_rate_per_s"] = lambda x: x[ix["tilt_growth_rate_per_s"]]
+    if spec.tip_offset:
+        fns["tip_offset_rad"] = lambda x: math.hypot(x[ix["tip_offset_a_rad"]], x[ix["tip_offset_b_rad"]])
     if spec.spin_decay:
         fns["precession_growth_rate_per_s"] = lambda x: x[ix["precession_acceleration_rad_s2"]] / x[
             ix["precession_rate_rad_s"]]

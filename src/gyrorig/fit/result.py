@@ -29,6 +29,7 @@ QUANTITY_UNITS = {
     "tilt_growth_rate_per_s": "1/s",
     "tilt_time_constant_s": "s",
     "precession_growth_rate_per_s": "1/s",
+    "tip_offset_rad": "rad",
     "equilibrium_tilt_rad": "rad",
     "equilibrium_azimuth_rad": "rad",
     "cone_angle_rad": "rad",

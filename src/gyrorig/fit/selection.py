@@ -30,7 +30,7 @@ from .result import NONLINEAR_PHASE_RAD, Note, NoteKind, Reason, Undetermined
 from .solver import (Solution, conditional_amplitudes, dominant_frequency, linear_harmonics, linear_start, mean_axis,
                      solve)
 from .spec import FitTerms
-from .terms import MAX_HARMONICS, OPTIONAL, OPTIONAL_TERMS, Persistent, Transient
+from .terms import MAX_HARMONICS, OPTIONAL, OPTIONAL_TERMS, Persistent, TipOffset, Transient
 from .uncertainty import phase_uncertainty
 
 __all__ = ["Selector", "fit_model", "trial_term", "score_term", "left_out_noncentrality", "plan_terms",
@@ -234,6 +234,8 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
             best = cur if cur is not None else base
         if spec0.damped:
             best = _with_optional_terms(best, data, notes, sel)
+        elif OPTIONAL["tip_offset"].can_add(best.spec):
+            best = _consider_term(best, data, notes, sel, "tip_offset")
         if reason is not None:
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
@@ -261,8 +263,22 @@ def _with_optional_terms(best: Solution, data: FitData, notes: list[Note], sel: 
     return _prune_persistent(best, data, notes, sel)
 
 
+#: a tip marker off the axis is looked for only in a record over which the frame turns this far about the axis (a
+#: whole turn: less, and its circle stands in for a change of the cone and the precession rate)
+TIP_OFFSET_MIN_TURN_RAD = 2 * math.pi
+
+
+def frame_turn_rate(cur: Solution) -> float:
+    """How fast a gyrostat's frame turns about the axis by ``cur``'s slow motion: its spin less the precession's share
+    along the axis [rad/s]."""
+    v = cur.values()
+    return cur.spec.frame_spin_rad_s - math.cos(math.exp(v["log_cone_angle"])) * v["precession_rate_rad_s"]
+
+
 def _consider_term(cur: Solution, data: FitData, notes: list[Note], sel: Selector, flag: str) -> Solution:
     """``cur`` with the optional term ``flag`` if the selector wants it, else ``cur``."""
+    if flag == "tip_offset" and abs(frame_turn_rate(cur)) * data.duration_s < TIP_OFFSET_MIN_TURN_RAD:
+        return cur
     start = None
     if flag in _SCREENED and not sel.planned(flag) and cur.ok:
         # a term with a free frequency or rate makes the full trial slow (where its amplitude is ~0
@@ -295,7 +311,11 @@ def trial_term(cur: Solution, data: FitData, flag: str, start: float | None = No
         replace(cur.spec, **{flag: True})
     old = FitModel(cur.spec).index
     new = [n for n in spec_x.names() if n not in old]
-    st, _ = conditional_amplitudes(spec_x, data, cur.values(), new)
+    values = cur.values()
+    if flag == "tip_offset":  # its turning rate started from the slow motion's, its amplitudes solved there
+        values[TipOffset.RATE] = frame_turn_rate(cur)
+        new = list(TipOffset.NAMES)
+    st, _ = conditional_amplitudes(spec_x, data, values, new)
     label = f"nutation harmonic {spec_x.harmonics}" if flag == "harmonics" else OPTIONAL[flag].description
     return solve(spec_x, data, st, near=True), label
 
@@ -370,9 +390,17 @@ def _transient_score(cur: Solution, data: FitData) -> tuple[float, float]:
     return _score_over_grid(cur, data, spec_t, Transient.AMPLITUDES, "transient_rate_logit", grid)
 
 
-#: optional terms with a free nonlinear parameter, screened by their score statistic before a
-#: trial fit: (score function, number of parameters the term adds)
-_SCREENED = {"persistent": (_persistent_score, 5), "transient": (_transient_score, 3)}
+def _tip_offset_score(cur: Solution, data: FitData) -> tuple[float, float]:
+    """What a tip marker off the axis (:class:`~gyrorig.fit.terms.TipOffset`) would lower the chi-square of ``cur`` by,
+    to first order (its amplitudes are linear: one point, no grid)."""
+    return _score_over_grid(cur, data, replace(cur.spec, tip_offset=True), TipOffset.NAMES, TipOffset.RATE,
+                            np.array([frame_turn_rate(cur)]))
+
+
+#: optional terms screened by their score statistic before a trial fit (those with a free nonlinear parameter, and
+#: the tip's offset, tried on every gyrostat's record): (score function, number of parameters the term adds)
+_SCREENED = {"persistent": (_persistent_score, 5), "transient": (_transient_score, 3),
+             "tip_offset": (_tip_offset_score, 2)}
 
 
 def score_term(cur: Solution, data: FitData, flag: str) -> tuple[float, float]:

@@ -17,7 +17,7 @@ class ModelSpec:
     fit_axis: bool = False
     damped: bool = False
     #: (damped) the rotor's spin decays (a drag on it no motor holds): the precession rate and the nutation frequency
-    #: change exponentially in time, each at its own rate (:func:`~gyrorig.fit.terms.rate_phase`), not linearly
+    #: change exponentially in time, each at its own rate (:func:`~gyrorig.fit.phases.rate_phase`), not linearly
     spin_decay: bool = False
     harmonics: int = 0
     segments: int = 1
@@ -34,6 +34,12 @@ class ModelSpec:
     precession_second: bool = False
     third_order: bool = False
     shape_drift: bool = False
+    #: a tip marker off the stem's axis (:class:`~gyrorig.fit.terms.TipOffset`); offered only on a gyrostat
+    tip_offset: bool = False
+    #: the scene's top is a gyrostat (its markers on a frame that does not spin with the rotor), whose frame spins at
+    #: ``frame_spin_rad_s`` about the axis [rad/s]
+    gyrostat: bool = False
+    frame_spin_rad_s: float = 0.0
     #: nuisance parameters for the camera model's uncertainty (one per mode, unit prior)
     camera_modes: int = 0
     #: the record has a lossy codec's bi-predicted pictures beside others: their fast motion's shrink is fitted
@@ -76,6 +82,7 @@ class FitTerms:
     persistent: bool = False
     third_order: bool = False
     shape_drift: bool = False
+    tip_offset: bool = False
     #: where the terms come from (for the report)
     source: str = ""
     #: for each optional term the plan left out, the chi-square change it made on the plan's noiseless

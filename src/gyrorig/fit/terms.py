@@ -20,7 +20,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import expit
 
-__all__ = ["Term", "TERMS", "rate_phase", "NUTATION_CURVATURE", "PRECESSION_CURVATURE", "BFrameShrink", "RollingShutter", "OPTIONAL", "OPTIONAL_TERMS", "MAX_HARMONICS", "SHAPE_DRIFT_NAMES", "transient_rate"]
+from .phases import rate_phase
+
+__all__ = ["Term", "TERMS", "NUTATION_CURVATURE", "PRECESSION_CURVATURE", "BFrameShrink", "RollingShutter", "OPTIONAL", "OPTIONAL_TERMS", "MAX_HARMONICS", "SHAPE_DRIFT_NAMES", "transient_rate"]
 
 MAX_HARMONICS = 6
 #: the drifting nutation shape's two parameters (real and imaginary part of ``s``, 1/s); see :class:`ShapeDrift`
@@ -36,29 +38,6 @@ def transient_rate(spec, logit: float) -> float:
 #: a spin-down's cubic phase terms (a rate's departure from an exponential law, second order in time)
 PRECESSION_CURVATURE = "precession_rate_curvature_rad_s3"
 NUTATION_CURVATURE = "nutation_frequency_curvature_rad_s3"
-#: |a tau| below which :func:`rate_phase` sums its series (the closed form loses digits to cancellation there)
-_SERIES_LIMIT = 1e-3
-#: |a tau| beyond which :func:`rate_phase` holds the exponential (a start far off: no overflow)
-_EXP_LIMIT = 50.0
-
-
-def rate_phase(rate: float, change: float, tau: np.ndarray, exponential: bool
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The phase ``int_0^tau w(t) dt`` of a rate ``w`` that is ``rate`` at ``tau = 0`` and changes there at ``change``
-    per second, and its derivatives with respect to ``rate`` and ``change``: ``w`` linear in time (``rate tau +
-    change tau^2 / 2``), or with ``exponential`` (a rate proportional to a decaying spin or to its inverse) ``w =
-    rate exp(a t)``, ``a = change / rate``: the phase ``rate (exp(a tau) - 1) / a``."""
-    if not exponential or rate == 0.0:
-        return rate * tau + 0.5 * change * tau**2, tau, 0.5 * tau**2
-    a = change / rate
-    x = np.clip(a * tau, -_EXP_LIMIT, _EXP_LIMIT)
-    series = np.abs(x) < _SERIES_LIMIT
-    safe_a = a if a != 0.0 else 1.0
-    f = np.where(series, tau * (1.0 + x / 2 + x * x / 6 + x**3 / 24), np.expm1(x) / safe_a)
-    f_a = np.where(series, tau**2 * (0.5 + x / 3 + x * x / 8), (tau * np.exp(x) - f) / safe_a)
-    return rate * f, f - a * f_a, f_a
-
-
 def _pair_names(stem: str, prefixed: bool = True) -> list[str]:
     """``tilt_<stem>_cos_rad, tilt_<stem>_sin_rad, azimuth_<stem>_cos_rad, azimuth_<stem>_sin_rad`` (or
     ``<stem>_tilt_cos_rad, ...`` when not prefixed)."""
@@ -520,6 +499,48 @@ class PrecessionSecond(Term):
         _sinusoid_columns(m, p, tau, dth, dph, "precession_rate_rad_s", list(self.NAMES), factor=2.0)
 
 
+class TipOffset(Term):
+    """A tip marker off the stem's axis, on a gyrostat's frame: at ``(A, B)`` (its offset over its distance from the
+    pivot) in the frame's coordinates, the frame turning about the axis at its own rate ``w_f`` (``psi_f = w_f tau``;
+    its spin less the precession's share along the axis, ``-phi' cos(theta)`` averaged over the nod: fitted, started
+    from ``-Omega cos(theta_c)``): off the axis by ``-(A sin psi_f + B cos psi_f)`` in the tilt, ``(A cos psi_f - B sin
+    psi_f) / sin(theta_c)`` in the azimuth."""
+
+    flag = "tip_offset"
+    label = "tip marker off the axis"
+    description = "a tip marker off the stem's axis, turning with the frame"
+    summary_key = "tip_offset"
+    NAMES = ("tip_offset_a_rad", "tip_offset_b_rad")
+    RATE = "frame_turn_rate_rad_s"
+
+    def can_add(self, spec) -> bool:
+        return spec.gyrostat and not spec.tip_offset
+
+    def names(self, spec) -> list[str]:
+        return [*self.NAMES, self.RATE]
+
+    def add(self, m, p, tau, segment, th, ph):
+        ix = m.index
+        psi = p[ix[self.RATE]] * tau
+        a, b = p[ix["tip_offset_a_rad"]], p[ix["tip_offset_b_rad"]]
+        c, sn = np.cos(psi), np.sin(psi)
+        return th - (a * sn + b * c), ph + (a * c - b * sn) / max(np.sin(np.exp(p[ix["log_cone_angle"]])), 1e-12)
+
+    def jacobian(self, m, p, tau, segment, dth, dph) -> None:
+        ix = m.index
+        psi = p[ix[self.RATE]] * tau
+        cone = np.exp(p[ix["log_cone_angle"]])
+        a, b = p[ix["tip_offset_a_rad"]], p[ix["tip_offset_b_rad"]]
+        c, sn, sin_cone = np.cos(psi), np.sin(psi), max(np.sin(cone), 1e-12)
+        dth[:, ix["tip_offset_a_rad"]] = -sn
+        dth[:, ix["tip_offset_b_rad"]] = -c
+        dph[:, ix["tip_offset_a_rad"]] = c / sin_cone
+        dph[:, ix["tip_offset_b_rad"]] = -sn / sin_cone
+        dth[:, ix[self.RATE]] = -(a * c - b * sn) * tau
+        dph[:, ix[self.RATE]] = -(a * sn + b * c) * tau / sin_cone
+        dph[:, ix["log_cone_angle"]] += -(a * c - b * sn) * np.cos(cone) / sin_cone**2 * cone
+
+
 class BFrameShrink(Term):
     """A lossy codec's bi-predicted pictures (``frame_type`` B) show the fast motion shrunk: such a picture is, where
     the codec left out its residual, a blend of its reference pictures, and the blend averages the spot's
@@ -568,12 +589,12 @@ class CameraModes(Term):
 
 #: the terms in the order of the parameter vector and of evaluation
 TERMS: tuple[Term, ...] = (Axis(), Slow(), Nutation(), PrecessionLocked(), Persistent(), Transient(), Sidebands(),
-                           ShapeDrift(), ThirdOrder(), PrecessionSecond(), BFrameShrink(), RollingShutter(),
-                           CameraModes())
+                           ShapeDrift(), ThirdOrder(), PrecessionSecond(), TipOffset(), BFrameShrink(),
+                           RollingShutter(), CameraModes())
 #: the optional terms of a damped model, in the order they are tried (the nutation's own slow changes
 #: first: the later terms could otherwise stand in for them)
 OPTIONAL: dict[str, Term] = {t.flag: t for t in sorted((t for t in TERMS if t.flag),
                                                        key=lambda t: ("shape_drift", "third_order", "persistent",
                                                                       "transient", "precession_second",
-                                                                      "sidebands").index(t.flag))}
+                                                                      "sidebands", "tip_offset").index(t.flag))}
 OPTIONAL_TERMS = tuple(OPTIONAL)
