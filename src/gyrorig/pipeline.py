@@ -133,19 +133,26 @@ def _outliers_by_fit(angles: pd.DataFrame, protocol: Protocol, prediction: Predi
 def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, exclude: np.ndarray,
                      prediction: Prediction) -> FitResult:
     """A damped record compared with theory at its own state: the simulator launched from the fitted motion at the
-    record's first frame (tilt, azimuth and their rates; the protocol's spin), over the record's frames, fitted with
-    the same model (:func:`gyrorig.fit.quantities.at_record_state`); the state's uncertainty (from the fit) carried
-    to each prediction by differences over one standard deviation of each state number.  The protocol's launch is
-    not the record's: a damped top drifts, and a recording starts after the release."""
+    record's first frame (tilt, azimuth and their rates; the protocol's spin, or where a drag slows the rotor the spin
+    the protocol's launch at the record's time 0 has slowed to by then), over the record's frames, fitted with the
+    same model (:func:`gyrorig.fit.quantities.at_record_state`); the state's uncertainty (from the fit) carried to
+    each prediction by differences over one standard deviation of each state number.  The protocol's launch is not
+    the record's: a damped top drifts, and a recording starts after the release."""
     if not fit.spec.damped:
         return fit
     t0, state, cov = record_state(fit)
     if not 0.0 < state["tilt_rad"] < math.pi:
         return fit
     t = np.unique(fit.residuals.t_s.to_numpy(float)) - t0
+    spin_at_t0 = None
+    if fit.spec.spin_decay and t0 > 0:  # the rotor's own spin, omega_o, as the launch's has decayed by t0
+        early = simulate(protocol, t_eval_s=np.array([0.0, t0]))
+        spin_at_t0 = float(early.omega_o_rad_s.iloc[-1])
 
     def values(s: dict[str, float]) -> dict[str, float]:
         launch = replace(protocol.launch, **s)
+        if spin_at_t0 is not None:  # the launch's spin rate is psi', omega_o less phi' cos(theta)
+            launch = replace(launch, spin_rate_rad_s=spin_at_t0 - s["precession_rate_rad_s"] * math.cos(s["tilt_rad"]))
         motion = simulate(replace(protocol, launch=launch), t_eval_s=t)
         return state_values(fit, angles, protocol, motion.assign(t_s=motion.t_s + t0), exclude=exclude,
                             prediction=prediction)
