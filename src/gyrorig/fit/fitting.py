@@ -99,8 +99,8 @@ def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, c
     if check_residuals and chi2_red > SYSTEMATIC_CHI2_RED:
         notes.append(Note(NoteKind.SYSTEMATIC,
                           f"the residuals are far larger than the tracker's errors (reduced chi-square {chi2_red:.3g}): "
-                          "a systematic error dominates (camera calibration or pose, a tip marker off the stem's axis, or a "
-                          "motion the model does not describe); the standard errors cover the statistical part only and understate the true "
+                          "a systematic error dominates (camera calibration or pose, a table not level, a tip marker off the "
+                          "stem's axis, or a motion the model does not describe); the standard errors cover the statistical part only and understate the true "
                           "error"))
     if data.inter_coded and sol.spec.harmonics > 0:
         shrink = ""

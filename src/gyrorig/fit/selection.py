@@ -275,6 +275,20 @@ def frame_turn_rate(cur: Solution) -> float:
     return cur.spec.frame_spin_rad_s - math.cos(math.exp(v["log_cone_angle"])) * v["precession_rate_rad_s"]
 
 
+def _turns_with_the_frame(sol: Solution) -> bool:
+    """Whether a fitted tip offset's circle turns at the frame's rate rather than the precession's: a cone whose axis
+    leans from the vertical (a table not level, a pose stated wrong) makes a circle at the precession's own rate,
+    ``1 / cos(theta_c)`` of the frame's; the fitted rate must be nearer the frame's, the two told apart by 4 of its
+    standard errors."""
+    v = sol.values()
+    frame = frame_turn_rate(sol)
+    precession = sol.spec.frame_spin_rad_s - v["precession_rate_rad_s"]
+    i = sol.spec.names().index(TipOffset.RATE)
+    se = math.sqrt(max(float(sol.cov[i, i]), 0.0))
+    gap = abs(frame - precession)
+    return gap > 4 * se and abs(v[TipOffset.RATE] - frame) < 0.5 * gap
+
+
 def _consider_term(cur: Solution, data: FitData, notes: list[Note], sel: Selector, flag: str) -> Solution:
     """``cur`` with the optional term ``flag`` if the selector wants it, else ``cur``."""
     if flag == "tip_offset" and abs(frame_turn_rate(cur)) * data.duration_s < TIP_OFFSET_MIN_TURN_RAD:
@@ -289,6 +303,8 @@ def _consider_term(cur: Solution, data: FitData, notes: list[Note], sel: Selecto
             return cur
     sol, label = trial_term(cur, data, flag, start if flag == "persistent" else None)
     if flag == "persistent" and _persistent_unresolved(sol, data, sel):
+        return cur
+    if flag == "tip_offset" and not (sol.ok and _turns_with_the_frame(sol)):
         return cur
     if sel.wants(cur, sol, flag, notes, label):
         notes.append(Note(NoteKind.TERM_MODELLED, f"{label}: modelled", flag))
