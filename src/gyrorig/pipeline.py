@@ -152,7 +152,8 @@ def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, e
     def values(s: dict[str, float]) -> dict[str, float]:
         launch = replace(protocol.launch, **s)
         if spin_at_t0 is not None:  # the launch's spin rate is psi', omega_o less phi' cos(theta)
-            launch = replace(launch, spin_rate_rad_s=spin_at_t0 - s["precession_rate_rad_s"] * math.cos(s["tilt_rad"]))
+            psi_rate = spin_at_t0 - s["precession_rate_rad_s"] * math.cos(s["tilt_rad"])
+            launch = replace(launch, spin_rate_rad_s=psi_rate)
         motion = simulate(replace(protocol, launch=launch), t_eval_s=t)
         return state_values(fit, angles, protocol, motion.assign(t_s=motion.t_s + t0), exclude=exclude,
                             prediction=prediction)

@@ -415,7 +415,8 @@ def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dic
     spin_down = [_entry("precession_growth_rate_per_s", spin_decay, growth, source=source,
                         note="the rotor's spin decays (a drag no motor holds) at this rate, 1/s: eq. 20's "
                              "precession, Mgh / (Io omega), grows at it")] if spin_decay > 0 else []
-    return spin_down + [_entry("tilt_growth_rate_per_s", paper_rate, sim_rate, source=source, corrected=corr_rate, note=note),
+    return spin_down + [_entry("tilt_growth_rate_per_s", paper_rate, sim_rate, source=source, corrected=corr_rate,
+                               note=note),
             PredictedQuantity("tilt_time_constant_s", paper=tau, exact=1.0 / abs(sim_rate) if sim_rate else math.inf,
                               exact_source="1 / |simulated growth rate|", direction_paper="decay",
                               direction_exact=_direction(sim_rate),
@@ -440,7 +441,8 @@ def predict(protocol: Protocol, *, simulate_damping: bool = True) -> Prediction:
         or the simulator, named in ``exact_source``): ``precession_rate_slow_rad_s``,
         ``precession_rate_fast_rad_s``, ``nutation_frequency_rad_s``, ``nutation_amplitude_rad``,
         ``mean_precession_rate_rad_s``, ``tilt_growth_rate_per_s``, ``tilt_time_constant_s``,
-        ``precession_rate_rad_s`` (free top); ``equilibrium_tip`` with the pivot accelerating.
+        ``precession_growth_rate_per_s`` (a rotor a drag slows), ``precession_rate_rad_s`` (free top);
+        ``equilibrium_tip`` with the pivot accelerating.
     """
     rig, lau = protocol.rig, protocol.launch
     i_t, i_o = rig.inertia_transverse_kg_m2, rig.inertia_axial_kg_m2

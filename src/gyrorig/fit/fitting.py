@@ -99,9 +99,9 @@ def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, c
     if check_residuals and chi2_red > SYSTEMATIC_CHI2_RED:
         notes.append(Note(NoteKind.SYSTEMATIC,
                           f"the residuals are far larger than the tracker's errors (reduced chi-square {chi2_red:.3g}): "
-                          "a systematic error dominates (camera calibration or pose, a table not level, a tip marker off the "
-                          "stem's axis, or a motion the model does not describe); the standard errors cover the statistical part only and understate the true "
-                          "error"))
+                          "a systematic error dominates (camera calibration or pose, a table not level, a tip marker "
+                          "off the stem's axis, or a motion the model does not describe); the standard errors cover "
+                          "the statistical part only and understate the true error"))
     if data.inter_coded and sol.spec.harmonics > 0:
         shrink = ""
         if BFrameShrink.NAME in sol.spec.names():
@@ -260,12 +260,13 @@ def _spin_down_note(angles: pd.DataFrame, protocol: Protocol, prediction: Predic
             return []
     g, span = growth.value, float(data.t_s[-1] - data.t_s[0])
     return [Note(NoteKind.SPIN_DOWN,
-                 f"the precession rate changes by {100 * g:+.2g} % per second along the record ({100 * math.expm1(g * span):+.2g} "
-                 f"% over its {span:.3g} s) and the nutation frequency the other way: the rotor's spin "
-                 f"{'decays' if g > 0 else 'grows'}, which the protocol does not say; fitted with the rates a changing "
-                 f"spin gives, the reduced chi-square is {trial.chi2_red:.3g} (here {sol.chi2 / max(sol.dof, 1):.3g}): state "
-                 f"the drag on the rotor in [pivot.damping] (model = \"air\", spin_compensated = false, "
-                 f"axial_coefficient_N_m_s = Io times the spin's decay rate, about {g:.2g} 1/s) and fit again")]
+                 f"the precession rate changes by {100 * g:+.2g} % per second along the record "
+                 f"({100 * math.expm1(g * span):+.2g} % over its {span:.3g} s) and the nutation frequency the other "
+                 f"way: the rotor's spin {'decays' if g > 0 else 'grows'}, which the protocol does not say; fitted "
+                 f"with the rates a changing spin gives, the reduced chi-square is {trial.chi2_red:.3g} (here "
+                 f"{sol.chi2 / max(sol.dof, 1):.3g}): state the drag on the rotor in [pivot.damping] (model = \"air\", "
+                 f"spin_compensated = false, axial_coefficient_N_m_s = Io times the spin's decay rate, about "
+                 f"{g:.2g} 1/s) and fit again")]
 
 
 def _constraint_note(constraints: Constraints, spec) -> Note:

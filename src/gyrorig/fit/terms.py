@@ -22,7 +22,8 @@ from scipy.special import expit
 
 from .phases import rate_phase
 
-__all__ = ["Term", "TERMS", "NUTATION_CURVATURE", "PRECESSION_CURVATURE", "BFrameShrink", "RollingShutter", "OPTIONAL", "OPTIONAL_TERMS", "MAX_HARMONICS", "SHAPE_DRIFT_NAMES", "transient_rate"]
+__all__ = ["Term", "TERMS", "NUTATION_CURVATURE", "PRECESSION_CURVATURE", "BFrameShrink", "RollingShutter", "OPTIONAL",
+           "OPTIONAL_TERMS", "MAX_HARMONICS", "SHAPE_DRIFT_NAMES", "transient_rate"]
 
 MAX_HARMONICS = 6
 #: the drifting nutation shape's two parameters (real and imaginary part of ``s``, 1/s); see :class:`ShapeDrift`

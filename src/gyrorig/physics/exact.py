@@ -369,7 +369,8 @@ def _build(protocol: Protocol) -> LagrangeTopSolution:
         return LagrangeTopSolution(
             kind="free", up=np.array([0.0, 0.0, 1.0]), basis=np.eye(3), u0=float(c_hat[2]), u1=math.nan,
             u2=math.nan, u3=math.nan, one_minus_u1=math.nan, one_plus_u1=math.nan, spread=math.nan,
-            u1_minus_u0=math.nan, sin2_0=math.nan, wz_per_s=math.nan, b_per_s=float(ell[2]), bma_per_s=math.nan, bpa_per_s=math.nan,
+            u1_minus_u0=math.nan, sin2_0=math.nan, wz_per_s=math.nan, b_per_s=float(ell[2]), bma_per_s=math.nan,
+            bpa_per_s=math.nan,
             modulus_m=0.0, lam_per_s=0.0, tau0=0.0, phi0_rad=lau.azimuth_rad, psi0_rad=lau.spin_angle_rad,
             psi_frame0_rad=0.0, pole_north=False, pole_south=False, l_over_i=ell, **common,
         )
