@@ -232,7 +232,10 @@ def test_bad_input_is_refused_by_name():
                                            transient_min_rate_per_s=5.0, nutation_origin_s=-1.0, b_frames=True),
                                       dict(harmonics=2, b_frames=True, rolling_shutter=True),
                                       dict(damped=True, spin_decay=True, harmonics=2, sidebands=True, third_order=True,
-                                           shape_drift=True, nutation_origin_s=-1.0)])
+                                           shape_drift=True, nutation_origin_s=-1.0),
+                                      dict(harmonics=2, gyrostat=True, tip_offset=True),
+                                      dict(damped=True, spin_decay=True, harmonics=2, gyrostat=True, tip_offset=True,
+                                           nutation_origin_s=-1.0)])
 def test_analytic_jacobian_matches_finite_differences(spec_kw):
     from scipy.optimize._numdiff import approx_derivative
 
@@ -245,6 +248,7 @@ def test_analytic_jacobian_matches_finite_differences(spec_kw):
     ix = m.index
     p[ix["log_cone_angle"]], p[ix["precession_rate_rad_s"]] = np.log(0.5), 1.7
     for name, v in (("nutation_frequency_rad_s", 59.0), ("persistent_frequency_rad_s", 59.5), ("axis_tilt_rad", 0.05),
+                    ("frame_turn_rate_rad_s", -1.2),
                     ("axis_azimuth_rad", 1.5), ("transient_rate_logit", -1.0), ("b_frame_shrink", 0.02),
                     ("readout_time_s", 0.005)):
         if name in ix:
