@@ -715,14 +715,18 @@ def test_a_spin_down_the_protocol_does_not_state_is_said_and_a_marker_off_the_ax
     angles, _ = _noisy(spinning, 4.0, rate=80.0, seed=0)
     kinds = {n.kind for n in fit_angles(angles, p, prediction=pred, bootstrap_replicates=5).notes}
     assert {NoteKind.SYSTEMATIC, NoteKind.SPIN_DOWN} <= kinds
-    off_axis, truth = _noisy(p, 4.0, rate=80.0, seed=0)
-    frame = euler_to_matrix(truth.phi_rad.to_numpy(), truth.theta_rad.to_numpy(), truth.psi_frame_rad.to_numpy())
-    tip = frame @ np.array([0.0005, 0.0, 0.14])
-    theta, phi = angles_from_tip(tip / np.linalg.norm(tip, axis=1)[:, None])
-    off_axis["theta_rad"] += theta - truth.theta_rad.to_numpy()
-    off_axis["phi_rad"] = wrap_angle(off_axis.phi_rad + phi - truth.phi_rad.to_numpy())
+    angles, truth = _noisy(p, 4.0, rate=80.0, seed=0)
+    off_axis = _moved(angles, truth, *_off_axis_tip(truth, 0.0005))
     kinds = {n.kind for n in fit_angles(off_axis, p, prediction=pred, bootstrap_replicates=5).notes}
     assert NoteKind.SPIN_DOWN not in kinds
+
+
+def _moved(angles, truth, theta, phi):
+    """Noisy angles of ``truth``'s path, moved onto the path ``theta, phi`` (the same noise)."""
+    out = angles.copy()
+    out["theta_rad"] += theta - truth.theta_rad.to_numpy()
+    out["phi_rad"] = wrap_angle(out.phi_rad + phi - truth.phi_rad.to_numpy())
+    return out
 
 
 def _off_axis_tip(truth, offset_m, length_m=0.14):
@@ -740,10 +744,8 @@ def test_a_tip_marker_off_the_axis_is_modelled_and_measured():
     for such a marker (it was, the circle's rate fitted to the precession's)."""
     p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
     angles, truth = _noisy(p, 7.0, rate=100.0, seed=2)
-    theta, phi = _off_axis_tip(truth, 0.0005)
-    angles["theta_rad"] += theta - truth.theta_rad.to_numpy()
-    angles["phi_rad"] = wrap_angle(angles.phi_rad + phi - truth.phi_rad.to_numpy())
-    r = fit_angles(angles, p, prediction=predict(p, simulate_damping=False))
+    off_axis = _moved(angles, truth, *_off_axis_tip(truth, 0.0005))
+    r = fit_angles(off_axis, p, prediction=predict(p, simulate_damping=False))
     assert r.spec.tip_offset
     lo, hi = chi2_red_band(r.dof)
     assert lo < r.chi2_red < hi
@@ -753,13 +755,10 @@ def test_a_tip_marker_off_the_axis_is_modelled_and_measured():
     for name, value in (("precession_rate_rad_s", sol.mean_precession_rate_rad_s),
                         ("nutation_frequency_rad_s", sol.nutation_frequency_rad_s)):
         assert abs(r.quantities[name].value - value) < 4 * r.quantities[name].standard_error, name
-    leaning, truth = _noisy(p, 7.0, rate=100.0, seed=2)
-    tip = truth[["tip_x", "tip_y", "tip_z"]].to_numpy()
     level = np.radians(0.3)
+    tip = truth[["tip_x", "tip_y", "tip_z"]].to_numpy()
     tip = tip @ np.array([[1, 0, 0], [0, np.cos(level), np.sin(level)], [0, -np.sin(level), np.cos(level)]])
-    theta, phi = angles_from_tip(tip / np.linalg.norm(tip, axis=1)[:, None])
-    leaning["theta_rad"] += theta - truth.theta_rad.to_numpy()
-    leaning["phi_rad"] = wrap_angle(leaning.phi_rad + phi - truth.phi_rad.to_numpy())
+    leaning = _moved(angles, truth, *angles_from_tip(tip / np.linalg.norm(tip, axis=1)[:, None]))
     assert not fit_angles(leaning, p, prediction=predict(p, simulate_damping=False), bootstrap_replicates=5).spec.tip_offset
 
 

@@ -412,7 +412,9 @@ def _damped_predictions(protocol: Protocol, a_vec: np.ndarray, g: float, kw: dic
         note += "; the paper's law differs from this scene's, compare with the simulated value"
     tau = paper_damped_time_constant(spin, gamma, **kw)
     spin_decay = rotor_spin_decay_rate_per_s(protocol)
-    spin_down = [_entry("precession_growth_rate_per_s", spin_decay, growth, source=source,
+    # measured about the lab's vertical: a pivot that accelerates precesses about another
+    growth_source = source if acc is None else "none: the pivot accelerates (the precession is about another axis)"
+    spin_down = [_entry("precession_growth_rate_per_s", spin_decay, growth, source=growth_source,
                         note="the rotor's spin decays (a drag no motor holds) at this rate, 1/s: eq. 20's "
                              "precession, Mgh / (Io omega), grows at it")] if spin_decay > 0 else []
     return spin_down + [_entry("tilt_growth_rate_per_s", paper_rate, sim_rate, source=source, corrected=corr_rate,
