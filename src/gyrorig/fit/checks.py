@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 
+from ..geometry import angles_from_tip, tip_from_angles
 from ..plausibility import protocol_doubts, unit_slip
 from ..protocols import Protocol
 from .data import FitData
@@ -84,7 +85,9 @@ def _launch_note(sol: Solution, data: FitData, protocol: Protocol, quantities: d
         model = FitModel(spec)
         tau = np.array([-data.t_ref_s])
         seg = np.zeros(1, int)
-        th, _ = model.lab(sol.x, tau, seg)
+        th, ph = model.lab(sol.x, tau, seg)
+        if spec.lean:  # the launch's tilt is from the true vertical: the fitted axis
+            th, _ = angles_from_tip(tip_from_angles(th, ph) @ model.rotation(sol.x))
         dth, _ = model.lab_jacobian(sol.x, tau, seg)
         g = np.zeros(len(sol.x))
         g[:dth.shape[1]] = dth[0]
@@ -92,7 +95,7 @@ def _launch_note(sol: Solution, data: FitData, protocol: Protocol, quantities: d
         se = math.sqrt(max(float(g @ sol.cov @ g), 0.0)) * max(scale, 1.0)
         gap = abs(fitted - theta0)
         what = f"the record's tilt at the launch (t = 0) is {math.degrees(fitted):.4g} deg"
-    elif not spec.damped and not spec.fit_axis:
+    elif not spec.damped and (spec.lean or not spec.fit_axis):
         amp = quantities.get("nutation_amplitude_rad")
         a = amp.value if amp is not None and amp.determined else 0.0
         fitted, se = cone.value, cone.standard_error

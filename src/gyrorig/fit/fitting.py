@@ -321,7 +321,7 @@ POLE_TILT_SIGMAS = 3.0
 def _azimuth_undefined(data: FitData, spec) -> Reason | None:
     """Why the precession rate is not defined (None when it is): a tilt within :data:`POLE_TILT_SIGMAS` of its
     errors of the vertical, up or down (a hanging top), where the measured azimuth is the direction of the noise."""
-    if spec.fit_axis:
+    if spec.fit_axis and not spec.lean:
         return None
     tilt = float(np.median(np.minimum(data.theta_rad, math.pi - data.theta_rad)))
     sigma = float(np.median(np.sqrt(np.clip(data.cov[:, 0, 0], 0.0, None))))

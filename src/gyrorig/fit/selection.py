@@ -23,12 +23,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2, ncx2
+from scipy.stats import f as f_dist
 
 from .data import FitConvergenceError, FitData, FitError
 from .model import FitModel, Residuals, SceneModel
 from .result import NONLINEAR_PHASE_RAD, Note, NoteKind, Reason, Undetermined
 from .solver import (Solution, conditional_amplitudes, dominant_frequency, linear_harmonics, linear_start, mean_axis,
-                     solve)
+                     plane_axis, solve)
 from .spec import FitTerms
 from .terms import MAX_HARMONICS, OPTIONAL, OPTIONAL_TERMS, Persistent, TipOffset, Transient
 from .uncertainty import phase_uncertainty
@@ -228,10 +229,14 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
     # the nutation itself): it is only the start of the full model, which must converge
     best = base
     if scene.nutation_expected:
+        leaned = _lean_trial(base, data)
+        base = best = leaned or base
         reason = _nutation_unresolvable(data, scene.nutation_frequency_hint_rad_s)
         if reason is None:
             cur, reason = _with_nutation(base, data, scene, sel, notes, max_harmonics)
             best = cur if cur is not None else base
+        if not scene.spec.fit_axis:
+            best = _lean_kept(best, data, notes, sel)
         if spec0.damped:
             best = _with_optional_terms(best, data, notes, sel)
         elif OPTIONAL["tip_offset"].can_add(best.spec):
@@ -287,6 +292,64 @@ def _turns_with_the_frame(sol: Solution) -> bool:
     se = math.sqrt(max(float(sol.cov[i, i]), 0.0))
     gap = abs(frame - precession)
     return gap > 4 * se and abs(v[TipOffset.RATE] - frame) < 0.5 * gap
+
+
+#: a cone's axis leaning from the vertical is looked for only in a record over which the tip precesses a whole turn
+#: (less, and its circle stands in for a change of the cone and the precession rate), at a tilt this many of its errors
+#: from the vertical (nearer, the azimuth is the noise's)
+LEAN_MIN_TURN_RAD = 2 * math.pi
+LEAN_MIN_TILT_SIGMAS = 3.0
+#: what the lean's note calls it
+LEAN_LABEL = "the cone's axis leaning from the vertical (a table not level, or the pose's vertical off)"
+
+
+def _leaned(cur: Solution, data: FitData) -> Solution | None:
+    """``cur`` refitted with the cone's axis (:class:`~gyrorig.fit.terms.Axis`) started from the axis of the circle
+    the tip traces (:func:`~gyrorig.fit.solver.plane_axis`); None where a lean is not looked for (an axis fitted
+    already, under :data:`LEAN_MIN_TURN_RAD` of precession, a tilt within :data:`LEAN_MIN_TILT_SIGMAS` of the
+    vertical) or the fit fails.
+
+    A scene whose vertical is known (no accelerating pivot) filmed on a table not quite level, or with a pose whose
+    vertical is off, shows a cone about an axis leaning from the camera's vertical: a circle at the precession's rate
+    in both angles."""
+    v = cur.values()
+    if not cur.ok or cur.spec.fit_axis or abs(v["precession_rate_rad_s"]) * data.duration_s < LEAN_MIN_TURN_RAD:
+        return None
+    tilt = float(np.median(np.minimum(data.theta_rad, math.pi - data.theta_rad)))
+    if tilt < LEAN_MIN_TILT_SIGMAS * float(np.median(np.sqrt(np.clip(data.cov[:, 0, 0], 0.0, None)))):
+        return None
+    axis = plane_axis(data)
+    sol = solve(replace(cur.spec, fit_axis=True, lean=True), data, {**v, "axis_tilt_rad": axis[0], "axis_azimuth_rad": axis[1]},
+                near=cur.spec.harmonics > 0)
+    return sol if sol.ok and sol.chi2 < cur.chi2 else None
+
+
+def _lean_trial(base: Solution, data: FitData) -> Solution | None:
+    """The slow model ``base`` with the lean (:func:`_leaned`) when an F test on the residuals wants it (the nod not
+    yet modelled: their scale is the misfit's, not the errors'), else None.  A lean found here is in the model before
+    the nod's harmonics, which would otherwise stand in for its circle; :func:`_lean_kept` tests it again at the end."""
+    sol = _leaned(base, data)
+    if sol is None:
+        return None
+    ddof = base.dof - sol.dof
+    f = (base.chi2 - sol.chi2) / ddof / (sol.chi2 / max(sol.dof, 1))
+    return sol if f_dist.sf(f, ddof, max(sol.dof, 1)) < TERM_P_VALUE else None
+
+
+def _lean_kept(cur: Solution, data: FitData, notes: list[Note], sel: Selector) -> Solution:
+    """The final model ``cur`` with the lean if the chi-square test wants it, noted; else without it.  ``cur`` holds
+    the lean already (found on the slow model) or not (then it is tried: a small lean that the nod hid)."""
+    if cur.spec.fit_axis:
+        level = solve(replace(cur.spec, fit_axis=False, lean=False), data, cur.values(), near=True)
+        lean, plain = cur, level
+    else:
+        lean, plain = _leaned(cur, data), cur
+    if lean is None or (plain.ok and not plain.chi2 - lean.chi2 > sel.need(plain.dof - lean.dof)):
+        return plain
+    v = lean.values()
+    notes.append(Note(NoteKind.TERM_MODELLED, f"{LEAN_LABEL}: modelled, {math.degrees(v['axis_tilt_rad']):.3g} deg "
+                      f"towards azimuth {math.degrees(v['axis_azimuth_rad']) % 360:.4g} deg", "lean"))
+    return lean
 
 
 def _consider_term(cur: Solution, data: FitData, notes: list[Note], sel: Selector, flag: str) -> Solution:

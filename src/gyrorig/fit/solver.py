@@ -23,7 +23,7 @@ from .data import FitData, FitError
 from .model import FitModel, Residuals
 from .spec import ModelSpec
 
-__all__ = ["Solution", "solve", "remaining_step_se", "conditional_amplitudes", "linear_start", "dominant_frequency",
+__all__ = ["Solution", "solve", "remaining_step_se", "conditional_amplitudes", "linear_start", "plane_axis", "dominant_frequency",
            "linear_harmonics", "mean_axis"]
 
 #: Levenberg-Marquardt tolerances (xtol, ftol, gtol); undamped Gauss-Newton steps finish the job
@@ -194,6 +194,16 @@ def mean_axis(data: FitData) -> tuple[float, float]:
     m = tip_from_angles(data.theta_rad, data.phi_rad).mean(axis=0)
     m /= np.linalg.norm(m)
     th_a, ph_a = angles_from_tip(m)
+    return float(th_a), float(ph_a)
+
+
+def plane_axis(data: FitData) -> tuple[float, float]:
+    """Tilt and azimuth of the axis of the circle the tip's directions trace: the normal of the plane nearest them
+    (least squares), on the upper side (a hanging top's cone turns about the upward vertical too). [rad]"""
+    tips = tip_from_angles(data.theta_rad, data.phi_rad)
+    _, vectors = np.linalg.eigh(np.cov(tips.T))
+    n = vectors[:, 0] if vectors[2, 0] >= 0 else -vectors[:, 0]
+    th_a, ph_a = angles_from_tip(n)
     return float(th_a), float(ph_a)
 
 

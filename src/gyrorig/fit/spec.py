@@ -15,6 +15,9 @@ class ModelSpec:
     """Which terms the fit model has (see :mod:`gyrorig.fit.terms` for each)."""
 
     fit_axis: bool = False
+    #: the axis is fitted on a scene whose vertical is known (no accelerating pivot): the cone's axis leaning from the
+    #: camera's vertical, a table not level or a pose's vertical off (:func:`gyrorig.fit.selection.fit_model`)
+    lean: bool = False
     damped: bool = False
     #: (damped) the rotor's spin decays (a drag on it no motor holds): the precession rate and the nutation frequency
     #: change exponentially in time, each at its own rate (:func:`~gyrorig.fit.phases.rate_phase`), not linearly
@@ -55,7 +58,7 @@ class ModelSpec:
 
     def summary(self) -> dict:
         """The model's terms for ``fit.json``."""
-        out = {"fit_axis": self.fit_axis, "damped": self.damped, "spin_decay": self.spin_decay,
+        out = {"fit_axis": self.fit_axis, "lean": self.lean, "damped": self.damped, "spin_decay": self.spin_decay,
                "nutation_harmonics": self.harmonics,
                "azimuth_segments": self.segments}
         out.update({term.summary_key: bool(getattr(self, term.flag)) for term in OPTIONAL.values()})
