@@ -197,6 +197,10 @@ def build_quantities(spec: ModelSpec, values: dict, formal: dict, camera_se: dic
     return out
 
 
+#: a truth whose fitted axis is within this of the vertical is level: its axis has no azimuth [rad]
+LEVEL_TRUTH_RAD = 1e-6
+
+
 def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndarray) -> dict[str, float]:
     """The quantities of the same model fitted to noiseless truth (``t_s, theta_rad, phi_rad``) at the
     measured frame times, with the data's weights: the truth is what this estimator converges to
@@ -223,7 +227,10 @@ def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndar
                 b_frame=None, row_fraction=None)
     spec0 = replace(spec, camera_modes=0, b_frames=False, rolling_shutter=False)
     sol = solve(spec0, d, dict(zip(spec0.names(), x)))
-    return {k: float(f(sol.x)) for k, f in quantity_functions(spec).items()}
+    out = {k: float(f(sol.x)) for k, f in quantity_functions(spec).items()}
+    if spec.lean and abs(out["equilibrium_tilt_rad"]) < LEVEL_TRUTH_RAD:  # a vertical axis has no azimuth
+        del out["equilibrium_azimuth_rad"]
+    return out
 
 
 def at_record_state(fit: FitResult, state_values: dict[str, tuple[float, float]], source: str) -> FitResult:
