@@ -362,8 +362,11 @@ STATE_NAMES = ("tilt_rad", "azimuth_rad", "tilt_rate_rad_s", "precession_rate_ra
 
 
 def _state_vector(model: FitModel, x: np.ndarray, t0: float, t_ref: float) -> np.ndarray:
+    """Tilt, azimuth and their rates at ``t0``: in the lab, or from the fitted axis where that is the true vertical
+    leaning in the camera's lab (``lean``: the simulator's gravity is along the true vertical)."""
     h = 1e-4
-    th, ph = model.lab(x, np.array([t0 - h, t0, t0 + h]) - t_ref, np.zeros(3, int))
+    angles = model.axis_frame if model.spec.lean else model.lab
+    th, ph = angles(x, np.array([t0 - h, t0, t0 + h]) - t_ref, np.zeros(3, int))
     ph = np.unwrap(ph)
     return np.array([th[1], ph[1], (th[2] - th[0]) / (2 * h), (ph[2] - ph[0]) / (2 * h)])
 
