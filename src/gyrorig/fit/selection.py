@@ -329,26 +329,34 @@ def _lean_trial(base: Solution, data: FitData) -> Solution | None:
     yet modelled: their scale is the misfit's, not the errors'), else None.  A lean found here is in the model before
     the nod's harmonics, which would otherwise stand in for its circle; :func:`_lean_kept` tests it again at the end."""
     sol = _leaned(base, data)
-    if sol is None:
-        return None
-    ddof = base.dof - sol.dof
-    f = (base.chi2 - sol.chi2) / ddof / (sol.chi2 / max(sol.dof, 1))
-    return sol if f_dist.sf(f, ddof, max(sol.dof, 1)) < TERM_P_VALUE else None
+    return sol if sol is not None and _f_test(base, sol) else None
+
+
+def _f_test(ref: Solution, sol: Solution) -> bool:
+    """Whether ``sol`` (``ref`` plus parameters) lowers the chi-square beyond what its own residuals' scale allows (p
+    < :data:`TERM_P_VALUE`): the chi-square test where those residuals are noise, and a harder one where a misfit
+    dominates them (whose part along any new parameters is larger than noise's)."""
+    ddof, dof = ref.dof - sol.dof, max(sol.dof, 1)
+    f = (ref.chi2 - sol.chi2) / ddof / (sol.chi2 / dof)
+    return bool(f_dist.sf(f, ddof, dof) < TERM_P_VALUE)
 
 
 def _lean_kept(cur: Solution, data: FitData, notes: list[Note], sel: Selector) -> Solution:
-    """The final model ``cur`` with the lean if the chi-square test wants it, noted; else without it.  ``cur`` holds
+    """The final model ``cur`` with the lean if the chi-square test and the F test (:func:`_f_test`) want it, noted;
+    else without it.  ``cur`` holds
     the lean already (found on the slow model) or not (then it is tried: a small lean that the nod hid)."""
     if cur.spec.fit_axis:
         level = solve(replace(cur.spec, fit_axis=False, lean=False), data, cur.values(), near=True)
         lean, plain = cur, level
     else:
         lean, plain = _leaned(cur, data), cur
-    if lean is None or (plain.ok and not plain.chi2 - lean.chi2 > sel.need(plain.dof - lean.dof)):
+    if lean is None or (plain.ok and not (plain.chi2 - lean.chi2 > sel.need(plain.dof - lean.dof)
+                                          and _f_test(plain, lean))):
         return plain
     v = lean.values()
-    notes.append(Note(NoteKind.TERM_MODELLED, f"{LEAN_LABEL}: modelled, {math.degrees(v['axis_tilt_rad']):.3g} deg "
-                      f"towards azimuth {math.degrees(v['axis_azimuth_rad']) % 360:.4g} deg", "lean"))
+    tilt, towards = v["axis_tilt_rad"], v["axis_azimuth_rad"] + (math.pi if v["axis_tilt_rad"] < 0 else 0.0)
+    notes.append(Note(NoteKind.TERM_MODELLED, f"{LEAN_LABEL}: modelled, {math.degrees(abs(tilt)):.3g} deg towards "
+                      f"azimuth {math.degrees(towards) % 360:.4g} deg", "lean"))
     return lean
 
 
