@@ -787,14 +787,17 @@ def _leaning(angles, truth, lean_rad):
 
 @pytest.mark.parametrize("name, duration_s, lean_deg", [("air-cushion-heavy-top", 8.0, 0.3),
                                                         ("air-cushion-heavy-top", 8.0, 3.0),
+                                                        ("air-cushion-heavy-top", 2.0, 0.3),
                                                         ("eddy-damped-top-b2", 10.0, 0.3)])
 def test_a_table_not_level_is_fitted_as_a_leaning_axis(name, duration_s, lean_deg):
     """A table 0.3 deg off level (or a pose whose vertical is off by as much) makes the cone turn about an axis leaning
     from the camera's vertical: at 2e-4 rad of noise a reduced chi-square of 253 (785 damped, where the nod was left
     undetermined), the errors scaled up 90 times.  The lean is now fitted where the record holds a precession turn:
     measured within 4 s.e., the chi-square white noise's, and every other quantity as from the same noise on a level
-    table (within 1 s.e.: the same noise seen through a rotation; the lean is nearly independent of them).  3 deg
-    too (the nod's harmonics no longer stand in for the lean's circle); a level record gets no lean."""
+    table: the same noise seen through a rotation, the two estimates differ by about the square root of the
+    difference of their variances (the lean's share of each error: small over 8 s, the errors 1.7-1.9 times the level
+    record's over 2 s, half a turn); within 4 of that.  3 deg too (the nod's harmonics no longer stand in for the
+    lean's circle); a level record gets no lean."""
     p = load_protocol(PROTOCOL_DIR / f"{name}.toml")
     angles, truth = _noisy(p, duration_s, rate=100.0, seed=5)
     pred = predict(p, simulate_damping=False)
@@ -810,7 +813,10 @@ def test_a_table_not_level_is_fitted_as_a_leaning_axis(name, duration_s, lean_de
     names = ["precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad", "cone_angle_rad"]
     names += ["tilt_growth_rate_per_s"] if level.spec.damped else []
     for q in names:
-        assert abs(r.quantities[q].value - level.quantities[q].value) < level.quantities[q].standard_error, q
+        a, b = r.quantities[q], level.quantities[q]
+        # the difference of two nearly equal variances is known to about a tenth of either
+        spread = math.sqrt(max(a.standard_error**2 - b.standard_error**2, 0.0) + (0.1 * b.standard_error) ** 2)
+        assert abs(a.value - b.value) < 4 * spread, q
 
 
 def test_a_spinning_down_record_that_starts_after_the_launch_is_compared_with_the_spin_it_has_then():

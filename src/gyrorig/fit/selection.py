@@ -294,10 +294,12 @@ def _turns_with_the_frame(sol: Solution) -> bool:
     return gap > 4 * se and abs(v[TipOffset.RATE] - frame) < 0.5 * gap
 
 
-#: a cone's axis leaning from the vertical is looked for only in a record over which the tip precesses a whole turn
-#: (less, and its circle stands in for a change of the cone and the precession rate), at a tilt this many of its errors
-#: from the vertical (nearer, the azimuth is the noise's)
-LEAN_MIN_TURN_RAD = 2 * math.pi
+#: a cone's axis leaning from the vertical is looked for only in a record over which the tip precesses half a turn, a
+#: whole turn under damping (less, and its circle stands in for a change of the cone and the precession rate: on half a
+#: turn of the damped B2 rig their errors grew 15-27 times, on a whole turn 5), at a tilt this many of its errors from
+#: the vertical (nearer, the azimuth is the noise's)
+LEAN_MIN_TURN_RAD = math.pi
+LEAN_MIN_TURN_DAMPED_RAD = 2 * math.pi
 LEAN_MIN_TILT_SIGMAS = 3.0
 #: what the lean's note calls it
 LEAN_LABEL = "the cone's axis leaning from the vertical (a table not level, or the pose's vertical off)"
@@ -306,14 +308,15 @@ LEAN_LABEL = "the cone's axis leaning from the vertical (a table not level, or t
 def _leaned(cur: Solution, data: FitData) -> Solution | None:
     """``cur`` refitted with the cone's axis (:class:`~gyrorig.fit.terms.Axis`) started from the axis of the circle
     the tip traces (:func:`~gyrorig.fit.solver.plane_axis`); None where a lean is not looked for (an axis fitted
-    already, under :data:`LEAN_MIN_TURN_RAD` of precession, a tilt within :data:`LEAN_MIN_TILT_SIGMAS` of the
+    already, under :data:`LEAN_MIN_TURN_RAD` of precession (damped :data:`LEAN_MIN_TURN_DAMPED_RAD`), a tilt within :data:`LEAN_MIN_TILT_SIGMAS` of the
     vertical) or the fit fails.
 
     A scene whose vertical is known (no accelerating pivot) filmed on a table not quite level, or with a pose whose
     vertical is off, shows a cone about an axis leaning from the camera's vertical: a circle at the precession's rate
     in both angles."""
     v = cur.values()
-    if not cur.ok or cur.spec.fit_axis or abs(v["precession_rate_rad_s"]) * data.duration_s < LEAN_MIN_TURN_RAD:
+    turn = LEAN_MIN_TURN_DAMPED_RAD if cur.spec.damped else LEAN_MIN_TURN_RAD
+    if not cur.ok or cur.spec.fit_axis or abs(v["precession_rate_rad_s"]) * data.duration_s < turn:
         return None
     tilt = float(np.median(np.minimum(data.theta_rad, math.pi - data.theta_rad)))
     if tilt < LEAN_MIN_TILT_SIGMAS * float(np.median(np.sqrt(np.clip(data.cov[:, 0, 0], 0.0, None)))):
