@@ -334,3 +334,23 @@ def test_plan_and_prediction_records_are_frozen_and_cross_processes():
         again.prediction.quantities["nutation_frequency_rad_s"] = None
     with pytest.raises(TypeError):
         again.advice[0].values["x"] = 1.0
+
+
+def test_a_record_too_short_to_fit_a_table_not_level_says_how_long_one_is():
+    """Under half a precession turn the fit does not look for a table not level (its circle would stand in for the
+    cone and the precession rate): the plan says so and names the length where it does; a record 0.3 deg off level
+    over the plan's length keeps the vertical, one over the advised length gets its lean."""
+    import math
+
+    from gyrorig.fit import fit_angles
+    from test_fit import _leaning, _noisy
+
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    short = plan_experiment(p, duration_s=1.5, simulate_damping=False, draws=0)
+    [advice] = short.advice_of(AdviceKind.LEVEL)
+    length = advice.values["length_s"]
+    assert 1.5 < length and not plan_experiment(p, duration_s=1.05 * length, simulate_damping=False,
+                                                 draws=0).advice_of(AdviceKind.LEVEL)
+    for duration, leans in ((1.5, False), (1.05 * length, True)):
+        angles, truth = _noisy(p, duration, rate=100.0, seed=5)
+        assert fit_angles(_leaning(angles, truth, math.radians(0.3)), p).spec.lean is leans, duration

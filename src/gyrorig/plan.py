@@ -56,13 +56,8 @@ __all__ = ["plan_experiment", "plan_fit_terms", "sweep", "parse_sweep", "TARGET_
 #: record length assessed by default (longer scenes: the advice extrapolates; --duration overrides)
 DEFAULT_PLAN_LENGTH_S = 20.0
 #: relative standard error a recording should reach, per quantity (recording-length advice)
-TARGET_RELATIVE_SE = {
-    "precession_rate_rad_s": 1e-3,
-    "nutation_frequency_rad_s": 1e-3,
-    "nutation_amplitude_rad": 1e-2,
-    "tilt_growth_rate_per_s": 0.1,
-    "equilibrium_tilt_rad": 1e-2,
-}
+TARGET_RELATIVE_SE = {"precession_rate_rad_s": 1e-3, "nutation_frequency_rad_s": 1e-3, "nutation_amplitude_rad": 1e-2,
+                      "tilt_growth_rate_per_s": 0.1, "equilibrium_tilt_rad": 1e-2}
 #: noisy records drawn and fitted in full by the plan (Gaussian noise with the per-frame covariance)
 DEFAULT_PLAN_DRAWS = 8
 #: the root-mean-square distance [standard errors] between the full fit of a drawn record and the
@@ -260,6 +255,17 @@ def _expected_errors(fit: FitResult, T: float, nut: float | None) -> tuple[dict,
     return quantities, recording
 
 
+def _level_advice(fit: FitResult, T: float, turns: float) -> Advice | None:
+    """Where the record's ``turns`` of precession are too few for the fit to look for a table not level (half a turn,
+    a whole one under damping: :data:`gyrorig.fit.selection.LEAN_MIN_TURN_RAD`, ``LEAN_MIN_TURN_DAMPED_RAD``)."""
+    need = 1.0 if fit.spec.damped else 0.5
+    if turns >= need or fit.spec.fit_axis:
+        return None
+    return Advice(AdviceKind.LEVEL, f"{turns:.2g} precession turns in {T:g} s: under {need:g} the fit cannot tell a table "
+                  f"not level (or a pose's vertical off) from the cone and does not fit it; level the table or record "
+                  f"{need * T / turns:.3g} s", values={"length_s": need * T / turns, "turns": turns})
+
+
 def _misfit_advice(protocol: Protocol, fit: FitResult, T: float, pred: Prediction, misfit: dict) -> Advice | None:
     """Advice when the fit model misses part of the simulated motion (None when it describes it)."""
     if misfit["chi2_per_dof"] <= MISFIT_NOTE:
@@ -405,9 +411,8 @@ def plan_experiment(protocol: Protocol, *, duration_s: float | None = None, pred
                           f"reach its target precision (set by {longest[1]}); precession periods in {T:g} s: "
                           f"{recording.get('precession_periods_in_record', float('nan')):.2g}",
                           values={"length_s": longest[0], "quantity": longest[1]}))
-    advice = _misfit_advice(protocol, fit, T, pred, misfit)
-    if advice:
-        rec.append(advice)
+    rec += [a for a in (_level_advice(fit, T, recording.get("precession_periods_in_record", math.inf)),
+                        _misfit_advice(protocol, fit, T, pred, misfit)) if a]
     if misfit["chi2_per_dof"] > MISFIT_LIMIT:
         for entry in quantities.values():
             entry["reliable"] = False

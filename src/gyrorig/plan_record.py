@@ -41,6 +41,9 @@ class AdviceKind(StrEnum):
     MARKER_PLACEMENT = "marker-placement"
     #: the length for every quantity's target precision (``values``: ``length_s``, ``quantity``)
     RECORDING_LENGTH = "recording-length"
+    #: the record holds too little precession for the fit to tell a table not level from the cone (``values``:
+    #: ``length_s``, ``turns``)
+    LEVEL = "level"
     #: the fit model finds no minimum on the simulated record: no expected errors
     FIT_FAILED = "fit-failed"
     #: the fit model misses part of the simulated motion
