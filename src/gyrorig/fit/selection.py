@@ -23,13 +23,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2, ncx2
-from scipy.stats import f as f_dist
 
 from .data import FitConvergenceError, FitData, FitError
+from .lean import lean_kept, lean_trial
 from .model import FitModel, Residuals, SceneModel
 from .result import NONLINEAR_PHASE_RAD, Note, NoteKind, Reason, Undetermined
 from .solver import (Solution, conditional_amplitudes, dominant_frequency, linear_harmonics, linear_start, mean_axis,
-                     plane_axis, solve)
+                     solve)
 from .spec import FitTerms
 from .terms import MAX_HARMONICS, OPTIONAL, OPTIONAL_TERMS, Persistent, TipOffset, Transient
 from .uncertainty import phase_uncertainty
@@ -229,14 +229,11 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
     # the nutation itself): it is only the start of the full model, which must converge
     best = base
     if scene.nutation_expected:
-        leaned = _lean_trial(base, data)
-        base = best = leaned or base
-        reason = _nutation_unresolvable(data, scene.nutation_frequency_hint_rad_s)
-        if reason is None:
-            cur, reason = _with_nutation(base, data, scene, sel, notes, max_harmonics)
-            best = cur if cur is not None else base
-        if not scene.spec.fit_axis:
-            best = _lean_kept(best, data, notes, sel)
+        unresolvable = _nutation_unresolvable(data, scene.nutation_frequency_hint_rad_s)
+        paths = [_nutation_path(start, data, scene, sel, max_harmonics, unresolvable)
+                 for start in (base, lean_trial(base, data)) if start is not None]
+        best, path_notes, reason = _chosen_path(paths, sel)
+        notes += path_notes
         if spec0.damped:
             best = _with_optional_terms(best, data, notes, sel)
         elif OPTIONAL["tip_offset"].can_add(best.spec):
@@ -247,6 +244,34 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
     if not best.ok:
         raise FitConvergenceError(f"the fit did not converge: {best.message}")
     return best, notes, undetermined
+
+
+def _nutation_path(start: Solution, data: FitData, scene: SceneModel, sel: Selector, max_harmonics: int,
+                   reason: Reason | None) -> tuple[Solution, list[Note], Reason | None]:
+    """The nod's harmonics chosen from the slow model ``start`` (unless ``reason`` says the record cannot resolve
+    it), then the lean tested on the result (:func:`~gyrorig.fit.lean.lean_kept`) where the scene's vertical is known: the solution,
+    its notes, and why the nod is undetermined (None: it is not)."""
+    notes: list[Note] = []
+    best = start
+    if reason is None:
+        cur, reason = _with_nutation(start, data, scene, sel, notes, max_harmonics)
+        best = cur if cur is not None else start
+    if not scene.spec.fit_axis:
+        best = lean_kept(best, data, notes, sel.need)
+    return best, notes, reason
+
+
+def _chosen_path(paths: list, sel: Selector) -> tuple[Solution, list[Note], Reason | None]:
+    """The first of :func:`_nutation_path`'s outcomes (from the slow model about the vertical) unless the second
+    (from the slow model with a lean) ends with its lean and a chi-square lower by more than its extra parameters
+    need (:meth:`Selector.need`)."""
+    plain = paths[0]
+    if len(paths) < 2 or not paths[1][0].spec.lean:
+        return plain
+    lean, ref = paths[1][0], plain[0]
+    extra = ref.dof - lean.dof
+    wins = lean.ok and (ref.chi2 - lean.chi2 > sel.need(extra) if extra > 0 else lean.chi2 < ref.chi2)
+    return paths[1] if wins or not ref.ok else plain
 
 
 def _with_optional_terms(best: Solution, data: FitData, notes: list[Note], sel: Selector) -> Solution:
@@ -292,75 +317,6 @@ def _turns_with_the_frame(sol: Solution) -> bool:
     se = math.sqrt(max(float(sol.cov[i, i]), 0.0))
     gap = abs(frame - precession)
     return gap > 4 * se and abs(v[TipOffset.RATE] - frame) < 0.5 * gap
-
-
-#: a cone's axis leaning from the vertical is looked for only in a record over which the tip precesses half a turn, a
-#: whole turn under damping (less, and its circle stands in for a change of the cone and the precession rate: on half a
-#: turn of the damped B2 rig their errors grew 15-27 times, on a whole turn 5), at a tilt this many of its errors from
-#: the vertical (nearer, the azimuth is the noise's)
-LEAN_MIN_TURN_RAD = math.pi
-LEAN_MIN_TURN_DAMPED_RAD = 2 * math.pi
-LEAN_MIN_TILT_SIGMAS = 3.0
-#: what the lean's note calls it
-LEAN_LABEL = "the cone's axis leaning from the vertical (a table not level, or the pose's vertical off)"
-
-
-def _leaned(cur: Solution, data: FitData) -> Solution | None:
-    """``cur`` refitted with the cone's axis (:class:`~gyrorig.fit.terms.Axis`) started from the axis of the circle
-    the tip traces (:func:`~gyrorig.fit.solver.plane_axis`); None where a lean is not looked for (an axis fitted
-    already, under :data:`LEAN_MIN_TURN_RAD` of precession (damped :data:`LEAN_MIN_TURN_DAMPED_RAD`), a tilt within :data:`LEAN_MIN_TILT_SIGMAS` of the
-    vertical) or the fit fails.
-
-    A scene whose vertical is known (no accelerating pivot) filmed on a table not quite level, or with a pose whose
-    vertical is off, shows a cone about an axis leaning from the camera's vertical: a circle at the precession's rate
-    in both angles."""
-    v = cur.values()
-    turn = LEAN_MIN_TURN_DAMPED_RAD if cur.spec.damped else LEAN_MIN_TURN_RAD
-    if not cur.ok or cur.spec.fit_axis or abs(v["precession_rate_rad_s"]) * data.duration_s < turn:
-        return None
-    tilt = float(np.median(np.minimum(data.theta_rad, math.pi - data.theta_rad)))
-    if tilt < LEAN_MIN_TILT_SIGMAS * float(np.median(np.sqrt(np.clip(data.cov[:, 0, 0], 0.0, None)))):
-        return None
-    axis = plane_axis(data)
-    sol = solve(replace(cur.spec, fit_axis=True, lean=True), data, {**v, "axis_tilt_rad": axis[0], "axis_azimuth_rad": axis[1]},
-                near=cur.spec.harmonics > 0)
-    return sol if sol.ok and sol.chi2 < cur.chi2 else None
-
-
-def _lean_trial(base: Solution, data: FitData) -> Solution | None:
-    """The slow model ``base`` with the lean (:func:`_leaned`) when an F test on the residuals wants it (the nod not
-    yet modelled: their scale is the misfit's, not the errors'), else None.  A lean found here is in the model before
-    the nod's harmonics, which would otherwise stand in for its circle; :func:`_lean_kept` tests it again at the end."""
-    sol = _leaned(base, data)
-    return sol if sol is not None and _f_test(base, sol) else None
-
-
-def _f_test(ref: Solution, sol: Solution) -> bool:
-    """Whether ``sol`` (``ref`` plus parameters) lowers the chi-square beyond what its own residuals' scale allows (p
-    < :data:`TERM_P_VALUE`): the chi-square test where those residuals are noise, and a harder one where a misfit
-    dominates them (whose part along any new parameters is larger than noise's)."""
-    ddof, dof = ref.dof - sol.dof, max(sol.dof, 1)
-    f = (ref.chi2 - sol.chi2) / ddof / (sol.chi2 / dof)
-    return bool(f_dist.sf(f, ddof, dof) < TERM_P_VALUE)
-
-
-def _lean_kept(cur: Solution, data: FitData, notes: list[Note], sel: Selector) -> Solution:
-    """The final model ``cur`` with the lean if the chi-square test and the F test (:func:`_f_test`) want it, noted;
-    else without it.  ``cur`` holds
-    the lean already (found on the slow model) or not (then it is tried: a small lean that the nod hid)."""
-    if cur.spec.fit_axis:
-        level = solve(replace(cur.spec, fit_axis=False, lean=False), data, cur.values(), near=True)
-        lean, plain = cur, level
-    else:
-        lean, plain = _leaned(cur, data), cur
-    if lean is None or (plain.ok and not (plain.chi2 - lean.chi2 > sel.need(plain.dof - lean.dof)
-                                          and _f_test(plain, lean))):
-        return plain
-    v = lean.values()
-    tilt, towards = v["axis_tilt_rad"], v["axis_azimuth_rad"] + (math.pi if v["axis_tilt_rad"] < 0 else 0.0)
-    notes.append(Note(NoteKind.TERM_MODELLED, f"{LEAN_LABEL}: modelled, {math.degrees(abs(tilt)):.3g} deg towards "
-                      f"azimuth {math.degrees(towards) % 360:.4g} deg", "lean"))
-    return lean
 
 
 def _consider_term(cur: Solution, data: FitData, notes: list[Note], sel: Selector, flag: str) -> Solution:
