@@ -101,7 +101,8 @@ def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, c
                           f"the residuals are far larger than the tracker's errors (reduced chi-square {chi2_red:.3g}): "
                           "a systematic error dominates (camera calibration or pose, a table not level, a tip marker "
                           "off the stem's axis, or a motion the model does not describe); the standard errors cover "
-                          "the statistical part only and understate the true error"))
+                          "the statistical part only and understate the true error"
+                          + ("; the fitted lean of the cone's axis may stand in for part of it" if sol.spec.lean else "")))
     if data.inter_coded and sol.spec.harmonics > 0:
         shrink = ""
         if BFrameShrink.NAME in sol.spec.names():
