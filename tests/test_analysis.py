@@ -59,7 +59,9 @@ def test_analyze_recovers_truth_within_errors_and_writes_a_report(rendered, caps
 
 def test_fit_refuses_a_table_without_sigmas_and_writes_nothing(rendered, tmp_path, capsys):
     root, proto = rendered
-    a = pd.read_csv(root / "an" / "track" / "angles.csv").drop(columns=["phi_sigma_rad"])
+    assert main(["-q", "track", str(root / "video" / "video.mkv"), "--camera", str(root / "video" / "camera.json"),
+                 "--protocol", str(proto), "--out", str(tmp_path / "t")]) == 0
+    a = pd.read_csv(tmp_path / "t" / "angles.csv").drop(columns=["phi_sigma_rad"])
     a.to_csv(tmp_path / "angles.csv", index=False)
     assert main(["fit", str(tmp_path / "angles.csv"), "--protocol", str(proto), "--out", str(tmp_path / "o")]) == 2
     assert "phi_sigma_rad" in capsys.readouterr().err

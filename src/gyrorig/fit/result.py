@@ -304,7 +304,7 @@ class FitResult:
         difference in % and in combined standard errors), the truth and pull of a synthetic run, and the notes."""
         spec = self.spec
         lines = ["[[Fit]]",
-                 f"    model: {spec.harmonics} nutation harmonic(s), axis {'fitted' if spec.fit_axis else 'vertical'}, "
+                 f"    model: {spec.harmonics} nutation harmonic(s), axis {spec.axis_label}, "
                  f"{'damped' if spec.damped else 'undamped'}{', spin decaying' if spec.spin_decay else ''}, "
                  f"{len(self.params)} parameters",
                  f"    chi-square: {self.chi2:.5g} for {self.dof} degrees of freedom (reduced {self.chi2_red:.4g}, "

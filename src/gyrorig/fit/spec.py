@@ -52,6 +52,11 @@ class ModelSpec:
     #: (:class:`~gyrorig.fit.terms.RollingShutter`)
     rolling_shutter: bool = False
 
+    @property
+    def axis_label(self) -> str:
+        """How the cone's axis is modelled, for the report: ``vertical``, ``fitted`` or ``leaning (fitted)``."""
+        return "leaning (fitted)" if self.lean else "fitted" if self.fit_axis else "vertical"
+
     def names(self) -> list[str]:
         """The model's parameter names, in the order of its parameter vector."""
         return [n for term in TERMS if term.present(self) for n in term.names(self)]

@@ -137,7 +137,7 @@ def write_report(path: str | Path, *, protocol: Protocol, fit: FitResult, angles
         tr += "".join(f'<p class="bad">The video: {html.escape(problem)}.</p>'
                       for problem in tracking.get("source_problems", ()))
     spec = fit.spec
-    model = (f"axis {'fitted' if spec.fit_axis else 'vertical'}; {'damped' if spec.damped else 'undamped'}"
+    model = (f"axis {spec.axis_label}; {'damped' if spec.damped else 'undamped'}"
              f"{' (the spin decaying)' if spec.spin_decay else ''}; "
              f"{FitTerms.of(spec).describe()}; "
              f"{spec.segments} azimuth segment(s); reference time t_ref = {fit.t_ref_s:.4g} s")
