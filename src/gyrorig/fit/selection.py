@@ -249,8 +249,8 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
 def _nutation_path(start: Solution, data: FitData, scene: SceneModel, sel: Selector, max_harmonics: int,
                    reason: Reason | None) -> tuple[Solution, list[Note], Reason | None]:
     """The nod's harmonics chosen from the slow model ``start`` (unless ``reason`` says the record cannot resolve
-    it), then the lean tested on the result (:func:`~gyrorig.fit.lean.lean_kept`) where the scene's vertical is known: the solution,
-    its notes, and why the nod is undetermined (None: it is not)."""
+    it), then the lean tested on the result (:func:`~gyrorig.fit.lean.lean_kept`) where the scene's vertical is
+    known: the solution, its notes, and why the nod is undetermined (None: it is not)."""
     notes: list[Note] = []
     best = start
     if reason is None:
