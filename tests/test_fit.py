@@ -576,6 +576,20 @@ def test_a_damped_record_is_compared_with_theory_at_its_own_state():
             assert abs(q.diff_exact_combined_se) < 3.5, (seed, name, q.diff_exact_combined_se)
 
 
+def test_a_lean_the_user_measured_is_used():
+    """A table measured 0.3 deg off level, stated as ``--fix axis_tilt_rad=...``: the lean's own test (its tilt
+    over its error) has no error to divide by, and the stated lean was refused (reduced chi-square 253).  Now it is
+    used, its direction fitted: a white chi-square."""
+    from gyrorig.fit.constraints import Constraints
+
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    angles, truth = _noisy(p, 8.0, rate=100.0, seed=5)
+    r = fit_angles(_leaning(angles, truth, math.radians(0.3)), p, prediction=predict(p, simulate_damping=False),
+                   constraints=Constraints(fixed=(("axis_tilt_rad", math.radians(0.3)),)))
+    lo, hi = chi2_red_band(r.dof)
+    assert r.spec.lean and lo < r.chi2_red < hi
+
+
 def test_a_level_record_whose_refit_converges_further_gets_no_lean():
     """B2's damped top over 20 s at 100 frames/s on a level table: refitted from the axis of the tip's circle, the
     chi-square fell by 197 with a lean of 1.1e-5 +- 0.64e-5 rad (1.7 s.e.), and the lean was kept (the gain was the

@@ -92,14 +92,16 @@ def lean_wanted(plain: Solution, lean: Solution, data: FitData, need: Callable[[
     (``rho``, the larger lag-1 autocorrelation of the two angles, when positive): the lean's circle is slow, and the
     gain such noise lends a slow term grows as its spectrum at low frequencies does (AR(1): by that factor).  The lean
     itself must pass the same test (its squared tilt over its variance, scaled by the reduced chi-square where above
-    1): a refit from another start can lower the chi-square by converging further, not by the lean."""
+    1; not for a lean the user fixed, ``--fix axis_tilt_rad=...``): a refit from another start can lower the
+    chi-square by converging further, not by the lean."""
     rho = min(max(max(lag1_autocorrelation(FitModel(plain.spec), data, plain.x)), 0.0), 0.95)
     shrink = (1 - rho) / (1 + rho)
     gain = (plain.chi2 - lean.chi2) * shrink
     ddof, dof = plain.dof - lean.dof, max(lean.dof, 1)
     i = lean.spec.names().index("axis_tilt_rad")
     var = float(lean.cov[i, i]) * max(1.0, lean.chi2 / dof)
-    wald = lean.values()["axis_tilt_rad"] ** 2 / var * shrink if var > 0 else 0.0
+    stated = "axis_tilt_rad" in dict(data.constraints.fixed)  # a lean the user measured: no error of its own
+    wald = math.inf if stated else lean.values()["axis_tilt_rad"] ** 2 / var * shrink if var > 0 else 0.0
     return (gain > need(ddof) and wald > need(ddof)
             and bool(f_dist.sf(gain / ddof / (lean.chi2 / dof), ddof, dof) < P_VALUE))
 
