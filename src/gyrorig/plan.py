@@ -42,6 +42,7 @@ from . import _io, protocols
 from .expectation import ExpectedRecord, expected_record, plan_fit_terms, project, tip_setup
 from .tracking.rays import LIMB_MARGIN_RAD, near_limb
 from .fit import FitConvergenceError, FitError, FitResult, fit_angles, linear_response
+from .fit.lean import LEAN_MIN_TURN_DAMPED_RAD, LEAN_MIN_TURN_RAD
 from .geometry import wrap_angle
 from .plan_record import Advice, AdviceKind, DampingAssessment, ExpectedQuantity, Plan
 from .prediction import Prediction
@@ -256,9 +257,9 @@ def _expected_errors(fit: FitResult, T: float, nut: float | None) -> tuple[dict,
 
 
 def _level_advice(fit: FitResult, T: float, turns: float) -> Advice | None:
-    """Where the record's ``turns`` of precession are too few for the fit to look for a table not level (half a turn,
-    a whole one under damping: :data:`gyrorig.fit.selection.LEAN_MIN_TURN_RAD`, ``LEAN_MIN_TURN_DAMPED_RAD``)."""
-    need = 1.0 if fit.spec.damped else 0.5
+    """Where the record's ``turns`` of precession are too few for the fit to look for a table not level
+    (:data:`gyrorig.fit.lean.LEAN_MIN_TURN_RAD`, ``LEAN_MIN_TURN_DAMPED_RAD``)."""
+    need = (LEAN_MIN_TURN_DAMPED_RAD if fit.spec.damped else LEAN_MIN_TURN_RAD) / (2 * math.pi)
     if turns >= need or fit.spec.fit_axis:
         return None
     return Advice(AdviceKind.LEVEL, f"{turns:.2g} precession turns in {T:g} s: under {need:g} the fit cannot tell a table "

@@ -18,19 +18,17 @@ from scipy.stats import f as f_dist
 
 from .data import FitData
 from .model import FitModel
-from .result import Note, NoteKind
+from .result import TERM_P_VALUE, Note, NoteKind
 from .solver import Solution, linear_start, plane_axis, solve
 from .uncertainty import lag1_autocorrelation
 
 __all__ = ["lean_trial", "lean_kept", "leaned", "lean_wanted", "f_test", "LEAN_MIN_TURN_RAD", "LEAN_MIN_TURN_DAMPED_RAD",
-           "LEAN_MIN_TILT_SIGMAS", "LEAN_LABEL", "P_VALUE"]
+           "LEAN_MIN_TILT_SIGMAS", "LEAN_LABEL"]
 
-#: the p-value of the lean's tests (as :data:`gyrorig.fit.selection.TERM_P_VALUE`)
-P_VALUE = 1e-3
 #: a cone's axis leaning from the vertical is looked for only in a record over which the tip precesses half a turn, a
-#: whole turn under damping (less, and its circle stands in for a change of the cone and the precession rate: on half a
-#: turn of the damped B2 rig their errors grew 15-27 times, on a whole turn 5), of a cone this many of its errors wide
-#: about the circle's axis (narrower, the azimuth about it is the noise's)
+#: whole turn under damping (less, and its circle stands in for a change of the cone, the precession rate and the tilt's
+#: growth), of a cone this many of its errors wide about the circle's axis (narrower, the azimuth about it is the
+#: noise's)
 LEAN_MIN_TURN_RAD = math.pi
 LEAN_MIN_TURN_DAMPED_RAD = 2 * math.pi
 LEAN_MIN_TILT_SIGMAS = 3.0
@@ -70,20 +68,19 @@ def lean_trial(base: Solution, data: FitData) -> Solution | None:
     """The slow model ``base`` with the lean (:func:`leaned`) where an F test on the residuals wants it (the nod not
     yet modelled: their scale is the misfit's, not the errors'), else None.  A lean found here is in the model before
     the nod's harmonics, which would otherwise stand in for its circle (a lean of degrees, one wider than the cone) or
-    fail beside it (0.3 deg under damping); but the nod's misfit can lend itself to a lean (a camera's calibration
-    error on 2 s of record: a lean of 13 deg, and the nod's fit then failed), so the nod is fitted from both starts
-    (:func:`gyrorig.fit.selection.fit_model`)."""
+    fail beside it (under damping); but the nod's misfit (or another systematic's) can lend itself to a lean, so the
+    nod is fitted from both starts (:func:`gyrorig.fit.selection.fit_model`)."""
     sol = leaned(base, data)
     return sol if sol is not None and f_test(base, sol) else None
 
 
 def f_test(ref: Solution, sol: Solution) -> bool:
     """Whether ``sol`` (``ref`` plus parameters) lowers the chi-square beyond what its own residuals' scale allows (p
-    < :data:`P_VALUE`): the chi-square test where those residuals are noise, and a harder one where a misfit
-    dominates them (whose part along any new parameters is larger than noise's)."""
+    < :data:`~gyrorig.fit.result.TERM_P_VALUE`): the chi-square test where those residuals are noise, and a harder
+    one where a misfit dominates them (whose part along any new parameters is larger than noise's)."""
     ddof, dof = ref.dof - sol.dof, max(sol.dof, 1)
     f = (ref.chi2 - sol.chi2) / ddof / (sol.chi2 / dof)
-    return bool(f_dist.sf(f, ddof, dof) < P_VALUE)
+    return bool(f_dist.sf(f, ddof, dof) < TERM_P_VALUE)
 
 
 def lean_wanted(plain: Solution, lean: Solution, data: FitData, need: Callable[[int], float]) -> bool:
@@ -103,7 +100,7 @@ def lean_wanted(plain: Solution, lean: Solution, data: FitData, need: Callable[[
     stated = "axis_tilt_rad" in dict(data.constraints.fixed)  # a lean the user measured: no error of its own
     wald = math.inf if stated else lean.values()["axis_tilt_rad"] ** 2 / var * shrink if var > 0 else 0.0
     return (gain > need(ddof) and wald > need(ddof)
-            and bool(f_dist.sf(gain / ddof / (lean.chi2 / dof), ddof, dof) < P_VALUE))
+            and bool(f_dist.sf(gain / ddof / (lean.chi2 / dof), ddof, dof) < TERM_P_VALUE))
 
 
 def lean_kept(cur: Solution, data: FitData, notes: list[Note], need: Callable[[int], float]) -> Solution:

@@ -20,7 +20,7 @@ from .constraints import Constraints
 from .spec import FitTerms, ModelSpec
 
 __all__ = ["QUANTITY_UNITS", "QuantityStatus", "Undetermined", "Reason", "ErrorKind", "NoteKind", "Note", "Quantity",
-           "FitResult", "NONLINEAR_PHASE_RAD"]
+           "FitResult", "NONLINEAR_PHASE_RAD", "TERM_P_VALUE"]
 
 QUANTITY_UNITS = {
     "precession_rate_rad_s": "rad/s",
@@ -37,6 +37,8 @@ QUANTITY_UNITS = {
 #: a rate-like parameter whose standard error leaves more than this phase (rad) uncertain at the
 #: record's ends puts the fit outside its linear regime (see :func:`gyrorig.fit.uncertainty.phase_uncertainty`)
 NONLINEAR_PHASE_RAD = 0.3
+#: significance for adding a model term (nutation, a harmonic, the lean): chi-square (or F) tail probability
+TERM_P_VALUE = 1e-3
 
 
 class QuantityStatus(StrEnum):

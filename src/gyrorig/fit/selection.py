@@ -27,7 +27,7 @@ from scipy.stats import chi2, ncx2
 from .data import FitConvergenceError, FitData, FitError
 from .lean import lean_kept, lean_trial
 from .model import FitModel, Residuals, SceneModel
-from .result import NONLINEAR_PHASE_RAD, Note, NoteKind, Reason, Undetermined
+from .result import NONLINEAR_PHASE_RAD, TERM_P_VALUE, Note, NoteKind, Reason, Undetermined
 from .solver import (Solution, conditional_amplitudes, dominant_frequency, linear_harmonics, linear_start, mean_axis,
                      solve)
 from .spec import FitTerms
@@ -37,8 +37,6 @@ from .uncertainty import phase_uncertainty
 __all__ = ["Selector", "fit_model", "trial_term", "score_term", "left_out_noncentrality", "plan_terms",
            "TERM_P_VALUE", "PLANNED_NONCENTRALITY"]
 
-#: significance for adding a model term (nutation, a harmonic): chi-square tail probability
-TERM_P_VALUE = 1e-3
 #: planning a model on noiseless simulated angles: a term is kept when it changes the chi-square
 #: by more than this (its non-centrality: leaving it out could bias a quantity by up to
 #: sqrt(this) standard errors)

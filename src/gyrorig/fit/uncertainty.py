@@ -50,8 +50,7 @@ def delta_se(f, x: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
 def phase_uncertainty(spec: ModelSpec, x: np.ndarray, cov: np.ndarray, data: FitData) -> dict[str, float]:
     """For each rate-like parameter, one standard error times the longest ``|tau|`` (``tau^2 / 2``
     for second-order terms, ``tau^3 / 3`` for third-order ones): the phase or log-amplitude it leaves uncertain at
-    the record's
-    ends, in radians.  The least-squares errors are Cramér-Rao bounds only while these are
+    the record's ends, in radians.  The least-squares errors are Cramér-Rao bounds only while these are
     well below 1 (the model is linear over one standard error); above
     :data:`gyrorig.fit.result.NONLINEAR_PHASE_RAD` the record is too short for the model."""
     names = spec.names()
