@@ -133,27 +133,25 @@ def _outliers_by_fit(angles: pd.DataFrame, protocol: Protocol, prediction: Predi
 def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, exclude: np.ndarray,
                      prediction: Prediction) -> FitResult:
     """A damped record compared with theory at its own state: the simulator launched from the fitted motion at the
-    record's first frame (tilt, azimuth and their rates; the protocol's spin, or where a drag slows the rotor the spin
-    the protocol's launch at the record's time 0 has slowed to by then), over the record's frames, fitted with the
-    same model (:func:`gyrorig.fit.quantities.at_record_state`); the state's uncertainty (from the fit) carried to
-    each prediction by differences over one standard deviation of each state number.  The protocol's launch is not
-    the record's: a damped top drifts, and a recording starts after the release."""
+    record's first frame (tilt, azimuth and their rates; the rotor's and a gyrostat frame's rates about the axis as
+    the protocol's launch at the record's time 0 gives them then: :func:`_axial_rates_at`), over the record's frames,
+    fitted with the same model (:func:`gyrorig.fit.quantities.at_record_state`); the state's uncertainty (from the
+    fit) carried to each prediction by differences over one standard deviation of each state number.  The protocol's
+    launch is not the record's: a damped top drifts, and a recording starts after the release."""
     if not fit.spec.damped:
         return fit
     t0, state, cov = record_state(fit)
     if not 0.0 < state["tilt_rad"] < math.pi:
         return fit
     t = np.unique(fit.residuals.t_s.to_numpy(float)) - t0
-    spin_at_t0 = None
-    if fit.spec.spin_decay and t0 > 0:  # the rotor's own spin, omega_o, as the launch's has decayed by t0
-        early = simulate(protocol, t_eval_s=np.array([0.0, t0]))
-        spin_at_t0 = float(early.omega_o_rad_s.iloc[-1])
+    rotor, frame = _axial_rates_at(protocol, t0)
 
     def values(s: dict[str, float]) -> dict[str, float]:
-        launch = replace(protocol.launch, **s)
-        if spin_at_t0 is not None:  # the launch's spin rate is psi', omega_o less phi' cos(theta)
-            psi_rate = spin_at_t0 - s["precession_rate_rad_s"] * math.cos(s["tilt_rad"])
-            launch = replace(launch, spin_rate_rad_s=psi_rate)
+        # a launch's spin rates are psi' (the rotor's, a gyrostat frame's): their rates about the axis less phi' cos(theta)
+        turn = s["precession_rate_rad_s"] * math.cos(s["tilt_rad"])
+        launch = replace(protocol.launch, **s, spin_rate_rad_s=rotor - turn)
+        if frame is not None:
+            launch = replace(launch, frame_spin_rate_rad_s=frame - turn)
         motion = simulate(replace(protocol, launch=launch), t_eval_s=t)
         return state_values(fit, angles, protocol, motion.assign(t_s=motion.t_s + t0), exclude=exclude,
                             prediction=prediction)
@@ -174,6 +172,19 @@ def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, e
     source = (f"simulator from the record's fitted state at t = {t0:.4g} s (tilt {state['tilt_rad']:.5g} rad), "
               "fitted with the same model")
     return at_record_state(fit, {k: (v0[k], float(s)) for k, s in zip(keys, sd)}, source)
+
+
+def _axial_rates_at(protocol: Protocol, t0: float) -> tuple[float, float | None]:
+    """The rotor's and a gyrostat frame's rates about the axis [rad/s] at the record's time ``t0``, as the protocol's
+    launch at time 0 gives them (the rotor's conserved where no drag slows it or a motor holds it; a drag's decay, the
+    frame's relaxation, simulated); the frame's None for a plain top."""
+    launch = protocol.launch
+    gyrostat = protocol.rig.frame_axial_inertia_kg_m2 is not None
+    if t0 <= 0:
+        turn = launch.precession_rate_rad_s * math.cos(launch.tilt_rad)
+        return launch.spin_rate_rad_s + turn, (launch.frame_spin_rate_rad_s + turn) if gyrostat else None
+    early = simulate(protocol, t_eval_s=np.array([0.0, t0])).iloc[-1]
+    return float(early.omega_o_rad_s), float(early.omega_frame_rad_s) if gyrostat else None
 
 
 def analyze(video, camera: Camera | str | Path, protocol: Protocol, *, truth: pd.DataFrame | None = None,

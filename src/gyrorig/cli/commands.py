@@ -187,9 +187,11 @@ def _cmd_render(args: argparse.Namespace) -> int:
     if args.duration is not None:
         number("", "--duration", args.duration, lo=0.0, lo_open=True, hi=1e5)
     number("", "--calibration-views", args.calibration_views, lo=0, hi=1000)
+    number("", "--hold", args.hold, lo=0.0, hi=1e5)
     out = Path(args.out)
     summary = render_video(protocol, out, seed=args.seed, codec=args.codec, duration_s=args.duration,
-                           calibration_views=args.calibration_views, progress=progress_printer("render"))
+                           calibration_views=args.calibration_views, progress=progress_printer("render"),
+                           hold_s=args.hold)
     n, r, e = summary["frames"], summary["render_s"], summary["encode_s"]
     print(f"{protocol.name}: {n} frames -> {summary['video']} (rendering {n / max(r, 1e-9):.0f} frames/s, "
           f"encoding {n / max(e, 1e-9):.0f} frames/s); truth.csv, camera.json"

@@ -190,6 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "decodes ~50x faster); mp4: video.mp4 (mp4v, 8-bit, lossy)")
     r.add_argument("--duration", type=float, default=None, help="override scene.duration_s [s]")
     r.add_argument("--calibration-views", type=int, default=12, help="checkerboard images (0: none)")
+    r.add_argument("--hold", type=float, default=0.0, metavar="S",
+                   help="the top held still (its rotor spinning) for S seconds before its release, as a phone records "
+                        "from before it; the video is S longer [s] (default 0)")
     r.set_defaults(func="_cmd_render")
 
     cal = sub.add_parser("calibrate", help="camera calibration from checkerboard images (OpenCV)")

@@ -11,6 +11,7 @@ import pandas as pd
 from ..smooth import measurement_covariance
 from ..tables import camera_mode_columns, camera_mode_count, camera_mode_prior_column, missing_columns
 from .constraints import Constraints
+from .still import StillEnds, still_ends
 
 __all__ = ["FitError", "FitConvergenceError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
 
@@ -62,6 +63,9 @@ class FitData:
     #: ``row_fraction``: a rolling shutter whose readout time is not known, which the fit finds
     #: (:class:`~gyrorig.fit.terms.RollingShutter`); None when the table does not have it
     row_fraction: np.ndarray | None = None
+    #: the record's still ends left out (a top held before its release, caught before the recording ends:
+    #: :mod:`gyrorig.fit.still`); None when they were not looked for
+    still: StillEnds | None = None
 
     @property
     def rolling_shutter(self) -> bool:
@@ -163,9 +167,11 @@ def _picture_types(a: pd.DataFrame) -> tuple[np.ndarray | None, bool]:
 
 
 def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None,
-                         precession_hint_rad_s: float | None = None, constraints: Constraints | None = None) -> FitData:
+                         precession_hint_rad_s: float | None = None, constraints: Constraints | None = None, *,
+                         leave_out_still_ends: bool = False) -> FitData:
     """The measured frames of an angle table (:mod:`gyrorig.tables`), minus ``exclude`` (e.g. the
-    smoother's outliers).  A gap longer than half a precession period (``precession_hint_rad_s``)
+    smoother's outliers) and, with ``leave_out_still_ends``, minus the record's still ends (:mod:`gyrorig.fit.still`:
+    a top held before its release).  A gap longer than half a precession period (``precession_hint_rad_s``)
     starts a new azimuth segment."""
     missing = missing_columns(angles, FIT_REQUIRED)
     if missing:
@@ -193,6 +199,15 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
     t = a["t_s"].to_numpy(float)
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
         raise FitError("t_s must be finite and non-decreasing")
+    still = None
+    if leave_out_still_ends:
+        still = still_ends(t, theta, a["phi_rad"].to_numpy(float), sth, sph)
+        if still.any:
+            if int(still.keep.sum()) < 10:
+                raise FitError(f"only {int(still.keep.sum())} frames lie between the record's still ends (the tip "
+                               f"still for its first {still.head_s:.3g} s and last {still.tail_s:.3g} s); a fit needs "
+                               "at least 10")
+            a, cov, t = a.loc[still.keep], cov[still.keep], t[still.keep]
     frame = a["frame"].to_numpy() if "frame" in a.columns else np.arange(len(a))
     segment = np.zeros(len(a), int)
     if precession_hint_rad_s is not None and precession_hint_rad_s != 0:
@@ -203,7 +218,7 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
                    cov=cov, segment=segment, t_ref_s=0.5 * (t[0] + t[-1]), camera_shift=_camera_shifts(a),
                    camera_prior=_camera_priors(a, camera_mode_count(a.columns)),
                    exposure_s=_exposures(a, t), constraints=constraints or Constraints(), b_frame=b_frame,
-                   inter_coded=inter_coded, row_fraction=_row_fractions(a))
+                   inter_coded=inter_coded, row_fraction=_row_fractions(a), still=still)
 
 
 def _row_fractions(a: pd.DataFrame) -> np.ndarray | None:

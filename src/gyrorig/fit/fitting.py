@@ -86,6 +86,25 @@ def _limb_note(angles: pd.DataFrame) -> list[Note]:
                  "above")]
 
 
+def _still_note(data: FitData) -> list[Note]:
+    """A note when the record's still ends were left out (:mod:`gyrorig.fit.still`)."""
+    still = data.still
+    if still is None or not still.any:
+        return []
+    parts = []
+    if still.head_frames:
+        parts.append(f"for the record's first {still.head_s:.3g} s ({still.head_frames} frames: the top held before its "
+                     "release?)")
+    if still.tail_frames:
+        parts.append(f"for the record's last {still.tail_s:.3g} s ({still.tail_frames} frames: the top caught, or at rest "
+                     "against a stop?)")
+    text = (f"the tip stayed within {math.degrees(still.radius_rad):.2g} deg of one place "
+            + " and ".join(parts) + f", where elsewhere it stays at most {still.dwell_s:.2g} s: not the scene's "
+            f"motion, left out; the fit's frames run from t = {data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s (--start "
+            "and --end choose the span yourself)")
+    return [Note(NoteKind.STILL_ENDS, text)]
+
+
 def _record_notes(sol: Solution, data: FitData, phases: dict, camera_se: dict, check_residuals: bool) -> list[Note]:
     """Notes on the record: too short for the model, a dominating systematic, the camera's share."""
     notes = []
@@ -199,8 +218,9 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
     start_time = time.perf_counter()
     scene = model_for_scene(protocol, prediction)
     constraints = constraints or Constraints()
-    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints)
+    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints, leave_out_still_ends=True)
     sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
+    notes = _still_note(data) + notes
     if data.camera_prior is not None and sol.spec.camera_modes and np.any(data.camera_prior == 0.0):
         # a pose found from these frames: its modes' priors less what the frames hold, the chosen model refitted
         data = replace(data, camera_prior_root=shared_pose_prior_root(sol.spec, sol.x, data))
@@ -396,5 +416,6 @@ def state_values(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, motio
     record's frames with its weights (:func:`gyrorig.fit.quantities.truth_values`): what this estimator gives for
     that motion."""
     scene = model_for_scene(protocol, prediction)
-    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, fit.constraints)
+    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, fit.constraints,
+                                leave_out_still_ends=True)
     return truth_values(motion, data, fit.spec, fit.x)

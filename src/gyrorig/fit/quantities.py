@@ -161,6 +161,20 @@ def _time_constant(values: dict, formal: dict) -> Quantity:
                           else "tilt decays: tau is an e-folding time of decay"))
 
 
+_DIFFERENCES = ("diff_paper_se", "diff_exact_se", "diff_paper_combined_se", "diff_exact_combined_se")
+
+
+def _time_constant_tested_as_rate(quantities: dict[str, Quantity]) -> dict[str, Quantity]:
+    """The time constant's differences from theory in standard errors are its rate's, sign turned (``tau = 1 / rate``
+    moves against it): the rate is the fitted parameter, and a reciprocal's linearised error fails where the rate
+    is a few of its errors from zero (theory's, for a top that does not drift, is zero: tau infinite)."""
+    rate, tau = quantities.get("tilt_growth_rate_per_s"), quantities.get("tilt_time_constant_s")
+    if rate is None or tau is None or not (rate.determined and tau.determined):
+        return quantities
+    flipped = {k: (None if getattr(rate, k) is None else -getattr(rate, k)) for k in _DIFFERENCES}
+    return {**quantities, "tilt_time_constant_s": replace(tau, **flipped, prediction_share=rate.prediction_share)}
+
+
 def build_quantities(spec: ModelSpec, values: dict, formal: dict, camera_se: dict, undetermined: dict[str, Reason],
                      protocol: Protocol, prediction: Prediction | None, truth: dict[str, float]) -> dict[str, Quantity]:
     """The quantities of the scene, with theory and truth beside them.
@@ -194,7 +208,7 @@ def build_quantities(spec: ModelSpec, values: dict, formal: dict, camera_se: dic
             pull = _difference(name, q.value, tv) / q.standard_error if q.standard_error else None
             q = replace(q, truth=tv, pull=pull)
         out[name] = q
-    return out
+    return _time_constant_tested_as_rate(out)
 
 
 #: a truth whose fitted axis is within this of the vertical is level: its axis has no azimuth [rad]
@@ -260,4 +274,4 @@ def at_record_state(fit: FitResult, state_values: dict[str, tuple[float, float]]
             diff_exact_combined_se=diff / math.hypot(se, sd) if math.hypot(se, sd) > 0 else None,
             prediction_share=sd**2 / (se**2 + sd**2) if se or sd else None,
             note="; ".join(kept), theory_note=at_launch, prediction_at="record", exact_nominal=q.exact)
-    return replace(fit, quantities=quantities)
+    return replace(fit, quantities=_time_constant_tested_as_rate(quantities))

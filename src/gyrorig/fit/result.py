@@ -124,6 +124,8 @@ class NoteKind(StrEnum):
     #: an undamped scene's record whose precession and nutation rates change as a changing spin makes them: the
     #: rotor spins down (or up), which the protocol does not say
     SPIN_DOWN = "spin-down"
+    #: the record's still ends (a top held before its release, caught before the recording ends) left out
+    STILL_ENDS = "still-ends"
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+import pandas as pd
 from scipy.interpolate import CubicSpline
 
 from ..camera import Camera, CameraSetup
@@ -54,8 +55,26 @@ def _turns_with_rotor(m: Marker, protocol: Protocol) -> bool:
     return m.body == "rotor" or (m.body == "frame" and protocol.rig.frame_axial_inertia_kg_m2 is None)
 
 
-def marker_paths(protocol: Protocol, setup: CameraSetup, duration_s: float) -> MarkerPaths:
-    """Simulate the scene densely and build spline paths of every marker."""
+def _held_then_released(protocol: Protocol, t: np.ndarray, hold_s: float) -> pd.DataFrame:
+    """The simulator's angles at times ``t`` of a top held still by its frame for ``hold_s`` (its rotor spinning at
+    the launch's rate) and then released as the protocol launches it."""
+    free = t >= hold_s
+    t_free = t[free] - hold_s
+    df = simulate(protocol, t_eval_s=np.r_[0.0, t_free] if not len(t_free) or t_free[0] > 0 else t_free)
+    first = df.iloc[0]
+    rows = df.iloc[len(df) - len(t_free):]
+    n_held = int(np.count_nonzero(~free))
+    out = {}
+    for name in ("phi_rad", "theta_rad", "psi_rad", "psi_frame_rad", "tip_x", "tip_y", "tip_z"):
+        if name in df:
+            out[name] = np.r_[np.full(n_held, first[name]), rows[name].to_numpy()]
+    out["psi_rad"][:n_held] += protocol.launch.spin_rate_rad_s * (t[:n_held] - hold_s)
+    return pd.DataFrame(out)
+
+
+def marker_paths(protocol: Protocol, setup: CameraSetup, duration_s: float, hold_s: float = 0.0) -> MarkerPaths:
+    """Simulate the scene densely and build spline paths of every marker; ``hold_s``: the top held still before its
+    release for so long (the record's first ``hold_s`` of ``duration_s``)."""
     rig = protocol.rig
     nut_hz = abs(rig.inertia_axial_kg_m2 * protocol.launch.spin_rate_rad_s) / rig.inertia_transverse_kg_m2 / (2 * np.pi)
     rate = max(2000.0, 40.0 * nut_hz, 4.0 * setup.camera.fps)
@@ -64,7 +83,7 @@ def marker_paths(protocol: Protocol, setup: CameraSetup, duration_s: float) -> M
     pad = 2.0 / setup.camera.fps  # rolling-shutter rows and the last exposure reach past the last frame start
     n = int(math.ceil((duration_s + pad) * rate)) + 1
     t = np.arange(n) / rate
-    df = simulate(protocol, t_eval_s=t)
+    df = simulate(protocol, t_eval_s=t) if hold_s <= 0 else _held_then_released(protocol, t, hold_s)
     # a plain top has no separate frame: its "frame" markers turn with the rotor
     psi_frame = df["psi_frame_rad"] if "psi_frame_rad" in df else df["psi_rad"]
     rot = {"frame": euler_to_matrix(df.phi_rad.to_numpy(), df.theta_rad.to_numpy(), psi_frame.to_numpy()),

@@ -32,6 +32,7 @@ import pandas as pd
 from .. import _io
 from ..camera import camera_setup
 from ..protocols import Protocol, parse_protocol
+from .paths import marker_paths
 from .video import TRUTH_COLUMNS, render_frames
 
 __all__ = ["PhoneStyle", "PHOTOS", "render_phone_video", "photo_background"]
@@ -106,6 +107,8 @@ class PhoneStyle:
     #: the phone's rolling shutter: the time from its top row to its bottom one [s], which its user does not know
     #: (camera.json then says ``"shutter": "rolling"`` with ``readout_time_s`` null); 0: the scene's own shutter
     readout_s: float = 0.0
+    #: the phone records from before the release: the top held still (its rotor spinning) for so long first [s]
+    hold_s: float = 0.0
 
     def check(self) -> None:
         if self.photo is not None and self.photo not in PHOTOS:
@@ -142,6 +145,8 @@ class PhoneStyle:
                              "its frame interval)")
         if not 0.0 <= self.shake_roll_deg < 5.0:
             raise ValueError(f"shake_roll_deg = {self.shake_roll_deg}: allowed [0, 5) deg")
+        if not 0.0 <= self.hold_s < 1e3:
+            raise ValueError(f"hold_s = {self.hold_s}: allowed [0, 1000) s")
 
 
 #: FFmpeg's code of the BT.709 transfer characteristic (AVCOL_TRC_BT709)
@@ -336,6 +341,22 @@ def _gallery_frames(n: int, fps: float, style: PhoneStyle) -> tuple[np.ndarray, 
     return keep, np.arange(len(keep)) / float(style.container_fps)
 
 
+def _video_stream(container, style: PhoneStyle, cam):
+    """The output's video stream, as a phone's encoder sets it up: the codec, YUV 4:2:0 (4:4:4 for FFV1) at the
+    style's depth, a 90 kHz clock, the transfer curve stated."""
+    stream = container.add_stream(style.codec, rate=Fraction(round(cam.fps * 1000), 1000))
+    stream.width, stream.height = cam.width_px, cam.height_px
+    ten = style.bit_depth == 10
+    stream.pix_fmt = ("yuv420p10le" if ten else "yuv420p") if style.codec != "ffv1" else \
+        ("yuv444p10le" if ten else "yuv444p")
+    stream.time_base = stream.codec_context.time_base = Fraction(1, 90000)
+    if style.transfer == "bt709":
+        stream.codec_context.color_trc = _TRC_BT709
+    if style.codec != "ffv1":
+        stream.options = _encoder_options(style)
+    return stream
+
+
 def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path, *, style: PhoneStyle = PhoneStyle(),
                        seed: int = 0, duration_s: float | None = None) -> dict:
     """Render the scene (a protocol, or its dict, with ``[camera]`` and ``[markers]``) as a phone recording.
@@ -350,9 +371,11 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     style.check()
     rng = np.random.default_rng(seed)
     protocol = _coverage_protocol(scene, style.readout_s)
-    cam = camera_setup(protocol).camera
-    duration = protocol.scene.duration_s if duration_s is None else float(duration_s)
+    setup = camera_setup(protocol)
+    cam = setup.camera
+    duration = (protocol.scene.duration_s if duration_s is None else float(duration_s)) + style.hold_s
     n = int(math.floor(duration * cam.fps + 1e-9))
+    paths = marker_paths(protocol, setup, duration, style.hold_s)
     keep, t_store = _frame_times(n, cam.fps, style, rng)
     shake = _shake(style, rng)
     placed = rng.uniform(-style.photo_shift_px, style.photo_shift_px, 2)
@@ -372,19 +395,10 @@ def render_phone_video(scene: Mapping[str, Any] | Protocol, out_dir: str | Path,
     try:
         if photo is None:
             recording = _Recording(style.background_video, cam.width_px, cam.height_px, margin, style.video_start_s)
-        stream = container.add_stream(style.codec, rate=Fraction(round(cam.fps * 1000), 1000))
-        stream.width, stream.height = cam.width_px, cam.height_px
-        ten = style.bit_depth == 10
-        stream.pix_fmt = ("yuv420p10le" if ten else "yuv420p") if style.codec != "ffv1" else \
-            ("yuv444p10le" if ten else "yuv444p")
-        clock = Fraction(1, 90000)
-        stream.time_base = stream.codec_context.time_base = clock
-        if style.transfer == "bt709":
-            stream.codec_context.color_trc = _TRC_BT709
-        if style.codec != "ffv1":
-            stream.options = _encoder_options(style)
-        top = (1 << style.bit_depth) - 1
-        for k, (image, truth) in enumerate(render_frames(protocol, seed=seed, duration_s=duration, noise=False)):
+        stream = _video_stream(container, style, cam)
+        clock, ten, top = Fraction(1, 90000), style.bit_depth == 10, (1 << style.bit_depth) - 1
+        frames = render_frames(protocol, seed=seed, duration_s=duration, noise=False, setup=setup, paths=paths)
+        for k, (image, truth) in enumerate(frames):
             if k not in kept:
                 records.extend(truth.itertuples(index=False, name=None))
                 continue

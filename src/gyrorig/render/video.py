@@ -116,8 +116,11 @@ def open_writer(path: Path, cam: Camera, codec: str) -> cv2.VideoWriter:
 
 def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, codec: str = "lossless",
                  duration_s: float | None = None, calibration_views: int = 12,
-                 progress: Callable[[int, int], None] | None = None) -> dict:
+                 progress: Callable[[int, int], None] | None = None, hold_s: float = 0.0) -> dict:
     """Render the protocol's scene to ``out_dir``: video, ``truth.csv``, ``camera.json``, ``calibration/``.
+
+    ``hold_s``: the top held still by its frame (the rotor spinning) for so long before its release, as a phone
+    records from before it: the video is ``hold_s`` longer than the scene's duration, its times from its first frame.
 
     Returns a summary (paths, frame count, timings).  The video is written under a
     temporary name and renamed only when complete; on any error nothing is left
@@ -132,10 +135,12 @@ def render_video(protocol: Protocol, out_dir: str | Path, *, seed: int = 0, code
                          "(FFV1 keeps 16 bits)")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    duration = protocol.scene.duration_s if duration_s is None else float(duration_s)
+    if not (math.isfinite(hold_s) and hold_s >= 0):
+        raise ValueError(f"hold_s = {hold_s!r}: the time the top is held before its release, allowed >= 0 s")
+    duration = (protocol.scene.duration_s if duration_s is None else float(duration_s)) + hold_s
     n_frames = int(math.floor(duration * cam.fps + 1e-9))
     start = time.perf_counter()
-    paths = marker_paths(protocol, setup, duration)
+    paths = marker_paths(protocol, setup, duration, hold_s)
     t_sim = time.perf_counter() - start
     name = {"lossless": "video.mkv", "mp4": "video.mp4", "raw": "video.avi"}[codec]
     tmp = out / f".{name}.partial{Path(name).suffix}"
