@@ -1,4 +1,4 @@
-"""A record's still ends (:mod:`gyrorig.fit.still`): a phone records the top held by hand before its release and caught
+"""A record's still ends (:mod:`gyrorig.stillness`): a phone records the top held by hand before its release and caught
 after it; the fit leaves those frames out, and nothing out of a record that moves throughout."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from gyrorig.fit import NoteKind, fit_angles
-from gyrorig.fit.still import still_ends
+from gyrorig.stillness import angle_still_ends
 from gyrorig.physics.simulate import simulate
 from gyrorig.protocols import AirDamping, Pivot, load_protocol
 from gyrorig.theory import predict
@@ -97,12 +97,12 @@ def test_a_record_that_moves_throughout_has_no_still_ends(name, protocol):
             for sigma in (SIGMA_RAD, 10 * SIGMA_RAD):
                 a = _table(motion.theta_rad.to_numpy(), motion.phi_rad.to_numpy(), motion.t_s.to_numpy(),
                            np.random.default_rng(seed), sigma)
-                found = still_ends(a.t_s.to_numpy(), a.theta_rad.to_numpy(), a.phi_rad.to_numpy(),
+                found = angle_still_ends(a.t_s.to_numpy(), a.theta_rad.to_numpy(), a.phi_rad.to_numpy(),
                                    a.theta_sigma_rad.to_numpy(), a.phi_sigma_rad.to_numpy())
                 assert not found.any, (rate, seed, sigma)
                 gap = (a.t_s < 0.03) | (a.t_s > 0.53)
                 b = a[gap]
-                found = still_ends(b.t_s.to_numpy(), b.theta_rad.to_numpy(), b.phi_rad.to_numpy(),
+                found = angle_still_ends(b.t_s.to_numpy(), b.theta_rad.to_numpy(), b.phi_rad.to_numpy(),
                                    b.theta_sigma_rad.to_numpy(), b.phi_sigma_rad.to_numpy())
                 assert not found.any, (rate, seed, sigma, "gap")
 

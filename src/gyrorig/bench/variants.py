@@ -37,6 +37,8 @@ of the frames dropped; the user's camera.json has no sensor numbers), 1280x720 a
   moves runs of B pictures alike by about 0.2 px);
 - ``phone-30fps``: ``coffee``, HEVC, at 30 fps (most phones' default rate: the heavy top's nod moves the tip by up to
   three of its radii between frames), eight times as long, so that it holds as many frames as the others;
+- ``phone-held``: ``coffee`` standing still (a phone on a tripod), HEVC, the top held still for 0.5 s before its release
+  (the phone records from before it), the clip that much longer;
 - ``phone-video`` (only with a recording given, ``--background-video``): a real recording plays behind the rig at
   its own speed, as it was exposed (hands, people, their own sensor noise and codec), HEVC; e.g. OpenCV's sample
   clips (Debian's ``opencv-doc``: ``box.mp4``, ``cup.mp4`` of a hand over a white table, ``vtest.avi``).
@@ -77,6 +79,7 @@ PHONE_VARIANTS = {
     "phone-camera-ippp": (dict(photo="camera", codec="libx265", b_frames=0), {}),
     "phone-brick-crf32": (dict(photo="brick", codec="libx264", crf=32), {}),
     "phone-30fps": (dict(photo="coffee", codec="libx265"), {}),
+    "phone-held": (dict(photo="coffee", codec="libx265", drift_px_per_s=0.0, hold_s=0.5), {}),
     "phone-video": (dict(photo=None, codec="libx265", background_level=1.0, drift_px_per_s=0.0), {}),
 }
 #: variants that need a recording to play behind the rig (``background_video``)

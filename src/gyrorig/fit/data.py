@@ -11,7 +11,7 @@ import pandas as pd
 from ..smooth import measurement_covariance
 from ..tables import camera_mode_columns, camera_mode_count, camera_mode_prior_column, missing_columns
 from .constraints import Constraints
-from .still import StillEnds, still_ends
+from ..stillness import StillEnds, angle_still_ends
 
 __all__ = ["FitError", "FitConvergenceError", "FitData", "fit_data_from_angles", "FIT_REQUIRED"]
 
@@ -64,7 +64,7 @@ class FitData:
     #: (:class:`~gyrorig.fit.terms.RollingShutter`); None when the table does not have it
     row_fraction: np.ndarray | None = None
     #: the record's still ends left out (a top held before its release, caught before the recording ends:
-    #: :mod:`gyrorig.fit.still`); None when they were not looked for
+    #: :mod:`gyrorig.stillness`); None when they were not looked for
     still: StillEnds | None = None
 
     @property
@@ -170,7 +170,7 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
                          precession_hint_rad_s: float | None = None, constraints: Constraints | None = None, *,
                          leave_out_still_ends: bool = False) -> FitData:
     """The measured frames of an angle table (:mod:`gyrorig.tables`), minus ``exclude`` (e.g. the
-    smoother's outliers) and, with ``leave_out_still_ends``, minus the record's still ends (:mod:`gyrorig.fit.still`:
+    smoother's outliers) and, with ``leave_out_still_ends``, minus the record's still ends (:mod:`gyrorig.stillness`:
     a top held before its release).  A gap longer than half a precession period (``precession_hint_rad_s``)
     starts a new azimuth segment."""
     missing = missing_columns(angles, FIT_REQUIRED)
@@ -201,12 +201,11 @@ def fit_data_from_angles(angles: pd.DataFrame, exclude: np.ndarray | None = None
         raise FitError("t_s must be finite and non-decreasing")
     still = None
     if leave_out_still_ends:
-        still = still_ends(t, theta, a["phi_rad"].to_numpy(float), sth, sph)
+        still = angle_still_ends(t, theta, a["phi_rad"].to_numpy(float), sth, sph)
         if still.any:
             if int(still.keep.sum()) < 10:
                 raise FitError(f"only {int(still.keep.sum())} frames lie between the record's still ends (the tip "
-                               f"still for its first {still.head_s:.3g} s and last {still.tail_s:.3g} s); a fit needs "
-                               "at least 10")
+                               "held still before its release, or caught at the end); a fit needs at least 10")
             a, cov, t = a.loc[still.keep], cov[still.keep], t[still.keep]
     frame = a["frame"].to_numpy() if "frame" in a.columns else np.arange(len(a))
     segment = np.zeros(len(a), int)

@@ -87,21 +87,19 @@ def _limb_note(angles: pd.DataFrame) -> list[Note]:
 
 
 def _still_note(data: FitData) -> list[Note]:
-    """A note when the record's still ends were left out (:mod:`gyrorig.fit.still`)."""
+    """A note when the record's still ends were left out (:mod:`gyrorig.stillness`)."""
     still = data.still
     if still is None or not still.any:
         return []
     parts = []
-    if still.head_frames:
-        parts.append(f"for the record's first {still.head_s:.3g} s ({still.head_frames} frames: the top held before its "
-                     "release?)")
-    if still.tail_frames:
-        parts.append(f"for the record's last {still.tail_s:.3g} s ({still.tail_frames} frames: the top caught, or at rest "
-                     "against a stop?)")
-    text = (f"the tip stayed within {math.degrees(still.radius_rad):.2g} deg of one place "
-            + " and ".join(parts) + f", where elsewhere it stays at most {still.dwell_s:.2g} s: not the scene's "
-            f"motion, left out; the fit's frames run from t = {data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s (--start "
-            "and --end choose the span yourself)")
+    for end, which, why in ((still.head, "first", "the top held before its release?"),
+                            (still.tail, "last", "the top caught, or at rest against a stop?")):
+        if end is not None:
+            parts.append(f"within {math.degrees(end.radius):.2g} deg of one place for the {which} "
+                         f"{end.duration_s:.3g} s of the record's angles ({end.frames} frames: {why}), where elsewhere "
+                         f"it stays at most {end.dwell_s:.2g} s")
+    text = (f"the tip stayed {' and '.join(parts)}: not the scene's motion, left out; the fit's frames run from t = "
+            f"{data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s (--start and --end choose the span yourself)")
     return [Note(NoteKind.STILL_ENDS, text)]
 
 

@@ -117,6 +117,9 @@ class SigmaCheck:
     #: frames whose errors were widened after the check by a second view of the scene under the tip's edge
     #: (:func:`~gyrorig.tracking.scene_spot.near_ring_move`)
     scene_frames: int = 0
+    #: frames of the record's still ends (the top held before its release, caught at the end:
+    #: :mod:`gyrorig.stillness`) left out of the check
+    still_frames: int = 0
 
     def as_dict(self) -> dict:
         return {"factor": self.factor, "factor_se": self.factor_se, "coordinates": self.coordinates,
@@ -129,7 +132,7 @@ class SigmaCheck:
                 "shared_px": self.shared_px, "shared_px_se": self.shared_px_se,
                 "omega_rad_s": None if math.isnan(self.omega_rad_s) else self.omega_rad_s,
                 "local_frames": self.local_frames, "local_max_factor": self.local_max_factor,
-                "scene_frames": self.scene_frames}
+                "scene_frames": self.scene_frames, "still_frames": self.still_frames}
 
 
 def check_summary(check: dict) -> str:
@@ -142,6 +145,8 @@ def check_summary(check: dict) -> str:
                f"{check['local_max_factor']:.3g}x); " if local else "")
             + (f"widened in {check['scene_frames']} frame(s) where the scene under the tip's edge is not as its "
                "ring shows; " if check.get("scene_frames") else "")
+            + (f"{check['still_frames']} frame(s) of the tip held still at an end of the record left out of it; "
+               if check.get("still_frames") else "")
             + f"{check['outliers']} outlier frame(s)")
 
 

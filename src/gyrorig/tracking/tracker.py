@@ -39,6 +39,7 @@ import pandas as pd
 from .. import _io
 from ..markers import Marker, MarkerSet, parse_markers
 from ..protocols import Protocol, ProtocolError
+from ..stillness import still_ends
 from ..tables import camera_mode_count, camera_mode_prior_column
 from ..camera import Camera
 from .detect import detection_threshold, opening_size_px
@@ -186,7 +187,11 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
     # an error the same for every frame: a lossy codec's, or any recording's whose pixels no sensor model describes
     # (frames exported losslessly from a phone's video keep its codec's errors but not its codec's name)
     floor = lossy or not math.isfinite(camera.gain_e_per_adu)
-    path = (angles.t_s.to_numpy()[index], angles.frame.to_numpy()[index], np.array([rows.tip_px[r] for r in index]))
+    t, xy = angles.t_s.to_numpy()[index], np.array([rows.tip_px[r] for r in index])
+    # a still end (the top held before its release) scatters as the codec leaves a still picture, not as the motion's
+    # frames do: left out of the check, its frames take the errors the moving ones' check gives
+    still = still_ends(t, xy, np.sqrt(var[:, 0] + var[:, 1]))
+    path = (t, angles.frame.to_numpy()[index], np.where(still.keep[:, None], xy, np.nan))
     check = check_sigmas(*path, var, classes, floor=floor, min_factor=1.0 if doubts else 0.0, groups=runs,
                          follow_motion=True, largest_error_px=largest_error_px)
     if not math.isfinite(check.factor):
@@ -209,7 +214,7 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
         if np.mean(larger) > 0.5:
             check, factors = replace(free, outliers=check.outliers), factors_free
     if doubts:  # and stretch by stretch: the record's errors change along it (module scatter's local_factors)
-        kept = ~np.isin(np.arange(len(index)), check.outliers)
+        kept = ~np.isin(np.arange(len(index)), check.outliers) & still.keep
         local = local_factors(*path, scale[:, None] ** 2 * var + added[:, None], kept, check.omega_rad_s)
         scale, added = scale * local, added * local**2
         check = replace(check, local_frames=int(np.sum(local > 1.0)), local_max_factor=float(local.max()))
@@ -222,7 +227,8 @@ def _check_and_scale(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRow
     bad = index[list(check.outliers)]
     if len(bad):
         drop_tip(rows, angles, markers, bad, "outlier", tip_name=tip_name)
-    return replace(check, applied=bool(factors), applied_factors=factors, reason=reason)
+    return replace(check, applied=bool(factors), applied_factors=factors, reason=reason,
+                   still_frames=int(np.count_nonzero(~still.keep)))
 
 
 def _harmonic_scaled(angles: pd.DataFrame, markers: pd.DataFrame, rows: TrackRows, index: np.ndarray, path: tuple,
@@ -434,7 +440,6 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
                 frame_types[index] = frames.frame_types[k]
             if repeated.repeats(frame):
                 rows.angles.append(empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
-                rows.seen = []
                 k += 1
                 continue
             raw, frame = frame, appearance.lazy(frame)
