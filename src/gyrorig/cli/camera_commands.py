@@ -181,7 +181,8 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
         fitted = cam if pose.camera_matrix is None else replace(cam, camera_matrix=pose.camera_matrix)
         pose = fix_azimuth(pose, fitted, mark)
     sd = np.sqrt(np.diag(pose.covariance))
-    print(f"pose from the tip's motion in {video}: {pose.frames} frames, chi2_red {pose.chi2_red:.3g}, nutation "
+    held = f" (and {pose.still_frames} of the tip held still at an end, left out)" if pose.still_frames else ""
+    print(f"pose from the tip's motion in {video}: {pose.frames} frames{held}, chi2_red {pose.chi2_red:.3g}, nutation "
           f"{pose.nutation_frequency_rad_s:.5g} rad/s; rotation sd {np.degrees(np.linalg.norm(sd[:3])):.3g} deg, "
           f"position sd {np.linalg.norm(sd[3:]) * 1e3:.3g} mm, depth scale sd {pose.depth_scale_sd_rel:.2%}")
     if pose.focal_scale_sd > 0:

@@ -8,7 +8,8 @@ jointly with a model of the motion, in pixels:
     theta(t) = theta_0 [+ theta_1 t]                 + sum_k c_k cos(k w t) + s_k sin(k w t)
     phi(t)   = Omega t [+ Omega_1 t^2]               + sum_k d_k cos(k w t) + e_k sin(k w t)
 
-with ``t`` from the first tracked frame, ``w`` the nutation frequency and ``K`` harmonics.  What
+with ``t`` from the first tracked frame of the motion (the record's still ends, a top held before its release, are
+left out: :mod:`gyrorig.stillness`), ``w`` the nutation frequency and ``K`` harmonics.  What
 this assumes, and what it fixes:
 
 - **the vertical** is the axis about which the slow motion is a steady precession: true for a
@@ -45,6 +46,7 @@ from scipy.signal import lombscargle
 
 from ..geometry import angles_from_tip, same_rotation_near
 from ..protocols import Protocol
+from ..stillness import still_ends
 from ..camera import Camera
 from .errors import TrackingError
 from .rays import pixel_rays, tips_from_pixels
@@ -91,6 +93,9 @@ class MotionPose:
     #: with the focal length fitted: the camera matrix and the intrinsics' covariance it gives (else None)
     camera_matrix: np.ndarray | None = None
     intrinsics: tuple[tuple[str, ...], np.ndarray] | None = None
+    #: frames of the record's still ends (the top held before its release, caught at the end:
+    #: :mod:`gyrorig.stillness`) left out of the fit
+    still_frames: int = 0
 
     def camera_fields(self, video: str) -> dict:
         """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose).
@@ -110,12 +115,13 @@ class MotionPose:
         return {**intrinsics, "rvec": self.rvec.tolist(), "tvec": self.tvec.tolist(),
                 "pose_covariance": self.covariance.tolist(),
                 "pose_source": {
-                    "method": "the tip's motion", "video": video, "frames": self.frames, "chi2_red": self.chi2_red,
+                    "method": "the tip's motion", "video": video, "frames": self.frames,
+                    "still_frames": self.still_frames, "chi2_red": self.chi2_red,
                     "sigma_rvec_rad": sd[:3].tolist(), "sigma_tvec_m": sd[3:].tolist(),
                     "depth_scale_sd_rel": self.depth_scale_sd_rel,
                     "nutation_frequency_rad_s": self.nutation_frequency_rad_s,
                     "azimuth_origin": (self.azimuth_mark["origin"] if self.azimuth_mark else
-                                       "phi's slow (precession) part is 0 at the first tracked frame"),
+                                       "phi's slow (precession) part is 0 at the first tracked frame of the motion"),
                     **({"azimuth_mark": self.azimuth_mark} if self.azimuth_mark else {}),
                     **({"video_fingerprint": self.video_fingerprint} if self.video_fingerprint else {}),
                     **focal,
@@ -252,6 +258,9 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
     sig = np.asarray(sigma_px, float).reshape(-1, 2)
     good = np.all(np.isfinite(xy), axis=1) & np.all(sig > 0, axis=1) & np.isfinite(t)
     t, xy, sig = t[good], xy[good], sig[good]
+    # the record's still ends (the top held before its release, caught at the end) are not the motion's
+    moving = still_ends(t, xy, np.hypot(sig[:, 0], sig[:, 1])).keep
+    t, xy, sig = t[moving], xy[moving], sig[moving]
     if len(t) < MIN_FRAMES:
         raise TrackingError(f"the tip was tracked in {len(t)} frames; the pose from the motion needs {MIN_FRAMES}")
     theta, phi = angles_from_tip(tips_from_pixels(xy, start, length_m))
@@ -289,7 +298,8 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
     return MotionPose(sol.x[:3].copy(), sol.x[3:6].copy(), cov_pose, chi2_red, len(t),
                       float(abs(model.split(sol.x)[4])), slow_terms, depth_sd,
                       focal_scale=float(sol.x[-1]) if focal else 0.0,
-                      focal_scale_sd=float(np.sqrt(max(cov[-1, -1], 0.0))) if focal else 0.0)
+                      focal_scale_sd=float(np.sqrt(max(cov[-1, -1], 0.0))) if focal else 0.0,
+                      still_frames=int(np.count_nonzero(~moving)))
 
 
 def _profile_depth_sd(resid, x: np.ndarray, chi2: float, scale: float) -> float:
