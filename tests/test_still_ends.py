@@ -89,8 +89,8 @@ def _scenes():
 @pytest.mark.parametrize("name, protocol", _scenes())
 def test_a_record_that_moves_throughout_has_no_still_ends(name, protocol):
     """Every bundled scene (and a rotor spinning down 10 times faster than the rig's air drag, its precession
-    speeding up 1.8 times over the 6 s record), at 30, 100 and 240 frames/s, at two noise levels and three seeds: nothing left
-    out.  Nor when the tip is lost for 0.5 s right after the first frames (the gap is not a still time)."""
+    speeding up 1.8 times over the 6 s record), at 30, 100 and 240 frames/s, at two noise levels and three seeds:
+    nothing left out.  Nor when the tip is lost for 0.5 s right after the first frames (the gap is not a still time)."""
     for rate in (30.0, 100.0, 240.0):
         motion = simulate(protocol, duration_s=6.0, rate_hz=rate)
         for seed in range(3):

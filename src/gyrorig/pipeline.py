@@ -147,7 +147,8 @@ def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, e
     rotor, frame = _axial_rates_at(protocol, t0)
 
     def values(s: dict[str, float]) -> dict[str, float]:
-        # a launch's spin rates are psi' (the rotor's, a gyrostat frame's): their rates about the axis less phi' cos(theta)
+        # a launch's spin rates are psi' (the rotor's, a gyrostat frame's): their rates about the axis less
+        # phi' cos(theta)
         turn = s["precession_rate_rad_s"] * math.cos(s["tilt_rad"])
         launch = replace(protocol.launch, **s, spin_rate_rad_s=rotor - turn)
         if frame is not None:

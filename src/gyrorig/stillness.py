@@ -2,8 +2,9 @@
 stop) before the recording ends.  A phone records from before the release to after the catch; those frames are not
 the scene's motion: fitted with it they make every quantity wrong (:mod:`gyrorig.fit.data` leaves them out), and a
 tracker's error check that takes their scatter for the motion's makes the moving frames' errors too small
-(:mod:`gyrorig.tracking.tracker` leaves them out of it).  The tip's places are points in any space: its directions
-(unit vectors: distances are angles) or its image's pixels.
+(:mod:`gyrorig.tracking.tracker` leaves them out of it), as does the pose's fit to the motion
+(:mod:`gyrorig.tracking.motion_pose`).  The tip's places are points in any space: its directions (unit vectors:
+distances are angles) or its image's pixels.
 
 The tip is *still* while it stays within a radius of one place: two radii are tried (:func:`still_radii`), one of
 the frames' noise (a top held in a clamp, or the few frames a tracker gives back from before the motion it acquired
@@ -23,17 +24,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["StillEnd", "StillEnds", "still_ends", "angle_still_ends", "still_radii", "STILL_FACTOR", "STILL_MIN_FRAMES", "STILL_RADIUS_SIGMAS",
-           "STILL_RADIUS_EXTENT"]
+__all__ = ["StillEnd", "StillEnds", "still_ends", "angle_still_ends", "still_radii", "STILL_FACTOR", "STILL_MIN_FRAMES",
+           "STILL_RADIUS_SIGMAS", "STILL_RADIUS_EXTENT"]
 
 #: a still end is left out when it lasts this many times the longest dwell in the rest of the record
 STILL_FACTOR = 4.0
 #: ... and holds at least this many frames
 STILL_MIN_FRAMES = 5
-#: the still radius: at least this many of the frames' median angular error (the noise alone does not carry a still
-#: tip out of it) ...
+#: the still radii: this many of the frames' median error (the noise alone does not carry a still tip out of it) ...
 STILL_RADIUS_SIGMAS = 5.0
-#: ... and at least this fraction of the motion's extent (a hand's tremor, a fraction of a degree, stays within it)
+#: ... and this fraction of the motion's extent where larger (a hand's tremor, a fraction of a degree, stays within it)
 STILL_RADIUS_EXTENT = 0.05
 #: frames at each end whose median is the place a still end is measured from
 _END_FRAMES = 5

@@ -64,7 +64,8 @@ class TrackRows:
         #: (:func:`~gyrorig.tracking.scene_spot.near_ring_move`; a recording's sphere in the luma only)
         self.scene_var: dict[int, np.ndarray] = {}
         self.psi: dict[int, tuple[float, float]] = {}
-        #: the frames the follower saw (a duplicate frame is not shown it), latest last: (row, index, t_frame, threshold)
+        #: the frames the follower saw (a duplicate frame is not shown it), latest last:
+        #: (row, index, t_frame, threshold)
         self.seen: list[tuple[int, int, float, Detection]] = []
         #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
         self.others: tuple | None = ()
