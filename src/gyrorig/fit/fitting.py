@@ -86,18 +86,42 @@ def _limb_note(angles: pd.DataFrame) -> list[Note]:
                  "above")]
 
 
-def _still_note(data: FitData) -> list[Note]:
-    """A note when the record's still ends were left out (:mod:`gyrorig.stillness`)."""
+#: frames between a still end and the free motion (the hand letting the top go, or catching it) are left out where
+#: the first fit leaves them beyond this many of their errors, in a run from the still end of at most this share of
+#: the frames (a longer run is a misfit of the whole record, not a hand's)
+TRANSITION_Z, TRANSITION_MAX_SHARE = 5.0, 0.1
+
+
+def _transition_frames(sol: Solution, data: FitData) -> tuple[int, int]:
+    """How many frames next to the still head and tail (:mod:`gyrorig.stillness`) are the hand's, not the free
+    motion's (:data:`TRANSITION_Z`, :data:`TRANSITION_MAX_SHARE`)."""
+    still = data.still
+    if still is None or not still.any:
+        return 0, 0
+    z = np.max(np.abs(Residuals(FitModel(sol.spec), data)(sol.x)[:2 * data.n].reshape(2, -1)), axis=0)
+    off = z > TRANSITION_Z
+
+    def run(flags: np.ndarray) -> int:
+        k = len(flags) if flags.all() else int(np.argmin(flags))
+        return k if k <= TRANSITION_MAX_SHARE * len(flags) else 0
+    return (run(off) if still.head else 0), (run(off[::-1]) if still.tail else 0)
+
+
+def _still_note(data: FitData, hand: tuple[int, int]) -> list[Note]:
+    """A note when the record's still ends were left out (:mod:`gyrorig.stillness`), with the ``hand`` frames after
+    the head and before the tail (:func:`_transition_frames`)."""
     still = data.still
     if still is None or not still.any:
         return []
     parts = []
-    for end, which, why in ((still.head, "first", "the top held before its release?"),
-                            (still.tail, "last", "the top caught, or at rest against a stop?")):
+    for end, which, why, k in ((still.head, "first", "the top held before its release?", hand[0]),
+                               (still.tail, "last", "the top caught, or at rest against a stop?", hand[1])):
         if end is not None:
             parts.append(f"within {math.degrees(end.radius):.2g} deg of one place for the {which} "
                          f"{end.duration_s:.3g} s of the record's angles ({end.frames} frames: {why}), where elsewhere "
-                         f"it stays at most {end.dwell_s:.2g} s")
+                         f"it stays at most {end.dwell_s:.2g} s" + (
+                             f" (and the {k} frames {'after' if which == 'first' else 'before'} it, beyond "
+                             f"{TRANSITION_Z:g} of their errors from the motion: the hand's)" if k else ""))
     text = (f"the tip stayed {' and '.join(parts)}: not the scene's motion, left out; the fit's frames run from t = "
             f"{data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s (--start and --end choose the span yourself)")
     return [Note(NoteKind.STILL_ENDS, text)]
@@ -218,7 +242,16 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
     constraints = constraints or Constraints()
     data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints, leave_out_still_ends=True)
     sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
-    notes = _still_note(data) + notes
+    hand = _transition_frames(sol, data)
+    if any(hand):  # the frames between a still end and the free motion left out too, and the model chosen again
+        drop = np.zeros(data.n, bool)
+        drop[:hand[0]] = drop[data.n - hand[1]:] = True
+        gone = np.isin(angles["t_s"].to_numpy(float), data.t_s[drop])
+        exclude = gone if exclude is None else np.asarray(exclude, bool) | gone
+        data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints,
+                                    leave_out_still_ends=True)
+        sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
+    notes = _still_note(data, hand) + notes
     if data.camera_prior is not None and sol.spec.camera_modes and np.any(data.camera_prior == 0.0):
         # a pose found from these frames: its modes' priors less what the frames hold, the chosen model refitted
         data = replace(data, camera_prior_root=shared_pose_prior_root(sol.spec, sol.x, data))
@@ -414,6 +447,7 @@ def state_values(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, motio
     record's frames with its weights (:func:`gyrorig.fit.quantities.truth_values`): what this estimator gives for
     that motion."""
     scene = model_for_scene(protocol, prediction)
-    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, fit.constraints,
-                                leave_out_still_ends=True)
+    unused = ~angles["t_s"].isin(fit.residuals.t_s).to_numpy()  # the fit's own frames (still ends and the hand's out)
+    data = fit_data_from_angles(angles, unused if exclude is None else np.asarray(exclude, bool) | unused,
+                                scene.precession_hint_rad_s, fit.constraints)
     return truth_values(motion, data, fit.spec, fit.x)
