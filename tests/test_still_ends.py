@@ -139,3 +139,20 @@ def test_a_rendered_record_of_a_top_held_before_its_release_is_analysed_from_the
             assert abs(q.pull) < 4, (q.name, q.pull)
         if q.diff_exact_combined_se is not None:
             assert abs(q.diff_exact_combined_se) < 4, (q.name, q.diff_exact_combined_se)
+
+
+def test_the_fit_plot_shows_the_fitted_motion_of_a_record_held_before_its_release():
+    """The fit's figure zooms on the first second: of the tracked frames, it showed only the held second, without the
+    fitted curve.  It now zooms on the first second the fit describes (the curve drawn there), and the overview
+    shades the held second as left out of the fit."""
+    from gyrorig.report.plots import plot_fit
+
+    p = load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")
+    _, record = _with_still_ends(simulate(p, duration_s=4.0, rate_hz=100.0), 1.0, 0.0, 100.0, seed=1)
+    fit = fit_angles(record, p)
+    fig = plot_fit(record, None, fit)
+    overview, zoom = fig.axes[0], fig.axes[1]
+    curve = [line for line in zoom.get_lines() if line.get_label() == "fit"][0]
+    assert len(curve.get_xdata()) > 0 and min(curve.get_xdata()) >= 1.0
+    shaded = [patch for patch in overview.patches if patch.get_label() == "left out of the fit"]
+    assert len(shaded) == 1

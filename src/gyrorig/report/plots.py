@@ -177,20 +177,25 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
     ok = np.isfinite(angles.theta_rad.to_numpy())
     curve = fit.model_curve
     th_deg = np.degrees(angles.theta_rad.to_numpy())
-    t0 = t[ok][0] if ok.any() else 0.0
+    fitted = fit.residuals.t_s.to_numpy()
+    t0 = fitted[0] if len(fitted) else (t[ok][0] if ok.any() else 0.0)  # the zoom starts where the fit does
     for ax, zoom in ((axes[0, 0], False), (axes[0, 1], True)):
-        sel = ok & ((t <= t0 + 1.0) if zoom else True)
+        sel = ok & (((t >= t0) & (t <= t0 + 1.0)) if zoom else True)
         csel = (curve.t_s <= t0 + 1.0) if zoom else np.ones(len(curve), bool)
         ax.plot(t[sel], th_deg[sel], ".", ms=2 if not zoom else 4, color="0.5", label="tracked")
         if smoothed is not None:
-            ssel = (smoothed.t_s <= t0 + 1.0) if zoom else np.ones(len(smoothed), bool)
+            ssel = ((smoothed.t_s >= t0) & (smoothed.t_s <= t0 + 1.0)) if zoom else np.ones(len(smoothed), bool)
             ax.plot(smoothed.t_s[ssel], np.degrees(smoothed.theta_rad[ssel]), lw=0.6, color="C0",
                     label="smoothed (Kalman/RTS)")
             out = (smoothed.status.to_numpy() == "outlier") & sel
             if out.any():
                 ax.plot(t[out], th_deg[out], "rx", ms=5, label="outlier (gated)")
         ax.plot(curve.t_s[csel], np.degrees(curve.theta_rad[csel]), lw=0.8, color="C1", label="fit")
-        ax.set(xlabel="t [s]", ylabel="tilt theta [deg]", title="tilt, first second" if zoom else "tilt")
+        if not zoom and len(fitted) and ok.any():  # the record's ends the fit left out (a top held still, caught)
+            spans = [(lo, hi) for lo, hi in ((t[ok][0], fitted[0]), (fitted[-1], t[ok][-1])) if hi > lo]
+            for k, (lo, hi) in enumerate(spans):
+                ax.axvspan(lo, hi, color="0.85", zorder=0, label=None if k else "left out of the fit")
+        ax.set(xlabel="t [s]", ylabel="tilt theta [deg]", title="tilt, first second fitted" if zoom else "tilt")
         # below the axes: inside, the legend hides the oscillation it labels
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=4, frameon=False)
     ax = axes[1, 0]
