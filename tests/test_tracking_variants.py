@@ -200,7 +200,8 @@ def test_a_path_of_sinusoids_checks_the_errors_where_the_neighbours_cannot_follo
     the errors went unchecked (on the phone-30fps variant pull SDs 1.26/1.44).  A path of sinusoids over the whole
     record follows it: 0.1 px of noise against 0.05 reported gives the factor 2, and against 0.1 the factor 1,
     each within 4 of its standard errors (1 / sqrt(2 N), N coordinates); a frame 1.5 px off (15 sigma) is an
-    outlier and no other frame is.  B pictures with twice the noise of the rest are told apart by class."""
+    outlier and no other frame is, also with the first 30 frames given no position (a still end left out of the
+    check: they made every residual NaN).  B pictures with twice the noise of the rest are told apart by class."""
     rng = np.random.default_rng(21)
     t, xy = _nod_at_30_frames_per_second(rng)
     frames = np.round(t * 30).astype(int)
@@ -211,6 +212,11 @@ def test_a_path_of_sinusoids_checks_the_errors_where_the_neighbours_cannot_follo
         h = harmonic_check(t, frames, noisy, np.full(xy.shape, reported**2))
         assert h.follows and h.outliers == (100,), (h.residual_acf, h.outliers)
         assert abs(h.factor - expected) < 4 * h.factor_se, (h.factor, h.factor_se)
+    # frames left out of the check (a still end's: no position given) are neither fitted nor outliers
+    held = noisy.copy()
+    held[:30] = np.nan
+    h = harmonic_check(t, frames, held, np.full(xy.shape, 0.1**2))
+    assert h.follows and h.outliers == (100,) and abs(h.factor - 1.0) < 4 * h.factor_se, (h.outliers, h.factor)
     b = np.arange(len(t)) % 4 != 0  # three B pictures to a reference picture
     noisy = xy + rng.normal(0, 1, xy.shape) * np.where(b, 0.2, 0.1)[:, None]
     h = harmonic_check(t, frames, noisy, np.full(xy.shape, 0.01), np.where(b, "B", "ref"))

@@ -107,7 +107,7 @@ def smooth_and_fit(angles: pd.DataFrame, protocol: Protocol, *, prediction: Pred
         fit = replace(fit, notes=fit.notes + (note,))
     if fit.spec.damped:
         say("theory at the record's own state (the simulator from its fitted first frame) ...")
-    fit = _at_record_state(fit, angles, protocol, exclude, prediction)
+    fit = _at_record_state(fit, angles, protocol, prediction)
     return Fitted(smooth, prediction, fit, {"smooth": t1 - t0, "fit": time.perf_counter() - t1})
 
 
@@ -130,8 +130,7 @@ def _outliers_by_fit(angles: pd.DataFrame, protocol: Protocol, prediction: Predi
     return exclude, Note(NoteKind.OUTLIERS_BY_FIT, text)
 
 
-def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, exclude: np.ndarray,
-                     prediction: Prediction) -> FitResult:
+def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, prediction: Prediction) -> FitResult:
     """A damped record compared with theory at its own state: the simulator launched from the fitted motion at the
     record's first frame (tilt, azimuth and their rates; the rotor's and a gyrostat frame's rates about the axis as
     the protocol's launch at the record's time 0 gives them then: :func:`_axial_rates_at`), over the record's frames,
@@ -154,8 +153,7 @@ def _at_record_state(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, e
         if frame is not None:
             launch = replace(launch, frame_spin_rate_rad_s=frame - turn)
         motion = simulate(replace(protocol, launch=launch), t_eval_s=t)
-        return state_values(fit, angles, protocol, motion.assign(t_s=motion.t_s + t0), exclude=exclude,
-                            prediction=prediction)
+        return state_values(fit, angles, protocol, motion.assign(t_s=motion.t_s + t0), prediction=prediction)
 
     try:
         v0 = values(state)

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import tip_from_angles
+
 __all__ = ["StillEnd", "StillEnds", "still_ends", "angle_still_ends", "still_radii", "STILL_FACTOR", "STILL_MIN_FRAMES",
            "STILL_RADIUS_SIGMAS", "STILL_RADIUS_EXTENT"]
 
@@ -155,6 +157,5 @@ def still_ends(t_s: np.ndarray, points: np.ndarray, error: np.ndarray) -> StillE
 def angle_still_ends(t_s: np.ndarray, theta_rad: np.ndarray, phi_rad: np.ndarray, theta_sigma_rad: np.ndarray,
                      phi_sigma_rad: np.ndarray) -> StillEnds:
     """:func:`still_ends` of an angle table's frames: the tip's unit directions, each one's angular error."""
-    s = np.sin(theta_rad)
-    u = np.column_stack([s * np.sin(phi_rad), -s * np.cos(phi_rad), np.cos(theta_rad)])
-    return still_ends(t_s, u, np.sqrt(theta_sigma_rad ** 2 + (s * phi_sigma_rad) ** 2))
+    error = np.hypot(theta_sigma_rad, np.sin(theta_rad) * phi_sigma_rad)
+    return still_ends(t_s, tip_from_angles(theta_rad, phi_rad), error)

@@ -98,7 +98,7 @@ def _transition_frames(sol: Solution, data: FitData) -> tuple[int, int]:
     still = data.still
     if still is None or not still.any:
         return 0, 0
-    z = np.max(np.abs(Residuals(FitModel(sol.spec), data)(sol.x)[:2 * data.n].reshape(2, -1)), axis=0)
+    z = np.max(np.abs(Residuals(sol.model, data)(sol.x)[:2 * data.n].reshape(2, -1)), axis=0)
     off = z > TRANSITION_Z
 
     def run(flags: np.ndarray) -> int:
@@ -442,12 +442,11 @@ def record_state(fit: FitResult) -> tuple[float, dict[str, float], np.ndarray]:
 
 
 def state_values(fit: FitResult, angles: pd.DataFrame, protocol: Protocol, motion: pd.DataFrame, *,
-                 exclude: np.ndarray | None = None, prediction: Prediction | None = None) -> dict[str, float]:
+                 prediction: Prediction | None = None) -> dict[str, float]:
     """The quantities of ``fit``'s model fitted to a noiseless ``motion`` (``t_s, theta_rad, phi_rad``) at the
-    record's frames with its weights (:func:`gyrorig.fit.quantities.truth_values`): what this estimator gives for
-    that motion."""
+    frames ``fit`` used of the record ``angles``, with their weights (:func:`gyrorig.fit.quantities.truth_values`):
+    what this estimator gives for that motion."""
     scene = model_for_scene(protocol, prediction)
-    unused = ~angles["t_s"].isin(fit.residuals.t_s).to_numpy()  # the fit's own frames (still ends and the hand's out)
-    data = fit_data_from_angles(angles, unused if exclude is None else np.asarray(exclude, bool) | unused,
-                                scene.precession_hint_rad_s, fit.constraints)
+    unused = ~angles["t_s"].isin(fit.residuals.t_s).to_numpy()
+    data = fit_data_from_angles(angles, unused, scene.precession_hint_rad_s, fit.constraints)
     return truth_values(motion, data, fit.spec, fit.x)

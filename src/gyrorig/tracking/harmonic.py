@@ -162,11 +162,13 @@ def _acf(z: np.ndarray, frames: np.ndarray, lags=(1, 2, 3)) -> tuple[float, ...]
 def harmonic_check(t_s, frames, xy, var, classes=None) -> HarmonicCheck | None:
     """Check the errors ``var`` (n, 2) [px^2] of the positions ``xy`` (n, 2) at ``t_s`` (frame numbers ``frames``)
     against a path of sinusoids over the whole record (module docstring), overall and per label of ``classes``
-    (n,).  None with too few frames for it."""
+    (n,); frames without a finite position are left out of it (and are no outliers).  None with too few frames for
+    it."""
     t_s, frames = np.asarray(t_s, float), np.asarray(frames, int)
     xy, sd = np.asarray(xy, float), np.sqrt(np.asarray(var, float))
     n = len(t_s)
-    if n < 40:
+    usable = np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(sd), axis=1)
+    if usable.sum() < 40:
         return None
     tau = t_s - t_s.mean()
     span = float(np.ptp(tau))
@@ -175,7 +177,7 @@ def harmonic_check(t_s, frames, xy, var, classes=None) -> HarmonicCheck | None:
         return None
     d_omega = GRID_STEP_TURNS * 2 * math.pi / span
     grid = np.arange(1, math.ceil(GRID_TOP_NYQUIST * span / (2 * dt) / GRID_STEP_TURNS)) * d_omega  # below the top
-    keep = np.ones(n, bool)
+    keep = usable.copy()
     omegas: list[float] = []
     for attempt in range(2):  # once with every frame, once without the outliers the first pass found
         omegas = []
@@ -210,5 +212,5 @@ def harmonic_check(t_s, frames, xy, var, classes=None) -> HarmonicCheck | None:
     m = int(z.size)
     acf = _acf(z, frames[keep])
     follows = converged and bool(all(math.isfinite(a) and abs(a) <= MAX_ACF for a in acf))
-    return HarmonicCheck(factor, factor / math.sqrt(2 * m), m, tuple(int(i) for i in np.flatnonzero(~keep)),
+    return HarmonicCheck(factor, factor / math.sqrt(2 * m), m, tuple(int(i) for i in np.flatnonzero(usable & ~keep)),
                          tuple(omegas), acf, follows, by_class if classes is not None else {}, converged)
