@@ -189,6 +189,9 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
         print(f"focal length fitted with the pose: {pose.camera_matrix[0, 0]:.1f} px, {100 * pose.focal_scale:+.2f} % "
               f"+- {100 * pose.focal_scale_sd:.2f} % from camera.json's (its sd "
               f"{100 * float(np.sqrt(cam.intrinsics_covariance[0, 0])) / cam.camera_matrix[0, 0]:.2g} %)")
+    if np.isfinite(pose.readout_time_s):
+        print(f"rolling shutter's readout fitted with the pose: {pose.readout_time_s * 1e3:.3g} ms +- "
+              f"{pose.readout_time_sd_s * 1e3:.2g} ms (camera.json keeps it unknown: the analysis fits it again)")
     fields = pose.camera_fields(str(args.video))
     print(f"azimuth origin: {fields['pose_source']['azimuth_origin']}")
     if pose.azimuth_mark is not None:

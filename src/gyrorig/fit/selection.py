@@ -31,7 +31,7 @@ from .result import NONLINEAR_PHASE_RAD, TERM_P_VALUE, Note, NoteKind, Reason, U
 from .solver import (Solution, conditional_amplitudes, dominant_frequency, linear_harmonics, linear_start, mean_axis,
                      solve)
 from .spec import FitTerms
-from .terms import MAX_HARMONICS, OPTIONAL, OPTIONAL_TERMS, Persistent, TipOffset, Transient
+from .terms import MAX_HARMONICS, OPTIONAL, OPTIONAL_TERMS, Persistent, RollingShutter, TipOffset, Transient
 from .uncertainty import phase_uncertainty
 
 __all__ = ["Selector", "fit_model", "trial_term", "score_term", "left_out_noncentrality", "plan_terms",
@@ -168,7 +168,7 @@ def _with_nutation(base: Solution, data: FitData, scene: SceneModel, sel: Select
             notes.append(Note(NoteKind.HARMONIC_ABOVE_NYQUIST,
                               f"harmonic {k} of the nutation is above the Nyquist frequency; not modelled", "harmonics"))
             break
-        spec_k = replace(spec0, harmonics=k)
+        spec_k = replace(spec0 if cur is None else cur.spec, harmonics=k)
         sol = solve(spec_k, data, linear_harmonics(spec_k, data, start))
         ref = cur if cur is not None else base
         if not sel.wants(ref, sol, "harmonics", notes, f"nutation harmonic {k}", k):
@@ -180,8 +180,10 @@ def _with_nutation(base: Solution, data: FitData, scene: SceneModel, sel: Select
                                 f"no significant nutation in the data (chi-square improves by {dchi:.3g} for "
                                 f"{ddof} more parameters; {sel.need(ddof):.3g} needed)")
             break
-        cur = sol
-        start = sol.values()
+        # a rolling shutter's readout is fitted once the nod is in: the slow model alone leaves the nod as residual,
+        # which a readout far beyond any shutter's can warp into
+        cur = _with_readout(sol, data) if data.rolling_shutter and not sol.spec.rolling_shutter else sol
+        start = cur.values()
     if cur is not None:
         w_fit = cur.values()["nutation_frequency_rad_s"]
         if not 0 < w_fit < nyq:
@@ -210,7 +212,7 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
     """
     sel = Selector(terms=terms, noncentrality=noncentrality)
     spec0 = replace(scene.spec, harmonics=0, segments=int(data.segment.max()) + 1, camera_modes=data.camera_modes,
-                    b_frames=data.b_frames, rolling_shutter=data.rolling_shutter,
+                    b_frames=data.b_frames, rolling_shutter=False,
                     nutation_origin_s=float(data.t_s[0] - data.t_ref_s) if scene.spec.damped else 0.0)
     notes = [Note(NoteKind.SCENE, r) for r in scene.reasons]
     undetermined: dict[str, Reason] = {}
@@ -232,6 +234,9 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                  for start in (base, lean_trial(base, data)) if start is not None]
         best, path_notes, reason = _chosen_path(paths, sel)
         notes += path_notes
+    elif data.rolling_shutter:
+        best = _with_readout(best, data)
+    if scene.nutation_expected:
         if spec0.damped:
             best = _with_optional_terms(best, data, notes, sel)
         elif OPTIONAL["tip_offset"].can_add(best.spec):
@@ -244,6 +249,13 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
     return best, notes, undetermined
 
 
+def _with_readout(cur: Solution, data: FitData) -> Solution:
+    """``cur`` with a rolling shutter's readout time fitted (:class:`~gyrorig.fit.terms.RollingShutter`), started
+    from 0 at ``cur``'s solution."""
+    spec_x = replace(cur.spec, rolling_shutter=True)
+    return solve(spec_x, data, {**cur.values(), RollingShutter.NAME: 0.0}, near=True)
+
+
 def _nutation_path(start: Solution, data: FitData, scene: SceneModel, sel: Selector, max_harmonics: int,
                    reason: Reason | None) -> tuple[Solution, list[Note], Reason | None]:
     """The nod's harmonics chosen from the slow model ``start`` (unless ``reason`` says the record cannot resolve
@@ -254,6 +266,8 @@ def _nutation_path(start: Solution, data: FitData, scene: SceneModel, sel: Selec
     if reason is None:
         cur, reason = _with_nutation(start, data, scene, sel, notes, max_harmonics)
         best = cur if cur is not None else start
+    if data.rolling_shutter and not best.spec.rolling_shutter:
+        best = _with_readout(best, data)
     if not scene.spec.fit_axis:
         best = lean_kept(best, data, notes, sel.need)
     return best, notes, reason

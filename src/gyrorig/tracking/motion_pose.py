@@ -96,6 +96,10 @@ class MotionPose:
     #: frames of the record's still ends (the top held before its release, caught at the end:
     #: :mod:`gyrorig.stillness`) left out of the fit
     still_frames: int = 0
+    #: a rolling shutter whose readout camera.json leaves unknown: the readout fitted with the pose [s] and its sd
+    #: (NaN: none fitted).  camera.json's readout stays unknown: the analysis's fit finds it again, with the rest
+    readout_time_s: float = math.nan
+    readout_time_sd_s: float = math.nan
 
     def camera_fields(self, video: str) -> dict:
         """The keys this pose adds to ``camera.json`` (no ``pose_points``: moving the intrinsics holds this pose).
@@ -108,6 +112,8 @@ class MotionPose:
         focal, intrinsics = {}, {}
         if self.focal_scale_sd > 0:
             focal = {"focal_scale": self.focal_scale, "focal_scale_sd": self.focal_scale_sd}
+        if math.isfinite(self.readout_time_s):
+            focal |= {"readout_fitted_s": self.readout_time_s, "readout_fitted_sd_s": self.readout_time_sd_s}
         if self.camera_matrix is not None and self.intrinsics is not None:
             intrinsics = {"camera_matrix": self.camera_matrix.tolist(),
                           "intrinsics_parameters": list(self.intrinsics[0]),
@@ -134,7 +140,7 @@ class _Model:
     """Pixels of the tip for the pose and motion parameters (see the module's notes)."""
 
     def __init__(self, t_s: np.ndarray, camera: Camera, length_m: float, slow_terms: bool, harmonics: int,
-                 focal: bool = False):
+                 focal: bool = False, rows: np.ndarray | None = None):
         self.t = t_s - t_s[0]
         self.cam = camera
         self.length_m = length_m
@@ -142,6 +148,14 @@ class _Model:
         self.k = harmonics
         #: the last parameter scales the focal length (f = f0 (1 + p[-1]))
         self.focal = focal
+        #: a rolling shutter of unknown readout: each frame's row fraction about their mean, its time moved by that
+        #: times the readout (the parameter before the focal length's, or the last); a delay alike for every frame
+        #: would only shift the clock
+        self.rows = None if rows is None else rows - np.mean(rows)
+
+    def readout(self, p: np.ndarray) -> float:
+        """The rolling shutter's readout time in ``p`` [s] (0 without one)."""
+        return float(p[-2 if self.focal else -1]) if self.rows is not None else 0.0
 
     def split(self, p: np.ndarray):
         rvec, tvec = p[:3], p[3:6]
@@ -159,7 +173,7 @@ class _Model:
 
     def angles(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, _, th_slow, ph_slow, w, th_h, ph_h = self.split(p)
-        t = self.t
+        t = self.t if self.rows is None else self.t + self.rows * self.readout(p)
         theta = th_slow[0] + (th_slow[1] * t if self.slow else 0.0)
         phi = ph_slow[0] * t + (ph_slow[1] * t * t if self.slow else 0.0)
         for k in range(self.k):
@@ -281,6 +295,13 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
         return np.append(r, p[-1] / focal_sd_rel) if focal else r
 
     sol = least_squares(resid, p0, method="lm", x_scale="jac", max_nfev=4000)
+    rolling = start.readout_unknown and sol.success
+    if rolling:
+        # the rows' delay fitted from the pose and motion found without it (from the start, the nod not yet fitted,
+        # a readout far beyond any shutter's can warp the motion model into the nod)
+        model = _Model(t, start, length_m, slow_terms, harmonics, focal, rows=xy[:, 1] / start.height_px)
+        sol = least_squares(resid, np.insert(sol.x, len(sol.x) - int(focal), 0.0), method="lm", x_scale="jac",
+                            max_nfev=4000)
     if not sol.success or not np.all(np.isfinite(sol.x)):
         raise TrackingError(f"the pose from the motion did not converge ({sol.message})")
     if not np.linalg.norm(sol.x[3:6]) > 1.5 * length_m or sol.x[5] <= 0:
@@ -299,7 +320,9 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
                       float(abs(model.split(sol.x)[4])), slow_terms, depth_sd,
                       focal_scale=float(sol.x[-1]) if focal else 0.0,
                       focal_scale_sd=float(np.sqrt(max(cov[-1, -1], 0.0))) if focal else 0.0,
-                      still_frames=int(np.count_nonzero(~moving)))
+                      still_frames=int(np.count_nonzero(~moving)),
+                      readout_time_s=model.readout(sol.x) if rolling else math.nan,
+                      readout_time_sd_s=float(np.sqrt(max(cov[-1 - focal, -1 - focal], 0.0))) if rolling else math.nan)
 
 
 def _profile_depth_sd(resid, x: np.ndarray, chi2: float, scale: float) -> float:
