@@ -129,3 +129,25 @@ def test_an_fps_that_does_not_match_the_video_is_bad_input(tmp_path, capsys):
                  str(PROTOCOL_DIR / "air-cushion-heavy-top.toml"), "--out", str(tmp_path / "t"), "--tip-only"])
     assert code == 2 and not (tmp_path / "t").exists()
     assert "Traceback" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("stated, rel_sd", [(26.0, 0.15), ({"value": 26.0, "sd": 1.3}, 0.05)])
+def test_a_phones_35mm_equivalent_focal_length_gives_its_angle_of_view(tmp_path, stated, rel_sd):
+    """A phone's lens stated as its 35 mm-equivalent focal length (26 mm): the diagonal of its 4:3 still picture, as
+    wide as the 1920-pixel video, subtends what a 36 x 24 mm frame's diagonal does 26 mm behind a lens (79.5 deg);
+    the focal length's relative sd is the stated one's, or 15 % without one (the video's share of the sensor's width
+    is not known).  Given beside another focal length key, the file is refused."""
+    doc = {"image_size": [1920, 1080], "focal_length_35mm": stated, "rvec": [math.pi, 0.0, 0.0],
+           "tvec": [0.0, 0.0, 0.7], "fps": 30.0}
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps(doc))
+    cam = load_camera(path)
+    f = cam.camera_matrix[0, 0]
+    diagonal_px = math.hypot(1920.0, 0.75 * 1920.0)
+    assert 2 * math.degrees(math.atan(0.5 * diagonal_px / f)) == pytest.approx(
+        2 * math.degrees(math.atan(0.5 * math.hypot(36.0, 24.0) / 26.0)), abs=1e-9)
+    i = cam.intrinsics_parameters.index("fx")
+    assert math.sqrt(cam.intrinsics_covariance[i, i]) / f == pytest.approx(rel_sd, rel=1e-9)
+    path.write_text(json.dumps({**doc, "focal_length_px": 1500.0}))
+    with pytest.raises(CameraFileError):
+        load_camera(path)

@@ -360,6 +360,72 @@ def test_a_data_sheet_focal_length_is_fitted_with_the_pose_from_the_motion(tmp_p
         assert abs(fit["quantities"][k]["pull"]) < 3, (k, fit["quantities"][k]["pull"])
 
 
+def test_a_phones_35mm_equivalent_focal_length_15_percent_short_is_fitted_with_the_pose_from_the_motion(tmp_path,
+                                                                                                        capsys):
+    """A phone user knows the lens's 35 mm-equivalent focal length, not the focal length in pixels: camera.json
+    states ``focal_length_35mm`` alone (no sd: 15 % taken), here such that it gives 0.85 of the true focal length in
+    pixels (a video that uses less of the sensor's width than its still picture: stabilisation).  The tip then
+    looks 15 % smaller than it is, a crossbar's dot (0.625 of its size) within the tip's size range, and the first
+    pass took that dot for the tip in every frame (76 px off; the pose refused).  A spot nearer a dot's size than the
+    tip's is no longer acquired: the found focal length within 3 of its sd of the truth, and the analysis's pulls
+    within 3."""
+    proto = _oblique(tmp_path, "[0.0, -0.2, 0.75]")
+    rough = _oblique(tmp_path, "[0.03, -0.23, 0.78]")
+    render_video(load_protocol(proto), tmp_path / "v", seed=3, duration_s=2.0, calibration_views=0)
+    true_cam = json.loads((tmp_path / "v" / "camera.json").read_text())
+    f_true, width = true_cam["camera_matrix"][0][0], true_cam["image_size"][0]
+    # a 35 mm-equivalent focal length is the diagonal angle of view of a 4:3 picture as a 36 x 24 mm frame's
+    half_diagonal_rad = math.atan(0.5 * math.hypot(width, 0.75 * width) / (0.85 * f_true))
+    sheet = {k: v for k, v in true_cam.items() if k not in ("rvec", "tvec", "camera_matrix", "pose_covariance",
+                                                           "pose_points", "intrinsics_covariance",
+                                                           "intrinsics_parameters")}
+    sheet["focal_length_35mm"] = 0.5 * math.hypot(36.0, 24.0) / math.tan(half_diagonal_rad)
+    (tmp_path / "sheet.json").write_text(json.dumps(sheet))
+    stated = load_camera(tmp_path / "sheet.json", require_pose=False)
+    assert stated.camera_matrix[0, 0] == pytest.approx(0.85 * f_true, rel=1e-9)
+    assert main(["pose", "--camera", str(tmp_path / "sheet.json"), "--video", str(tmp_path / "v" / "video.mkv"),
+                 "--protocol", str(rough), "--out", str(tmp_path / "posed.json")]) == 0
+    capsys.readouterr()
+    posed = json.loads((tmp_path / "posed.json").read_text())
+    f, f_sd = posed["camera_matrix"][0][0], math.sqrt(posed["intrinsics_covariance"][0][0])
+    assert abs(f - f_true) < 3 * f_sd
+    angles, truth, fit = _analyze(tmp_path, "posed.json", proto)
+    for k in ("precession_rate_rad_s", "nutation_frequency_rad_s", "nutation_amplitude_rad"):
+        assert abs(fit["quantities"][k]["pull"]) < 3, (k, fit["quantities"][k]["pull"])
+
+
+@pytest.mark.parametrize("focal_rel", [0.75, 0.8])
+def test_the_motion_pose_starts_where_the_rays_meet_the_sphere_from_a_focal_length_far_off(focal_rel):
+    """The simulated tip of the heavy top seen from 0.2 m off the vertical (2 s at 200 frames/s, 0.1 px of noise), the
+    fit started from a placement 3 cm off and a focal length 20-25 % short, stated +- 15 % (a phone's 35 mm-equivalent
+    focal length, its video's crop unknown).  Seen through that focal length from there, the tip's path is larger
+    than its sphere and most of its rays missed the sphere: refused.  The fit now starts at the focal length (within 3
+    of its sds) at which 90 % of them meet it: converged (chi2_red within 1 +- 0.3), the focal length found within 3
+    of its sd of the truth."""
+    from gyrorig.physics.simulate import simulate
+    from gyrorig.montecarlo import DataSheet
+    from gyrorig.tracking.motion_pose import fit_pose_to_track
+
+    sheet = DataSheet()
+    p = with_image_size(sheet.scene(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")), 640, 480)
+    truth = simulate(p, duration_s=2.0, rate_hz=200.0)
+    length = float(p.extra["markers"]["tip"]["position_m"][2])
+    th, ph = truth.theta_rad.to_numpy(), truth.phi_rad.to_numpy()
+    tips = length * np.column_stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)])
+    cam = camera_setup(p).camera
+    px = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
+    px += 0.1 * np.random.default_rng(1).normal(size=px.shape)
+    rough = np.asarray(sheet.camera_position_m) + np.array([0.03, -0.03, 0.03])
+    rvec, tvec = placement_pose({"position_m": rough.tolist(), "look_at_m": [0.0, 0.0, 0.0], "up_hint": [0, 0, 1.0]})
+    k = cam.camera_matrix.copy()
+    k[:2, :2] *= focal_rel
+    start = replace(cam, rvec=rvec, tvec=tvec, camera_matrix=k)
+    pose = fit_pose_to_track(truth.t_s.to_numpy(), px, np.full(px.shape, 0.1), start, length, focal_sd_rel=0.15)
+    assert 0.7 < pose.chi2_red < 1.3
+    found = focal_rel * (1 + pose.focal_scale)
+    assert abs(found - 1.0) < 3 * pose.focal_scale_sd * focal_rel
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_motion_pose_starts_at_the_nutation_not_its_precession_sideband(seed):
     """The simulated tip of the heavy top seen from 0.2 m off the vertical (3 s at 200 frames/s, 0.1 px of noise),

@@ -179,6 +179,15 @@ class Camera:
         first row's, and the fit finds the readout from the motion (:class:`gyrorig.fit.terms.RollingShutter`)."""
         return self.shutter == "rolling" and not math.isfinite(self.readout_time_s)
 
+    @property
+    def focal_sd_rel(self) -> float:
+        """The focal length's relative sd from the intrinsics covariance (0 when it states none)."""
+        names = self.intrinsics_parameters
+        if self.intrinsics_covariance is None or "fx" not in names:
+            return 0.0
+        i = names.index("fx")
+        return math.sqrt(max(float(self.intrinsics_covariance[i, i]), 0.0)) / float(self.camera_matrix[0, 0])
+
     def with_intrinsics(self, names: tuple[str, ...], delta: np.ndarray) -> "Camera":
         """The camera with the named intrinsics (:data:`INTRINSIC_PARAMETERS`) moved by ``delta``."""
         K = self.camera_matrix.copy()

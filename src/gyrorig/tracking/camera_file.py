@@ -122,16 +122,34 @@ def _value_sd(path: Path, key: str, value, lo: float = 0.0) -> tuple[float, floa
     return _scalar(path, key, value, lo, lo_open=True), 0.0
 
 
+#: the diagonal of a 36 x 24 mm frame, which a 35 mm-equivalent focal length refers to [mm]
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
+#: a phone's still picture is 4:3, and its video spans the same width: the picture's diagonal over its width
+STILL_DIAGONAL_OVER_WIDTH = 1.25
+#: the relative sd of a focal length in pixels from a 35 mm-equivalent one stated without an sd: how much of the
+#: sensor's width the video uses is not known (stabilisation crops it, and some video modes do)
+FOCAL_35MM_SD_FRACTION = 0.15
+#: the keys that give the focal length without a calibration
+FOCAL_KEYS = ("focal_length_px", "focal_length_mm", "focal_length_35mm")
+
+
 def datasheet_intrinsics(path: Path, d: dict) -> dict:
     """camera.json without a calibration: the intrinsics from the lens's focal length and the sensor's width (a data
-    sheet: ``focal_length_mm`` and ``sensor_width_mm``, the width the video's ``image_size[0]`` pixels span) or the
-    focal length in pixels (``focal_length_px``), each a number or ``{"value", "sd"}``; the principal point
+    sheet: ``focal_length_mm`` and ``sensor_width_mm``, the width the video's ``image_size[0]`` pixels span), the
+    focal length in pixels (``focal_length_px``), or a phone's 35 mm-equivalent focal length (``focal_length_35mm``,
+    as its specifications and its photos' EXIF state it: the diagonal angle of view of its 4:3 still picture, whose
+    width the video is taken to span; without an sd, :data:`FOCAL_35MM_SD_FRACTION` of it), each a number or
+    ``{"value", "sd"}``; the principal point
     ``principal_point_px`` ([x, y], or ``{"value": [x, y], "sd": s}``; default the image centre with
     :data:`PRINCIPAL_POINT_SD_FRACTION` of the width); ``dist_coeffs`` default 0.  Returns ``d`` with
     ``camera_matrix``, ``dist_coeffs`` and ``intrinsics_covariance`` over fx, fy (one focal length: fully
     correlated), cx, cy, and ``intrinsics_source``; ``d`` as it is when it has a ``camera_matrix``."""
-    if "camera_matrix" in d or not ({"focal_length_px", "focal_length_mm"} & set(d)):
+    given = [k for k in FOCAL_KEYS if k in d]
+    if "camera_matrix" in d or not given:
         return d
+    if len(given) > 1:
+        raise CameraFileError(f"{path}: give one of focal_length_px, focal_length_mm (with sensor_width_mm) or "
+                              f"focal_length_35mm, not {' and '.join(given)}")
     size = d.get("image_size")
     if (not isinstance(size, list) or len(size) != 2
             or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
@@ -139,10 +157,13 @@ def datasheet_intrinsics(path: Path, d: dict) -> dict:
                               "focal length in pixels needs it)")
     w, h = size
     if "focal_length_px" in d:
-        if "focal_length_mm" in d:
-            raise CameraFileError(f"{path}: give focal_length_px or focal_length_mm (with sensor_width_mm), not both")
         f, f_sd = _value_sd(path, "focal_length_px", d["focal_length_px"])
         source = "focal_length_px"
+    elif "focal_length_35mm" in d:
+        f35, f35_sd = _value_sd(path, "focal_length_35mm", d["focal_length_35mm"])
+        f = f35 * STILL_DIAGONAL_OVER_WIDTH * w / FULL_FRAME_DIAGONAL_MM
+        f_sd = f * (f35_sd / f35 if isinstance(d["focal_length_35mm"], dict) else FOCAL_35MM_SD_FRACTION)
+        source = "focal_length_35mm"
     else:
         if "sensor_width_mm" not in d:
             raise CameraFileError(f"{path}: focal_length_mm needs sensor_width_mm (the width the video's "
@@ -193,8 +214,8 @@ def load_camera(path: str | Path, *, require_pose: bool = True) -> Camera:
     missing = [k for k in ("camera_matrix", "dist_coeffs", "image_size") if k not in d]
     if missing:
         raise CameraFileError(f"{path}: missing key(s) {', '.join(missing)} (or, without a calibration, the focal "
-                              "length: focal_length_mm with sensor_width_mm, or focal_length_px, each a number or "
-                              '{"value", "sd"})')
+                              "length: focal_length_mm with sensor_width_mm, focal_length_px, or a phone's 35 mm-"
+                              'equivalent focal_length_35mm, each a number or {"value", "sd"})')
     if ("rvec" not in d or "tvec" not in d) and require_pose:
         raise CameraFileError(f"{path}: no camera pose (rvec, tvec) relative to the pivot; "
                               "the tracker needs it to turn pixels into directions")

@@ -67,6 +67,11 @@ MAX_DEPTH_SCALE_SD_REL = 0.01
 FIRST_PASS_DEPTH_SCALE_SD_REL = 0.05
 #: the distance's profile is taken this far (relative) either side of the fitted one
 PROFILE_STEP = 0.05
+#: the focal length's starting scales tried, in its stated sds, where the stated one's rays mostly miss the tip's
+#: sphere; the first at which this fraction of them meet it is taken; none below the least scale
+START_SCALE_SDS = (0.0, -0.5, 0.5, -1.0, 1.0, -1.5, 1.5, -2.0, 2.0, -2.5, 2.5, -3.0, 3.0)
+START_HIT_FRACTION = 0.9
+MIN_START_SCALE = 0.2
 
 
 @dataclass(frozen=True)
@@ -277,17 +282,14 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
     t, xy, sig = t[moving], xy[moving], sig[moving]
     if len(t) < MIN_FRAMES:
         raise TrackingError(f"the tip was tracked in {len(t)} frames; the pose from the motion needs {MIN_FRAMES}")
-    theta, phi = angles_from_tip(tips_from_pixels(xy, start, length_m))
+    scale, theta, phi = _start_angles(xy, start, length_m, focal_sd_rel)
     hit = np.isfinite(theta)
-    if hit.mean() < 0.5:
-        raise TrackingError("from the starting pose (the protocol's camera placement) most of the tip's rays miss its "
-                            "sphere: give a closer starting placement")
     w0 = _start_frequency(t[hit], theta[hit], phi[hit], nutation_frequency(t, xy), slow_terms, harmonics)
     motion, phi0 = _start_motion(t[hit], theta[hit], phi[hit], w0, slow_terms, harmonics)
     # the gauge: turn the starting pose about the vertical so that phi's slow part starts at 0
     rot = cv2.Rodrigues(start.rvec)[0] @ _rot_z(phi0)
     focal = focal_sd_rel > 0
-    p0 = np.concatenate([cv2.Rodrigues(rot)[0].ravel(), start.tvec, motion] + ([[0.0]] if focal else []))
+    p0 = np.concatenate([cv2.Rodrigues(rot)[0].ravel(), start.tvec, motion] + ([[scale - 1.0]] if focal else []))
     model = _Model(t, start, length_m, slow_terms, harmonics, focal)
 
     def resid(p):
@@ -323,6 +325,33 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
                       still_frames=int(np.count_nonzero(~moving)),
                       readout_time_s=model.readout(sol.x) if rolling else math.nan,
                       readout_time_sd_s=float(np.sqrt(max(cov[-1 - focal, -1 - focal], 0.0))) if rolling else math.nan)
+
+
+def _start_angles(xy: np.ndarray, start: Camera, length_m: float, focal_sd_rel: float
+                  ) -> tuple[float, np.ndarray, np.ndarray]:
+    """The focal length's starting scale (relative to ``start``'s) and the tip's angles from the starting pose at it.
+
+    The nearest of :data:`START_SCALE_SDS` (in the focal length's stated sds; the stated focal length alone when it is
+    not fitted) at which :data:`START_HIT_FRACTION` of the tip's rays meet its sphere, or the one at which most do (a
+    focal length known to 15 % may be 30 % off: the path then looks too large for the sphere seen from the rough
+    placement, and every ray beyond the sphere's outline misses it).  Raises :class:`TrackingError` when none has
+    half of them meeting it."""
+    best = (0.0, 1.0, None, None)
+    for z in START_SCALE_SDS if focal_sd_rel > 0 else (0.0,):
+        scale = 1.0 + z * focal_sd_rel
+        if scale < MIN_START_SCALE:
+            continue
+        cam = start.with_intrinsics(("fx", "fy"), (scale - 1.0) * np.diag(start.camera_matrix)[:2])
+        theta, phi = angles_from_tip(tips_from_pixels(xy, cam, length_m))
+        hit = float(np.isfinite(theta).mean())
+        if hit > best[0]:
+            best = (hit, scale, theta, phi)
+        if hit >= START_HIT_FRACTION:
+            return scale, theta, phi
+    if best[0] < 0.5:
+        raise TrackingError("from the starting pose (the protocol's camera placement) most of the tip's rays miss its "
+                            "sphere: give a closer starting placement")
+    return best[1], best[2], best[3]
 
 
 def _profile_depth_sd(resid, x: np.ndarray, chi2: float, scale: float) -> float:
@@ -364,7 +393,7 @@ def pose_from_motion(video, start: Camera, protocol: Protocol, *, progress=None)
     tip = tip_marker(protocol)
     video = as_source(video)
     camera = replace(start, pose_covariance=None, pose_points=None, pose_recording=None)
-    focal_sd_rel = _focal_sd_rel(start)
+    focal_sd_rel = start.focal_sd_rel
     for final in (False, True):  # the second pass tracks with the pose found: frames the rough pose lost come back
         # the rough placement puts the lab fiducials where they are not: the camera's motion is followed on them only
         # once the pose is the motion's
@@ -389,15 +418,6 @@ def pose_from_motion(video, start: Camera, protocol: Protocol, *, progress=None)
                 ("fx", "fy"), pose.focal_scale * np.diag(start.camera_matrix)[:2])
             pose = _with_fitted_intrinsics(pose, camera, start)
     return replace(pose, video_fingerprint=fingerprint(video))
-
-
-def _focal_sd_rel(camera: Camera) -> float:
-    """The focal length's relative sd from the camera's intrinsics covariance (0 when it states none)."""
-    names = camera.intrinsics_parameters
-    if camera.intrinsics_covariance is None or "fx" not in names:
-        return 0.0
-    i = names.index("fx")
-    return math.sqrt(max(float(camera.intrinsics_covariance[i, i]), 0.0)) / float(camera.camera_matrix[0, 0])
 
 
 def _with_fitted_intrinsics(pose: MotionPose, camera: Camera, start: Camera) -> MotionPose:
