@@ -16,12 +16,12 @@ be; otherwise the frame is ``missing`` (a wrong position flagged ``ok`` is worse
   hidden), which may be the tip, is not taken;
 - **lab markers**: a spot where one of the protocol's lab-fixed markers appears, and nearer its size than the
   tip's, is never the tip;
-- **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken only when the
-  next frame confirms it nearby and it has moved unlike the scene since the search began (of those, the nearest to
-  the tip's expected size; none nearer, as a ratio, a dot's on the top: :data:`DOT_SIZE_FACTOR`): dots on the
-  spinning rotor jump by a large fraction of a turn between frames, a static spot of the wrong size fails the size
-  test, and one of the right size (a highlight, a screw head) never moves.  The frames searched meanwhile get the
-  tip's positions back once it is taken.  A sleeping top's tip, at the pole, need not move;
+- **acquisition**: with no history (the first frames, or after the tip was lost) a candidate is taken
+  only when the next frame confirms it nearby and it has moved unlike the scene since the search began
+  (of those, the nearest to the tip's expected size): dots on the spinning rotor jump by a large fraction
+  of a turn between frames, a static spot of the wrong size fails the size test, and one of the right size
+  (a highlight, a screw head) never moves.  The frames searched meanwhile get the tip's positions back once
+  it is taken.  A sleeping top's tip, at the pole, need not move;
 - **following back**: at a frame rate low for the motion the tip is taken only where it turns and lost at the next
   step until it has been seen to move fast; once it has, and has been followed for :data:`BACK_AFTER` frames, it is
   followed back through the frames it was not taken in, among the spots of its look kept from each, as it is
@@ -45,6 +45,7 @@ import statistics
 from collections import deque
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from ..markers import Marker
@@ -54,7 +55,7 @@ from .detect import Blob, Detection, find_blobs, stands_out
 from .ellipse import DiscGeometry, fit_ellipse_spot
 from .first_look import MAX_RECORDED, Candidate, FirstLook, Verdict
 from .light import RowLight, scene_shift
-from .rays import marker_images, sphere_box, tip_from_pixel, tips_from_pixels
+from .rays import sphere_box, tip_from_pixel, tips_from_pixels
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
 
@@ -62,10 +63,6 @@ __all__ = ["TipFollower", "Located", "SIZE_RANGE", "Verdict", "Candidate", "Firs
 
 #: the fitted radius over the marker's expected image radius allowed for the tip (a sphere, or a blob)
 SIZE_RANGE = {"sphere": (0.7, 1.4), "blob": (0.4, 2.5)}
-#: a spot is not acquired as the tip where its radius is nearer (as a ratio) a dot's on the top than the tip's, for
-#: dots whose radius differs from the tip's by this factor or more: two markers' sizes in the image keep their ratio
-#: whatever the focal length, which a data sheet may state 15 % off and the size range alone then lets a dot through
-DOT_SIZE_FACTOR = 1.3
 #: once followed, the fitted radius and amplitude must stay within these factors of their running medians
 RADIUS_CHANGE = (0.8, 1.25)
 AMPLITUDE_CHANGE = (0.6, 1.6)
@@ -126,14 +123,26 @@ class Located:
     earlier: tuple[SpotFit | None, ...] = ()
 
 
+def _lab_images(camera: Camera, markers: tuple[Marker, ...]) -> list[tuple[float, float, float]]:
+    """Where the lab-fixed markers appear: ``(x, y, radius)`` [px] of each one in front of the camera."""
+    out = []
+    for m in markers:
+        p = np.asarray(m.position_m, float)
+        depth = float((camera.rotation @ p + camera.tvec.ravel())[2])
+        if depth <= 0:
+            continue
+        xy = cv2.projectPoints(p[None], camera.rvec, camera.tvec, camera.camera_matrix, camera.dist_coeffs)[0].ravel()
+        out.append((float(xy[0]), float(xy[1]), camera.camera_matrix[0, 0] * m.radius_m / depth))
+    return out
+
+
 class TipFollower:
     """Finds the tip spot in each frame (see the module docstring)."""
 
-    def __init__(self, camera: Camera, tip: Marker, lab_markers: tuple[Marker, ...] = (),
-                 moving_dots: tuple[Marker, ...] = ()):
+    def __init__(self, camera: Camera, tip: Marker, lab_markers: tuple[Marker, ...] = ()):
         self.camera, self.tip = camera, tip
         #: images of the protocol's lab-fixed markers (x, y, radius) [px]: a spot there is never the tip
-        self.lab_px = marker_images(camera, lab_markers)
+        self.lab_px = _lab_images(camera, lab_markers)
         #: how far the picture has moved from where the pose puts it (a hand-held camera; :mod:`.steady`) [px]
         self.shift_px = (0.0, 0.0)
         self.length_m = tip.position_m[2]
@@ -143,9 +152,6 @@ class TipFollower:
         self.shape = "blob" if tip.shape == "disc" and not axial else tip.shape
         depth = float(np.linalg.norm(camera.centre_m - np.array([0, 0, self.length_m])))
         self.r_expected = camera.camera_matrix[0, 0] * tip.radius_m / depth  # tip upright [px]
-        #: the radii of the top's other dots relative to the tip's, where they differ by :data:`DOT_SIZE_FACTOR`
-        self.dot_ratios = tuple(r for r in (m.radius_m / tip.radius_m for m in moving_dots)
-                                if abs(math.log(r)) >= math.log(DOT_SIZE_FACTOR))
         self.last: deque[tuple[float, float]] = deque(maxlen=4)  # accepted positions, latest last
         #: the tip's speed over each step between frames it was followed in [px/frame]
         self.speeds: deque[float] = deque(maxlen=SPEED_MEMORY)
@@ -423,7 +429,7 @@ class TipFollower:
         pairs = [(abs(math.log(f.radius_px / self.r_expected)), math.hypot(f.x_px - g.x_px, f.y_px - g.y_px), k, f, g)
                  for k, (f, g) in enumerate((f, g) for f in fits for g in self.pending)
                  if AMPLITUDE_CHANGE[0] <= self._level(f) / self._level(g) <= AMPLITUDE_CHANGE[1]]
-        pairs = [p for p in pairs if p[1] <= reach and not self._dot_sized(p[3].radius_px)]
+        pairs = [p for p in pairs if p[1] <= reach]
         near = pairs
         if pairs:
             pairs = self._unlike_the_scene(pairs, scene_shift(self.pending_frame, frame), busy)
@@ -446,12 +452,6 @@ class TipFollower:
                 self.anchors.append((f, frame, self.searched))
         self.history = [*self.history[-ANCHOR_FRAMES:], fits]
         return None
-
-    def _dot_sized(self, radius_px: float) -> bool:
-        """Whether a spot of this radius is nearer, as a ratio, to one of the top's other dots' size than to the tip's
-        (at the tip's distance: the top's dots lie near it, and the ratio holds whatever the focal length)."""
-        off = abs(math.log(radius_px / self.r_expected))
-        return any(abs(math.log(radius_px / (r * self.r_expected))) < off for r in self.dot_ratios)
 
     def _anchor_of(self, fit: SpotFit, fits: list[SpotFit]) -> tuple[SpotFit, np.ndarray, int] | None:
         """The anchor nearest the fit within :data:`ANCHOR_REACH_RADII` expected radii, of which no other of this

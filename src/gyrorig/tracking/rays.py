@@ -8,7 +8,7 @@ import numpy as np
 from ..geometry import angles_from_tip, ray_sphere_distances
 from ..camera import Camera
 
-__all__ = ["marker_images", "pixel_rays", "tips_from_pixels", "tip_from_pixel", "sphere_box", "angles_with_covariance",
+__all__ = ["pixel_rays", "tips_from_pixels", "tip_from_pixel", "sphere_box", "angles_with_covariance",
            "angle_covariances", "limb_margins_rad", "near_limb", "limb_flags", "LIMB_MARGIN_RAD"]
 
 #: a tip nearer than this to the limb of its sphere as the camera sees it may be read on the wrong side of it [rad]
@@ -139,17 +139,3 @@ def limb_flags(tips: np.ndarray, cam: Camera, radius_m: float) -> tuple[np.ndarr
                      f"which frames are: all {int(tracked.sum())} tracked frames are flagged near-limb; film the top "
                      f"from above (the camera's direction within {limb_deg:.3g} deg less the top's largest tilt of the "
                      "vertical)")
-
-
-def marker_images(cam: Camera, markers) -> list[tuple[float, float, float]]:
-    """Where fixed markers (each with ``position_m`` in the lab and ``radius_m``) appear: ``(x, y, radius)`` [px] of
-    each one in front of the camera."""
-    out = []
-    for m in markers:
-        p = np.asarray(m.position_m, float)
-        depth = float((cam.rotation @ p + cam.tvec.ravel())[2])
-        if depth <= 0:
-            continue
-        xy = cv2.projectPoints(p[None], cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].ravel()
-        out.append((float(xy[0]), float(xy[1]), cam.camera_matrix[0, 0] * m.radius_m / depth))
-    return out

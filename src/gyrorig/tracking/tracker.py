@@ -329,7 +329,7 @@ def _rounded(values) -> str:
 
 def _follower(camera: Camera, tip: Marker, markers: MarkerSet, source) -> TipFollower:
     """The tip's follower, refusing a tip that would fill the image (:data:`MAX_TIP_IMAGE_FRACTION`)."""
-    follower = TipFollower(camera, tip, markers.fiducials(), markers.moving_dots())
+    follower = TipFollower(camera, tip, markers.fiducials())
     if not follower.r_expected < MAX_TIP_IMAGE_FRACTION * min(camera.width_px, camera.height_px):
         raise BadInputError(f"{source}: with this camera the tip (markers.{tip.name}.radius_m = {tip.radius_m:g}) would "
                             f"appear {2 * follower.r_expected:.0f} px wide in a {camera.width_px} x {camera.height_px} "
