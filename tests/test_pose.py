@@ -390,6 +390,26 @@ def test_a_phones_35mm_equivalent_focal_length_is_fitted_with_the_pose_from_the_
         assert abs(fit["quantities"][k]["pull"]) < 3, (k, fit["quantities"][k]["pull"])
 
 
+def _oblique_scene():
+    """The data-sheet user's scene (:class:`gyrorig.montecarlo.DataSheet`: the camera 0.2 m off the vertical) at
+    640x480: the sheet, the protocol, its camera and the tip's distance from the pivot [m]."""
+    from gyrorig.montecarlo import DataSheet
+
+    sheet = DataSheet()
+    p = with_image_size(sheet.scene(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")), 640, 480)
+    return sheet, p, camera_setup(p).camera, float(p.extra["markers"]["tip"]["position_m"][2])
+
+
+def _tip_pixels(p, cam, length_m: float, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The simulated tip's image at the times ``t_s`` (noiseless) [px], and its tilt [rad]."""
+    from gyrorig.physics.simulate import simulate
+
+    s = simulate(p, t_eval_s=t_s)
+    th, ph = s.theta_rad.to_numpy(), s.phi_rad.to_numpy()
+    tips = length_m * np.column_stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)])
+    return cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2), th
+
+
 @pytest.mark.parametrize("focal_rel", [0.75, 0.8])
 def test_the_motion_pose_starts_where_the_rays_meet_the_sphere_from_a_focal_length_far_off(focal_rel):
     """The simulated tip of the heavy top seen from 0.2 m off the vertical (2 s at 200 frames/s, 0.1 px of noise), the
@@ -398,25 +418,18 @@ def test_the_motion_pose_starts_where_the_rays_meet_the_sphere_from_a_focal_leng
     than its sphere and most of its rays missed the sphere: refused.  The fit now starts at the focal length (within 3
     of its sds) at which 90 % of them meet it: converged (chi2_red within 1 +- 0.3), the focal length found within 3
     of its sd of the truth."""
-    from gyrorig.physics.simulate import simulate
-    from gyrorig.montecarlo import DataSheet
     from gyrorig.tracking.motion_pose import fit_pose_to_track
 
-    sheet = DataSheet()
-    p = with_image_size(sheet.scene(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")), 640, 480)
-    truth = simulate(p, duration_s=2.0, rate_hz=200.0)
-    length = float(p.extra["markers"]["tip"]["position_m"][2])
-    th, ph = truth.theta_rad.to_numpy(), truth.phi_rad.to_numpy()
-    tips = length * np.column_stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)])
-    cam = camera_setup(p).camera
-    px = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
+    sheet, p, cam, length = _oblique_scene()
+    t = np.arange(401) / 200.0
+    px, _ = _tip_pixels(p, cam, length, t)
     px += 0.1 * np.random.default_rng(1).normal(size=px.shape)
     rough = np.asarray(sheet.camera_position_m) + np.array([0.03, -0.03, 0.03])
     rvec, tvec = placement_pose({"position_m": rough.tolist(), "look_at_m": [0.0, 0.0, 0.0], "up_hint": [0, 0, 1.0]})
     k = cam.camera_matrix.copy()
     k[:2, :2] *= focal_rel
     start = replace(cam, rvec=rvec, tvec=tvec, camera_matrix=k)
-    pose = fit_pose_to_track(truth.t_s.to_numpy(), px, np.full(px.shape, 0.1), start, length, focal_sd_rel=0.15)
+    pose = fit_pose_to_track(t, px, np.full(px.shape, 0.1), start, length, focal_sd_rel=0.15)
     assert 0.7 < pose.chi2_red < 1.3
     found = focal_rel * (1 + pose.focal_scale)
     assert abs(found - 1.0) < 3 * pose.focal_scale_sd * focal_rel
@@ -431,19 +444,11 @@ def test_the_motion_pose_starts_at_the_nutation_not_its_precession_sideband(seed
     chi2_red within 1 +- 0.3 (about 7 of its SDs for 1,200 residuals), the
     nutation frequency within the spectrum's resolution (2 pi / 3 s) of the simulated tilt's strongest line, the
     focal length within 3 of its sd of the truth."""
-    from gyrorig.camera import placement_pose
-    from gyrorig.montecarlo import DataSheet
-    from gyrorig.physics.simulate import simulate
     from gyrorig.tracking.motion_pose import fit_pose_to_track
 
-    sheet = DataSheet()
-    p = with_image_size(sheet.scene(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")), 640, 480)
-    truth = simulate(p, duration_s=3.0, rate_hz=200.0)
-    length = float(p.extra["markers"]["tip"]["position_m"][2])
-    th, ph = truth.theta_rad.to_numpy(), truth.phi_rad.to_numpy()
-    tips = length * np.column_stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)])
-    cam = camera_setup(p).camera
-    px = cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
+    sheet, p, cam, length = _oblique_scene()
+    t = np.arange(601) / 200.0
+    px, th = _tip_pixels(p, cam, length, t)
     rng = np.random.default_rng(seed)
     px += 0.1 * rng.normal(size=px.shape)
     rough = np.asarray(sheet.camera_position_m) + np.array([0.03, -0.03, 0.03])
@@ -452,7 +457,7 @@ def test_the_motion_pose_starts_at_the_nutation_not_its_precession_sideband(seed
     k[0, 0] *= 0.96
     k[1, 1] *= 0.96
     start = replace(cam, rvec=rvec, tvec=tvec, camera_matrix=k)
-    pose = fit_pose_to_track(truth.t_s.to_numpy(), px, np.full(px.shape, 0.1), start, length, focal_sd_rel=0.05)
+    pose = fit_pose_to_track(t, px, np.full(px.shape, 0.1), start, length, focal_sd_rel=0.05)
     assert 0.7 < pose.chi2_red < 1.3
     spectrum = np.abs(np.fft.rfft(th - th.mean()))
     w_true = 2 * np.pi * np.fft.rfftfreq(len(th), 1 / 200.0)[np.argmax(spectrum[5:]) + 5]
@@ -483,23 +488,14 @@ def test_the_pose_from_a_motion_recorded_from_before_the_release_leaves_the_held
     assert math.acos(min(1.0, up @ up_true)) < 4 * sd_rot
 
 
-def _rolling_track(p, cam, readout_s: float, sigma_px: float, rng, duration_s: float = 2.0, fps: float = 200.0):
+def _rolling_track(p, cam, length_m: float, readout_s: float, sigma_px: float, rng, duration_s: float = 2.0,
+                   fps: float = 200.0):
     """The simulated tip's pixels through a rolling shutter: each frame's tip at ``t + (y / height) * readout``, its
     own row's time (solved by repeating it), with Gaussian noise; ``(t, xy)``."""
-    from gyrorig.physics.simulate import simulate
-
-    length = float(p.extra["markers"]["tip"]["position_m"][2])
     t = np.arange(0.0, duration_s, 1.0 / fps)
-
-    def pixels(times):
-        s = simulate(p, t_eval_s=times)
-        th, ph = s.theta_rad.to_numpy(), s.phi_rad.to_numpy()
-        tips = length * np.column_stack([np.sin(th) * np.sin(ph), -np.sin(th) * np.cos(ph), np.cos(th)])
-        return cv2.projectPoints(tips, cam.rvec, cam.tvec, cam.camera_matrix, cam.dist_coeffs)[0].reshape(-1, 2)
-
-    xy = pixels(t)
+    xy, _ = _tip_pixels(p, cam, length_m, t)
     for _ in range(3):  # a row moves the time by at most the readout: the tip's row settles in a few rounds
-        xy = pixels(t + xy[:, 1] / cam.height_px * readout_s)
+        xy, _ = _tip_pixels(p, cam, length_m, t + xy[:, 1] / cam.height_px * readout_s)
     return t, xy + sigma_px * rng.normal(size=xy.shape)
 
 
@@ -512,23 +508,19 @@ def test_the_pose_from_the_motion_fits_a_rolling_shutters_unknown_readout():
     the fit's, and of the precession rate and nutation frequency against the exact solution each lie within 3 of
     their standard errors (1 / sqrt(8)) of 0."""
     from gyrorig.fit import fit_angles
-    from gyrorig.montecarlo import DataSheet
     from gyrorig.theory import predict
     from gyrorig.tracking.imported import angles_from_pixel_track
     from gyrorig.tracking.motion_pose import fit_pose_to_track
     from gyrorig.tables import camera_mode_count, camera_mode_prior_column
 
-    sheet = DataSheet()
-    p = with_image_size(sheet.scene(load_protocol(PROTOCOL_DIR / "air-cushion-heavy-top.toml")), 640, 480)
-    cam = camera_setup(p).camera
-    length = float(p.extra["markers"]["tip"]["position_m"][2])
+    sheet, p, cam, length = _oblique_scene()
     pred = predict(p, simulate_damping=False)
     readout, sigma = 0.004, 0.1
     pulls: dict[str, list[float]] = {"pose readout": [], "fit readout": [], "precession_rate_rad_s": [],
                                      "nutation_frequency_rad_s": []}
     for seed in range(8):
         rng = np.random.default_rng(seed)
-        t, xy = _rolling_track(p, cam, readout, sigma, rng)
+        t, xy = _rolling_track(p, cam, length, readout, sigma, rng)
         rough = np.asarray(sheet.camera_position_m) + 0.03 * rng.normal(size=3)
         rvec, tvec = placement_pose({"position_m": rough.tolist(), "look_at_m": [0.0, 0.0, 0.0],
                                      "up_hint": [0.0, 0.0, 1.0]})
