@@ -187,8 +187,7 @@ def _pose_from_motion(args: argparse.Namespace, cam, mark) -> dict:
           f"position sd {np.linalg.norm(sd[3:]) * 1e3:.3g} mm, depth scale sd {pose.depth_scale_sd_rel:.2%}")
     if pose.focal_scale_sd > 0:
         print(f"focal length fitted with the pose: {pose.camera_matrix[0, 0]:.1f} px, {100 * pose.focal_scale:+.2f} % "
-              f"+- {100 * pose.focal_scale_sd:.2f} % from camera.json's (its sd "
-              f"{100 * float(np.sqrt(cam.intrinsics_covariance[0, 0])) / cam.camera_matrix[0, 0]:.2g} %)")
+              f"+- {100 * pose.focal_scale_sd:.2f} % from camera.json's (its sd {100 * cam.focal_sd_rel:.2g} %)")
     if np.isfinite(pose.readout_time_s):
         print(f"rolling shutter's readout fitted with the pose: {pose.readout_time_s * 1e3:.3g} ms +- "
               f"{pose.readout_time_sd_s * 1e3:.2g} ms (camera.json keeps it unknown: the analysis fits it again)")

@@ -182,7 +182,7 @@ def _with_nutation(base: Solution, data: FitData, scene: SceneModel, sel: Select
             break
         # a rolling shutter's readout is fitted once the nod is in: the slow model alone leaves the nod as residual,
         # which a readout far beyond any shutter's can warp into
-        cur = _with_readout(sol, data) if data.rolling_shutter and not sol.spec.rolling_shutter else sol
+        cur = _with_readout(sol, data)
         start = cur.values()
     if cur is not None:
         w_fit = cur.values()["nutation_frequency_rad_s"]
@@ -234,9 +234,6 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
                  for start in (base, lean_trial(base, data)) if start is not None]
         best, path_notes, reason = _chosen_path(paths, sel)
         notes += path_notes
-    elif data.rolling_shutter:
-        best = _with_readout(best, data)
-    if scene.nutation_expected:
         if spec0.damped:
             best = _with_optional_terms(best, data, notes, sel)
         elif OPTIONAL["tip_offset"].can_add(best.spec):
@@ -244,6 +241,8 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
         if reason is not None:
             undetermined["nutation_frequency_rad_s"] = reason
             undetermined["nutation_amplitude_rad"] = reason
+    else:
+        best = _with_readout(best, data)
     if not best.ok:
         raise FitConvergenceError(f"the fit did not converge: {best.message}")
     return best, notes, undetermined
@@ -251,7 +250,10 @@ def fit_model(data: FitData, scene: SceneModel, max_harmonics: int = MAX_HARMONI
 
 def _with_readout(cur: Solution, data: FitData) -> Solution:
     """``cur`` with a rolling shutter's readout time fitted (:class:`~gyrorig.fit.terms.RollingShutter`), started
-    from 0 at ``cur``'s solution."""
+    from 0 at ``cur``'s solution, where the data's frames lack their rows' delay and ``cur`` has no readout yet; else
+    ``cur``."""
+    if not data.rolling_shutter or cur.spec.rolling_shutter:
+        return cur
     spec_x = replace(cur.spec, rolling_shutter=True)
     return solve(spec_x, data, {**cur.values(), RollingShutter.NAME: 0.0}, near=True)
 
@@ -266,8 +268,7 @@ def _nutation_path(start: Solution, data: FitData, scene: SceneModel, sel: Selec
     if reason is None:
         cur, reason = _with_nutation(start, data, scene, sel, notes, max_harmonics)
         best = cur if cur is not None else start
-    if data.rolling_shutter and not best.spec.rolling_shutter:
-        best = _with_readout(best, data)
+    best = _with_readout(best, data)
     if not scene.spec.fit_axis:
         best = lean_kept(best, data, notes, sel.need)
     return best, notes, reason

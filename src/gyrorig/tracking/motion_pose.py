@@ -114,11 +114,11 @@ class MotionPose:
         covariance only what the frames do not hold themselves (the same tip positions gave it; see
         :func:`gyrorig.fit.uncertainty.shared_pose_prior_root`)."""
         sd = np.sqrt(np.diag(self.covariance))
-        focal, intrinsics = {}, {}
+        focal, readout, intrinsics = {}, {}, {}
         if self.focal_scale_sd > 0:
             focal = {"focal_scale": self.focal_scale, "focal_scale_sd": self.focal_scale_sd}
         if math.isfinite(self.readout_time_s):
-            focal |= {"readout_fitted_s": self.readout_time_s, "readout_fitted_sd_s": self.readout_time_sd_s}
+            readout = {"readout_fitted_s": self.readout_time_s, "readout_fitted_sd_s": self.readout_time_sd_s}
         if self.camera_matrix is not None and self.intrinsics is not None:
             intrinsics = {"camera_matrix": self.camera_matrix.tolist(),
                           "intrinsics_parameters": list(self.intrinsics[0]),
@@ -135,7 +135,7 @@ class MotionPose:
                                        "phi's slow (precession) part is 0 at the first tracked frame of the motion"),
                     **({"azimuth_mark": self.azimuth_mark} if self.azimuth_mark else {}),
                     **({"video_fingerprint": self.video_fingerprint} if self.video_fingerprint else {}),
-                    **focal,
+                    **focal, **readout,
                     "assumes": "a fixed pivot; the slow motion a precession about the vertical at a steady rate "
                                + ("with tilt and rate drifting linearly (damped scene)" if self.slow_terms
                                   else "and a constant slow tilt (undamped scene)")}}
