@@ -39,14 +39,14 @@ MARKER_COLUMNS = ("frame", "t_s", "marker", "x_px", "y_px", "sigma_x_px", "sigma
                   "amplitude_adu", "background_adu", "chi2_red", "quality")
 #: ``ok``; ``blended`` (fitted jointly with a neighbouring spot); ``saturated``; ``reacquired`` (found
 #: by a full-frame search after a loss); ``missing`` (no position: a gap); ``off-sphere`` (the ray
-#: misses the tip's sphere); ``duplicate`` (a repeated frame, or a codec's copy of the tip's picture whose motion is
+#: misses the tip's sphere); ``duplicate`` (a repeated frame, or a codec's copy of the tip's picture, whose motion is
 #: unknown); ``outlier`` (off the tip's smooth path by more
 #: than 5 of its errors: angles removed, see :mod:`gyrorig.tracking.scatter`); ``damaged`` (the decoder reported
 #: damaged data in this picture or one it is predicted from: angles removed, see :mod:`gyrorig.tracking.sources`);
 #: ``off-pace`` (in an end of a slow-motion record that runs at another pace, a gallery copy's normal-speed end:
 #: its time unknown, angles removed, see :mod:`gyrorig.tracking.pace`); ``copied`` (the tip's pixels bit for bit
-#: another frame's, a codec's skipped block: its error holds the tip's motion between them, see
-#: :mod:`gyrorig.tracking.copies`); ``streaked`` (the tip moved more than its image radius during the exposure: a
+#: another frame's, a codec's skipped block or a whole picture repeated: its error holds the tip's motion between
+#: them, see :mod:`gyrorig.tracking.copies`); ``streaked`` (the tip moved more than its image radius during the exposure: a
 #: streak, which the round spot fit does not describe; its error bars may be too small, see
 #: :meth:`gyrorig.tracking.rows.TrackRows.flag_streaks`); ``near-limb`` (every tracked frame of a record whose tip
 #: came near the limb of its sphere as the camera sees it, beyond which a tip is read at the wrong one of the two

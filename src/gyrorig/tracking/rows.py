@@ -70,6 +70,8 @@ class TrackRows:
         #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
         self.others: tuple | None = ()
         self.recent, self.alike = RecentPictures(), []  # the last frames; rows alike (a codec's copies: module copies)
+        #: the rows of frames whose picture repeats the one before's, with their frames' times (:meth:`repeat`)
+        self.repeated: list[tuple[int, float]] = []
         self.tip_radius_px = tip_radius_px
 
     def frame(self, camera: Camera, tip: Marker, follower: TipFollower, dots: DotTracker | None,
@@ -89,6 +91,33 @@ class TrackRows:
             return
         self._tip_rows(camera, tip, follower, dots, frame, index, t_frame, threshold, located.fit, located.quality)
         self.alike.append(self.recent.see(frame, len(self.angles) - 1, located.fit))
+
+    def repeat(self, camera: Camera, index: int, t_frame: float) -> None:
+        """Add the row of a frame whose picture is the frame before's, bit for bit (a still scene a codec coded as a
+        copy, or a picture repeated by a rate conversion); :meth:`tables` gives it that frame's tip
+        (:meth:`_fill_repeats`)."""
+        self.angles.append(empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
+        self.repeated.append((len(self.angles) - 1, t_frame))
+
+    def _fill_repeats(self, camera: Camera, tip_name: str) -> None:
+        """Each repeated picture's row (:meth:`repeat`) with the tip's fit of the row before it, when that has one, at
+        its own time, joined to it as a codec's copy (:meth:`widen_copies` adds the tip's motion over the two frames
+        to both errors: which of them holds the picture's own time is unknown); the others stay ``duplicate``."""
+        tip_marker = {m[0]: m for m in self.markers if m[2] == tip_name}  # frame -> the tip's marker row
+        for row, t_frame in self.repeated:
+            before = row - 1
+            source = tip_marker.get(self.angles[before][0]) if before >= 0 and before in self.tip_px else None
+            if source is None:
+                continue
+            index = self.angles[row][0]
+            t_mid = t_frame + camera.exposure_s / 2 + camera.row_delay_s(self.tip_px[before][1])
+            self.angles[row] = (index, t_mid, *self.angles[before][2:])
+            tip_marker[index] = (index, t_mid, *source[2:])
+            self.markers.append(tip_marker[index])
+            self.tip_px[row], self.tip_cov[row] = self.tip_px[before], self.tip_cov[before].copy()
+            if before in self.scene_var:
+                self.scene_var[row] = self.scene_var[before]
+            self.alike.append({before, row})
 
     def _tip_rows(self, camera, tip, follower, dots, frame, index, t_frame, threshold, fit: SpotFit, quality: str,
                   row: int | None = None) -> None:
@@ -133,6 +162,7 @@ class TrackRows:
     def tables(self, camera: Camera, with_dots: bool, tip: Marker) -> tuple[pd.DataFrame, pd.DataFrame]:
         """The angle and marker tables, a codec's copies of the tip's picture given the tip's motion over them
         (:meth:`widen_copies`)."""
+        self._fill_repeats(camera, tip.name)
         angles = pd.DataFrame(self.angles, columns=list(ANGLE_COLUMNS))
         angles["phi_rad"] = unwrap_nan(angles.phi_rad.to_numpy())
         if with_dots:

@@ -51,7 +51,7 @@ from .errors import BadInputError, TrackingError
 from .fields import judged_fields, read_as_fields
 from .pose import add_camera_modes, estimate_pose
 from .copies import RepeatedFrames
-from .rows import TrackRows, drop_tip, empty_angle_row, streak_caveat
+from .rows import TrackRows, drop_tip, streak_caveat
 from .harmonic import harmonic_check
 from .scatter import NOISE_ACF, SigmaCheck, b_picture_runs, check_sigmas, local_factors
 from .steady import CameraMotion, CameraWatch, steady_angle_rows
@@ -392,7 +392,8 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
     psi_sigma_rad``; modulo pi for a symmetric pair).  Frame numbers come from the container's timestamps on
     camera.json's frame rate (frames a camera dropped are gaps; a variable rate's frames keep their order and own
     times; a slow-motion file's times are scaled by its rate over ``camera.capture_fps``; an interlaced video's fields
-    are frames, :mod:`~gyrorig.tracking.fields`); a frame identical to the one before is marked ``duplicate``.  Frames
+    are frames, :mod:`~gyrorig.tracking.fields`); a frame identical to the one before keeps its tip as a codec's copy
+    (:meth:`~gyrorig.tracking.rows.TrackRows.repeat`; ``duplicate`` where its motion is unknown).  Frames
     are read at the video's own bit depth.  With ``watch_camera`` (and lab fiducials in the protocol) the camera's own
     motion is followed on the fiducials and taken off the tip (:mod:`gyrorig.tracking.steady`); not with a rough pose
     (it puts the fiducials where they are not).  Raises :class:`TrackingError` for an unreadable video, a camera that
@@ -439,7 +440,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
             if frames.frame_types is not None:
                 frame_types[index] = frames.frame_types[k]
             if repeated.repeats(frame):
-                rows.angles.append(empty_angle_row(index, t_frame + camera.exposure_s / 2, "duplicate"))
+                rows.repeat(camera, index, t_frame)
                 k += 1
                 continue
             raw, frame = frame, appearance.lazy(frame)
