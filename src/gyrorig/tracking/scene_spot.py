@@ -12,7 +12,9 @@ the first few centres); what the scene does between the ring and the disc's edge
 centre's covariance comes from them (:func:`sandwich_covariance`) and from what the unseen scene under the edge may
 differ from the ring (:func:`_scene_covariance`: the ring's own texture at that distance), so it grows where the
 scene behind the edge is busy.  A second fit with the ring nearer the edge (:func:`near_ring_move`) says where the
-scene changes between the edge and the ring.
+scene changes between the edge and the ring.  Near the image's edge the window is cut there (the disc and its blur
+inside the image): the ring's bins beyond it take the scene of the bins beside them, and their sectors' edge points
+are left out of the edge's roughness and the unseen scene's share.
 
 A bin of the ring much brighter than the rest (light of another marker touching the ring) marks the fit
 ``blended``; the model still holds there to first order (that light is outside the disc), and the
@@ -31,16 +33,14 @@ from numba import njit
 from ..camera import Camera
 from . import ellipse, spot
 from .sandwich import _projected_meat, sandwich_covariance
+from .scene_edge import (ANGLE_BINS, RING_WIDTH_PX, _bin_of, _edge_radii, _edge_roughness, fill_empty_bins,
+                         on_image_bins)
 from .small_solve import lu_solve
 from .spot import SpotFit, fit_spot, window_levels
 
 __all__ = ["fit_scene_spot", "fit_round_spot", "sandwich_covariance", "warm_up", "ANGLE_BINS", "RING_WIDTH_PX",
            "near_ring_move", "NEAR_RING_GAP_SIGMAS"]
 
-#: angular bins of the ring that gives the scene behind the disc's edge
-ANGLE_BINS = 32
-#: the ring's radial width [px]
-RING_WIDTH_PX = 2.0
 #: the ring starts this many PSF sigmas beyond the disc's edge (where the disc's light has fallen to 1e-3)
 RING_GAP_SIGMAS = 3.0
 #: a second view of the scene under the edge (:func:`near_ring_move`): a ring this many sigmas beyond the edge (the
@@ -66,25 +66,21 @@ FOREIGN_Z = 5.0
 FOREIGN_CONTRAST = 0.1
 #: a saturated marker's level (censored pixels: :func:`_pass`) is held below this many times full scale (4 stops)
 MAX_OVER_TOP = 16.0
-#: the edge's departures from a circle are read from its harmonics up to this order (:func:`_edge_roughness`)
-EDGE_HARMONICS = 5
-#: ... where at least this fraction of the bins has an edge point
-MIN_ARC_FRACTION = 0.5
+#: near the image's edge the fit's window is cut there where the disc's centre lies at least its radius and this many
+#: PSF sigmas (+1 px) inside the image (its edge's blur inside too); up to this many of the ring's bins may then lie
+#: beyond the image (a quarter of the ring: the rest gives the scene there, their sectors' edge points left out)
+EDGE_MARGIN_SIGMAS = 3.0
+MAX_OFF_IMAGE_BINS = 8
 
 
 @njit(cache=True)
-def _bin_of(dx, dy):
-    """The angular bin of the direction ``(dx, dy)`` (bins of :data:`ANGLE_BINS` from ``-pi``)."""
-    return int((math.atan2(dy, dx) + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS
-
-
-@njit(cache=True)
-def _ring(win, x_first, y_first, cx, cy, r_out, allowed, inside=True):
+def _ring(win, x_first, y_first, cx, cy, r_out, allowed, inside=True, max_empty=0):
     """The ring about ``(cx, cy)`` starting at ``r_out``, and the pixels inside it: ``(ok, bins, pick, scene,
     spread)``.  ``bins`` the ring's bin means; ``pick`` the flat indices of the allowed pixels nearer than
     ``r_out``, ``scene`` the scene ``B`` at each (the bins interpolated in angle); ``spread`` the ring pixels'
-    robust SD about their bins' means.  ``ok`` False when a bin is empty.  Without ``inside`` only ``ok`` and
-    ``bins`` are made (``pick`` and ``scene`` empty, ``spread`` 0)."""
+    robust SD about their bins' means.  ``ok`` False when more than ``max_empty`` bins are empty (a window cut at
+    the image's edge: those take the line between the bins beside them, :func:`fill_empty_bins`).  Without
+    ``inside`` only ``ok`` and ``bins`` are made (``pick`` and ``scene`` empty, ``spread`` 0)."""
     h, w = win.shape
     sums = np.zeros(ANGLE_BINS)
     counts = np.zeros(ANGLE_BINS)
@@ -119,10 +115,16 @@ def _ring(win, x_first, y_first, cx, cy, r_out, allowed, inside=True):
                 n_ring += 1
     bins = np.zeros(ANGLE_BINS)
     scene = np.empty(n_pick)
+    empty = 0
     for b in range(ANGLE_BINS):
         if counts[b] == 0:
-            return False, bins, pick[:n_pick], scene, 0.0
-        bins[b] = sums[b] / counts[b]
+            empty += 1
+        else:
+            bins[b] = sums[b] / counts[b]
+    if empty > min(max_empty, ANGLE_BINS - 2):
+        return False, bins, pick[:n_pick], scene, 0.0
+    if empty:
+        fill_empty_bins(bins, counts)
     if not inside:
         return True, bins, pick[:0], scene, 0.0
     dev = np.empty(n_ring)
@@ -312,120 +314,10 @@ def _without_sectors(allowed, x_first, y_first, cx, cy, foreign):
     return out
 
 
-_BIN_ANGLES = -math.pi + (np.arange(ANGLE_BINS) + 0.5) * (2 * math.pi / ANGLE_BINS)
-
-
 @njit(cache=True)
-def _bilinear(win, x, y):
-    """The window's value at ``(x, y)`` (its own pixel coordinates), bilinear, the edge pixels repeated beyond it."""
-    h, w = win.shape
-    x = min(max(x, 0.0), w - 1.0)
-    y = min(max(y, 0.0), h - 1.0)
-    ix, iy = min(int(x), w - 2), min(int(y), h - 2)
-    fx, fy = x - ix, y - iy
-    return ((1 - fy) * ((1 - fx) * win[iy, ix] + fx * win[iy, ix + 1])
-            + fy * ((1 - fx) * win[iy + 1, ix] + fx * win[iy + 1, ix + 1]))
-
-
-@njit(cache=True)
-def _edge_radii(win, cx, cy, r, blur, marker_level, bins, gap_sigmas):
-    """Where the edge lies in each angular bin: along the ray from the window's point ``(cx, cy)`` through the
-    bin's centre angle, the first radius at which the image falls below half-way between the marker's level and
-    that bin's ring (bilinear samples 0.25 px apart, from ``r - 4 sigma`` out to the ring's outer edge, ``gap_sigmas``
-    sigmas and :data:`RING_WIDTH_PX` beyond the edge; linear
-    between samples).  ``+inf`` where it never falls that far (light beyond the disc), ``-inf`` where it starts
-    below (something in front of the disc)."""
-    start = max(r - 4.0 * blur, 0.3 * r)
-    n = int(math.ceil((r + gap_sigmas * blur + RING_WIDTH_PX - start) / 0.25))
-    out = np.full(ANGLE_BINS, np.inf)
-    for b in range(ANGLE_BINS):
-        c, s = math.cos(_BIN_ANGLES[b]), math.sin(_BIN_ANGLES[b])
-        level = 0.5 * (marker_level + bins[b])
-        before = _bilinear(win, cx + c * start, cy + s * start)
-        if before < level:
-            out[b] = -np.inf
-            continue
-        for j in range(1, n):
-            rad = start + 0.25 * j
-            v = _bilinear(win, cx + c * rad, cy + s * rad)
-            if v < level:
-                out[b] = rad - 0.25 + 0.25 * (before - level) / max(before - v, 1e-12)
-                break
-            before = v
-    return out
-
-
-#: the harmonic basis of :func:`_edge_roughness` at the bins' angles: 1, cos(n a), sin(n a) for n = 1..EDGE_HARMONICS
-_HARMONICS = np.column_stack([np.ones(ANGLE_BINS)] + [f(n * _BIN_ANGLES) for n in range(1, EDGE_HARMONICS + 1)
-                                                      for f in (np.cos, np.sin)])
-
-
-@njit(cache=True)
-def _residual_sum(radii, good, m):
-    """The residual sum of squares of the finite ``radii`` (``good``) about their least-squares fit on the first
-    ``m`` columns of :data:`_HARMONICS` (by its normal equations); NaN when that cannot be solved."""
-    a = np.zeros((m, m))
-    rhs = np.zeros(m)
-    for b in range(ANGLE_BINS):
-        if good[b]:
-            for i in range(m):
-                rhs[i] += _HARMONICS[b, i] * radii[b]
-                for j in range(m):
-                    a[i, j] += _HARMONICS[b, i] * _HARMONICS[b, j]
-    coef, ok = lu_solve(a, rhs)
-    if not ok:
-        return math.nan
-    total = 0.0
-    for b in range(ANGLE_BINS):
-        if good[b]:
-            model = 0.0
-            for i in range(m):
-                model += _HARMONICS[b, i] * coef[i]
-            total += (radii[b] - model) ** 2
-    return total
-
-
-@njit(cache=True)
-def _harmonic_power(radii):
-    """The mean power per coefficient of harmonics 2 to :data:`EDGE_HARMONICS` of the finite ``radii``: twice the
-    sum of squares they explain beyond the circle (harmonics 0 and 1), per coefficient and per bin.  On the whole
-    circle of bins this is the mean of their squared coefficients; on an arc (bins without an edge point) the
-    harmonics are not orthogonal and their coefficients would take up the noise many times over, while what they
-    explain stays what the edge departs from a circle by.  NaN when fewer than :data:`MIN_ARC_FRACTION` of the bins
-    are finite."""
-    good = np.isfinite(radii)
-    n = np.count_nonzero(good)
-    if n < MIN_ARC_FRACTION * ANGLE_BINS:
-        return math.nan
-    m = _HARMONICS.shape[1]
-    explained = _residual_sum(radii, good, 3) - _residual_sum(radii, good, m)
-    return 2.0 * max(explained, 0.0) / ((m - 3) * n)
-
-
-@njit(cache=True)
-def _edge_roughness(win, cx, cy, p, bins, kept, top, gap_sigmas):
-    """The variance [px^2] per axis of the centre (at the window's point ``(cx, cy)``) that the edge's own departures
-    from a circle imply: the edge points (:func:`_edge_radii`) as a Fourier series in angle, whose first harmonic is a
-    shift of the centre and is therefore absorbed by the fit; its unseen power is taken as the mean power per
-    coefficient of harmonics 2 to :data:`EDGE_HARMONICS`.  Noise independent from bin to bin gives ``2 var / bins``
-    (what the pixels' own covariance already holds); a bump of another spot's light merged with the edge, a bulge of
-    texture under it or something in front of the disc spread over neighbouring harmonics and give what they shift the
-    centre by.  NaN when fewer than half the bins have an edge point.
-
-    Only the ``kept`` bins have an edge point (a dark object's edge, whose sectors are left out of the fit, would
-    bend it; another spot's light merged with the edge is what this looks for).  A saturated marker's edge is where
-    the image falls half-way from full scale ``top``, its level as far as it is seen."""
-    radii = _edge_radii(win, cx, cy, p[2], p[4], min(p[3], top), bins, gap_sigmas)
-    for b in range(ANGLE_BINS):
-        if not kept[b]:
-            radii[b] = np.nan
-    return _harmonic_power(radii)
-
-
-@njit(cache=True)
-def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations, top, gap_sigmas):
+def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterations, top, gap_sigmas, max_empty):
     """:func:`_solve`'s iterations, compiled: ``(ok, p, pick, xs, ys, weight, jac, resid, fisher, bins,
-    coverage)``."""
+    coverage)``; ``max_empty`` the ring's bins that may lie beyond the image (:func:`_ring`)."""
     h, w = win.shape
     p = p0.copy()
     converged = False
@@ -440,7 +332,7 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
     for it in range(iterations):
         if it < RING_PASSES:  # then the ring and the fitted pixels stay put: their edges would make the steps flip
             ok, bins, pick, scene, spread = _ring(win, x_first, y_first, p[0], p[1],
-                                                  p[2] + gap_sigmas * p[4], allowed)
+                                                  p[2] + gap_sigmas * p[4], allowed, True, max_empty)
             if not ok:
                 return False, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover
             xs, ys, values = np.empty(pick.size), np.empty(pick.size), np.empty(pick.size)
@@ -474,15 +366,16 @@ def _solve_core(win, x_first, y_first, allowed, p0, r0, sigma, sigma_max, iterat
 
 
 def _solve(win, x_first: float, y_first: float, allowed, p, r0: float, sigma: float, sigma_max: float,
-           iterations: int, top: float, gap_sigmas: float) -> _Solution | None:
+           iterations: int, top: float, gap_sigmas: float, max_empty: int = 0) -> _Solution | None:
     """Weighted Gauss-Newton of ``(x, y, r, M, blur)`` over the allowed pixels inside the ring (the window's first
     column and row at ``x_first, y_first``), the ring taken
     again about each new centre; the weights ``1 / ((1 - c) var_ring + c var_marker)``, both measured.  None when
-    a ring bin is empty, a step cannot be solved or kept in range, or the iterations do not converge.  Pixels at
-    ``top`` are censored (:func:`_pass`); the ring lies ``gap_sigmas`` blur sigmas beyond the edge."""
+    more than ``max_empty`` ring bins are empty, a step cannot be solved or kept in range, or the iterations do not
+    converge.  Pixels at ``top`` are censored (:func:`_pass`); the ring lies ``gap_sigmas`` blur sigmas beyond the
+    edge."""
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
         win, float(x_first), float(y_first), np.ascontiguousarray(allowed), np.asarray(p, np.float64), float(r0),
-        float(sigma), float(sigma_max), int(iterations), float(top), float(gap_sigmas))
+        float(sigma), float(sigma_max), int(iterations), float(top), float(gap_sigmas), int(max_empty))
     if not ok:
         return None
     return _Solution(p, pick, xs, ys, weight, jac, resid, fisher, bins, cover)
@@ -540,33 +433,39 @@ def _fit_with_ring(image: np.ndarray, x0: float, y0: float, r0: float, cam: Came
     sigma = cam.psf_sigma_px
     sigma_max = MAX_BLUR * sigma + 1.0
     half = int(math.ceil(1.3 * r0 + gap_sigmas * sigma_max + RING_WIDTH_PX + 2))
-    window = window_levels(image, x0, y0, half)
+    # near the image's edge the window is cut there, the disc and its blur inside the image
+    window = window_levels(image, x0, y0, half, r0 + EDGE_MARGIN_SIGMAS * sigma + 1.0)
     if window is None:
         return None
     win, x_first, y_first, _, background, amplitude = window
     x_first, y_first = float(x_first), float(y_first)
+    max_empty = MAX_OFF_IMAGE_BINS if win.shape != (2 * half + 1, 2 * half + 1) else 0
     saturated = bool(win.max() >= cam.max_adu)
     top = float(cam.max_adu) if saturated else math.inf
     allowed = np.ones(win.shape, np.bool_)
-    ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + gap_sigmas * sigma_max, allowed, False)
+    ok, bins, *_ = _ring(win, x_first, y_first, x0, y0, r0 + gap_sigmas * sigma_max, allowed, False, max_empty)
     dark = _foreign_bins(bins, background + amplitude, -1.0) if ok else np.zeros(ANGLE_BINS, np.bool_)
     if dark.any():  # a dark object's edge within the widest ring: its sectors are left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, dark)
     start = np.array([x0, y0, r0, background + amplitude, sigma])
-    sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top, gap_sigmas)
+    sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top, gap_sigmas, max_empty)
     bright = _foreign_bins(bins, background + amplitude) if ok and sol is None else np.zeros(ANGLE_BINS, np.bool_)
     if bright.any():  # another light within the widest ring (a hand beside the tip) pulled the fit away: left out
         allowed = _without_sectors(allowed, x_first, y_first, x0, y0, bright)
-        sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top, gap_sigmas)
+        sol = _solve(win, x_first, y_first, allowed, start, r0, sigma, sigma_max, iterations, top, gap_sigmas,
+                     max_empty)
         if sol is not None and _joined(win, x_first, y_first, sol, bright, top, gap_sigmas):
             return None
     if sol is None:
         return None
-    kept = _fitted_bins(sol.xs, sol.ys, sol.p[0], sol.p[1])  # all but a dark object's sectors
+    kept = _fitted_bins(sol.xs, sol.ys, sol.p[0], sol.p[1])  # all but a dark object's sectors ...
+    if max_empty:  # ... and the bins whose ring lies beyond the image
+        kept &= on_image_bins(win.shape, x_first, y_first, sol.p[0], sol.p[1], sol.p[2] + gap_sigmas * sol.p[4])
     foreign = _foreign_bins(sol.bins, min(sol.p[3], top))
     if foreign.any():  # another spot's light on the ring: its sectors (and one bin either side) are left out
         allowed = _without_sectors(allowed, x_first, y_first, sol.p[0], sol.p[1], foreign)
-        sol = _solve(win, x_first, y_first, allowed, sol.p, r0, sigma, sigma_max, iterations, top, gap_sigmas)
+        sol = _solve(win, x_first, y_first, allowed, sol.p, r0, sigma, sigma_max, iterations, top, gap_sigmas,
+                     max_empty)
         if sol is None:
             return None
     p, n_used = sol.p, sol.pick.size
@@ -607,8 +506,9 @@ def warm_up() -> None:
     win = 20.0 + 100.0 * (np.hypot(xx - 20.2, yy - 19.9) < 5.0)
     allowed = np.ones(win.shape, bool)
     ok, p, pick, xs, ys, weight, jac, resid, fisher, bins, cover = _solve_core(
-        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15, math.inf, RING_GAP_SIGMAS)
-    _ring(win, 0.0, 0.0, 20.0, 20.0, 8.0, allowed, False)
+        win, 0.0, 0.0, allowed, np.array([20.0, 20.0, 5.0, 120.0, 1.0]), 5.0, 1.0, 3.5, 15, math.inf, RING_GAP_SIGMAS, 0)
+    _ring(win, 0.0, 0.0, 20.0, 20.0, 8.0, allowed, False, 0)
+    fill_empty_bins(bins, np.r_[0.0, np.ones(ANGLE_BINS - 1)])
     _foreign_bins(bins, float(p[3]))
     _median(bins)
     _without_sectors(allowed, 0.0, 0.0, float(p[0]), float(p[1]), np.zeros(ANGLE_BINS, np.bool_))

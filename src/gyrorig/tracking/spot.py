@@ -212,20 +212,24 @@ def spot_window(image: np.ndarray, x0: float, y0: float, half: int, cam: Camera)
     return win, xx, yy, win >= cam.max_adu, border, bg, amp
 
 
-def window_levels(image: np.ndarray, x0: float, y0: float, half: int):
+def window_levels(image: np.ndarray, x0: float, y0: float, half: int, min_margin: float | None = None):
     """:func:`spot_window` without the pixel coordinates and saturated pixels: ``(win, x_first, y_first, border,
-    background, amplitude)``, ``x_first, y_first`` the window's first column and row; None as there."""
+    background, amplitude)``, ``x_first, y_first`` the window's first column and row; None as there.  With
+    ``min_margin`` a window that leaves the image is cut at its edges, where ``(x0, y0)`` is at least that far [px]
+    inside them (else None)."""
     xi, yi = int(round(x0)), int(round(y0))
     h, w = image.shape
     if xi - half < 0 or yi - half < 0 or xi + half >= w or yi + half >= h:
-        return None
-    win = image[yi - half:yi + half + 1, xi - half:xi + half + 1].astype(np.float64)
+        if min_margin is None or min(x0, y0, w - 1 - x0, h - 1 - y0) < min_margin:
+            return None
+    x_first, y_first = max(xi - half, 0), max(yi - half, 0)
+    win = image[y_first:min(yi + half + 1, h), x_first:min(xi + half + 1, w)].astype(np.float64)
     border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
     bg, top = _levels(border, win)
     amp = top - bg
     if amp <= 0:
         return None
-    return win, xi - half, yi - half, border, bg, amp
+    return win, x_first, y_first, border, bg, amp
 
 
 @njit(cache=True)
