@@ -24,6 +24,7 @@ from .constraints import Constraints
 from .data import FitData, FitError
 from .result import QUANTITY_UNITS, FitResult, Quantity, QuantityStatus, Reason, Undetermined
 from .spec import ModelSpec
+from .terms import RollingShutter
 
 __all__ = ["quantity_functions", "nutation_amplitude", "theory_values", "build_quantities", "truth_values",
            "at_record_state"]
@@ -234,11 +235,17 @@ def truth_values(truth: pd.DataFrame, data: FitData, spec: ModelSpec, x: np.ndar
         raise FitError(f"the truth table ({t[0]:.6g}..{t[-1]:.6g} s) does not cover the measured times "
                        f"({lo:.6g}..{hi:.6g} s)")
     keep = np.concatenate([[True], np.diff(t) > 0])
-    th_i = CubicSpline(t[keep], th[keep])(data.t_s)
-    ph_i = wrap_angle(CubicSpline(t[keep], ph[keep])(data.t_s))
+    t_eval = data.t_s
+    names = list(spec.names())
+    if data.row_fraction is not None and RollingShutter.NAME in names:
+        # frame times without their rows' delay: the truth at the tip's own times, as the fitted readout puts them
+        # (between a slow record's frames its spline through the truth's samples is not the motion)
+        t_eval = data.t_s + data.row_fraction * float(x[names.index(RollingShutter.NAME)])
+    th_i = CubicSpline(t[keep], th[keep])(t_eval)
+    ph_i = wrap_angle(CubicSpline(t[keep], ph[keep])(t_eval))
     # instantaneous, and free of the user's constraints: the truth is the unconstrained estimator's limit
-    d = replace(data, theta_rad=th_i, phi_rad=ph_i, camera_shift=None, exposure_s=None, constraints=Constraints(),
-                b_frame=None, row_fraction=None)
+    d = replace(data, t_s=t_eval, theta_rad=th_i, phi_rad=ph_i, camera_shift=None, exposure_s=None,
+                constraints=Constraints(), b_frame=None, row_fraction=None)
     spec0 = replace(spec, camera_modes=0, b_frames=False, rolling_shutter=False)
     sol = solve(spec0, d, dict(zip(spec0.names(), x)))
     out = {k: float(f(sol.x)) for k, f in quantity_functions(spec).items()}

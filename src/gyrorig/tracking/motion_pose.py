@@ -284,7 +284,11 @@ def fit_pose_to_track(t_s: np.ndarray, xy_px: np.ndarray, sigma_px: np.ndarray, 
         raise TrackingError(f"the tip was tracked in {len(t)} frames; the pose from the motion needs {MIN_FRAMES}")
     scale, theta, phi = _start_angles(xy, start, length_m, focal_sd_rel)
     hit = np.isfinite(theta)
-    w0 = _start_frequency(t[hit], theta[hit], phi[hit], nutation_frequency(t, xy), slow_terms, harmonics)
+    w_image = nutation_frequency(t, xy)
+    # the start searched with the harmonics the frame rate resolves (above the Nyquist frequency a harmonic's
+    # columns alias onto the other terms' frequencies and the search's least residual falls on a false frequency)
+    resolved = min(harmonics, max(1, math.ceil(math.pi / (w_image * float(np.median(np.diff(t))))) - 1))
+    w0 = _start_frequency(t[hit], theta[hit], phi[hit], w_image, slow_terms, resolved)
     motion, phi0 = _start_motion(t[hit], theta[hit], phi[hit], w0, slow_terms, harmonics)
     # the gauge: turn the starting pose about the vertical so that phi's slow part starts at 0
     rot = cv2.Rodrigues(start.rvec)[0] @ _rot_z(phi0)
