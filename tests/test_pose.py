@@ -499,6 +499,36 @@ def _rolling_track(p, cam, length_m: float, readout_s: float, sigma_px: float, r
     return t, xy + sigma_px * rng.normal(size=xy.shape)
 
 
+def _data_sheet_start(sheet, cam, rng):
+    """The data-sheet user's starting camera (:class:`gyrorig.montecarlo.DataSheet`): the placement 3 cm off, the focal
+    length drawn 5 % off and stated +- 5 %, a rolling shutter of unknown readout."""
+    rough = np.asarray(sheet.camera_position_m) + 0.03 * rng.normal(size=3)
+    rvec, tvec = placement_pose({"position_m": rough.tolist(), "look_at_m": [0.0, 0.0, 0.0],
+                                 "up_hint": [0.0, 0.0, 1.0]})
+    k = cam.camera_matrix.copy()
+    k[:2, :2] *= 1.0 + 0.05 * rng.normal()
+    f_sd = 0.05 * k[0, 0]
+    return replace(cam, rvec=rvec, tvec=tvec, camera_matrix=k, shutter="rolling", readout_time_s=math.nan,
+                   intrinsics_parameters=("fx", "fy"), intrinsics_covariance=np.full((2, 2), f_sd**2))
+
+
+def _angles_through_pose(p, start, pose, t, xy, sigma_px):
+    """The angle table of the pixels ``xy`` at ``t`` through the pose and focal length found from them."""
+    from gyrorig.tracking.imported import angles_from_pixel_track
+    from gyrorig.tables import camera_mode_count, camera_mode_prior_column
+
+    k = start.camera_matrix
+    posed = replace(start.with_intrinsics(("fx", "fy"), pose.focal_scale * np.diag(k)[:2]), rvec=pose.rvec,
+                    tvec=pose.tvec, pose_covariance=pose.covariance,
+                    intrinsics_covariance=np.full((2, 2), (pose.focal_scale_sd * k[0, 0]) ** 2))
+    track = pd.DataFrame({"frame": np.arange(len(t)), "t_s": t, "x_px": xy[:, 0], "y_px": xy[:, 1],
+                          "sigma_px": sigma_px})
+    angles, _ = angles_from_pixel_track(track, posed, p)
+    for mode in range(camera_mode_count(angles.columns)):  # the pose came from these same frames
+        angles[camera_mode_prior_column(mode + 1)] = 0.0
+    return angles
+
+
 def test_the_pose_from_the_motion_fits_a_rolling_shutters_unknown_readout():
     """A phone's rolling shutter (4 ms from top to bottom at 200 frames/s) whose readout camera.json leaves unknown,
     no calibration: the simulated tip's pixels at its own row's time (0.1 px of noise), the pose and the focal length
@@ -509,9 +539,7 @@ def test_the_pose_from_the_motion_fits_a_rolling_shutters_unknown_readout():
     their standard errors (1 / sqrt(8)) of 0."""
     from gyrorig.fit import fit_angles
     from gyrorig.theory import predict
-    from gyrorig.tracking.imported import angles_from_pixel_track
     from gyrorig.tracking.motion_pose import fit_pose_to_track
-    from gyrorig.tables import camera_mode_count, camera_mode_prior_column
 
     sheet, p, cam, length = _oblique_scene()
     pred = predict(p, simulate_damping=False)
@@ -521,24 +549,10 @@ def test_the_pose_from_the_motion_fits_a_rolling_shutters_unknown_readout():
     for seed in range(8):
         rng = np.random.default_rng(seed)
         t, xy = _rolling_track(p, cam, length, readout, sigma, rng)
-        rough = np.asarray(sheet.camera_position_m) + 0.03 * rng.normal(size=3)
-        rvec, tvec = placement_pose({"position_m": rough.tolist(), "look_at_m": [0.0, 0.0, 0.0],
-                                     "up_hint": [0.0, 0.0, 1.0]})
-        k = cam.camera_matrix.copy()
-        k[:2, :2] *= 1.0 + 0.05 * rng.normal()
-        f_sd = 0.05 * k[0, 0]
-        start = replace(cam, rvec=rvec, tvec=tvec, camera_matrix=k, shutter="rolling", readout_time_s=math.nan,
-                        intrinsics_parameters=("fx", "fy"), intrinsics_covariance=np.full((2, 2), f_sd**2))
+        start = _data_sheet_start(sheet, cam, rng)
         pose = fit_pose_to_track(t, xy, np.full(xy.shape, sigma), start, length, focal_sd_rel=0.05)
         pulls["pose readout"].append((pose.readout_time_s - readout) / pose.readout_time_sd_s)
-        posed = replace(start.with_intrinsics(("fx", "fy"), pose.focal_scale * np.diag(k)[:2]), rvec=pose.rvec,
-                        tvec=pose.tvec, pose_covariance=pose.covariance,
-                        intrinsics_covariance=np.full((2, 2), (pose.focal_scale_sd * k[0, 0]) ** 2))
-        track = pd.DataFrame({"frame": np.arange(len(t)), "t_s": t, "x_px": xy[:, 0], "y_px": xy[:, 1],
-                              "sigma_px": sigma})
-        angles, _ = angles_from_pixel_track(track, posed, p)
-        for mode in range(camera_mode_count(angles.columns)):  # the pose came from these same frames
-            angles[camera_mode_prior_column(mode + 1)] = 0.0
+        angles = _angles_through_pose(p, start, pose, t, xy, sigma)
         fit = fit_angles(angles, p, prediction=pred)
         value, se = fit.params["readout_time_s"]
         pulls["fit readout"].append((value - readout) / se)
@@ -561,9 +575,7 @@ def test_a_phones_30_frames_per_s_through_a_slow_rolling_shutter_is_posed_from_t
     from gyrorig.fit import fit_angles
     from gyrorig.physics.simulate import simulate
     from gyrorig.theory import predict
-    from gyrorig.tracking.imported import angles_from_pixel_track
     from gyrorig.tracking.motion_pose import MAX_DEPTH_SCALE_SD_REL, fit_pose_to_track
-    from gyrorig.tables import camera_mode_count, camera_mode_prior_column
 
     sheet, p, cam, length = _oblique_scene()
     pred = predict(p, simulate_damping=False)
@@ -573,25 +585,11 @@ def test_a_phones_30_frames_per_s_through_a_slow_rolling_shutter_is_posed_from_t
     for seed in range(4):
         rng = np.random.default_rng(seed)
         t, xy = _rolling_track(p, cam, length, readout, sigma, rng, duration_s=8.0, fps=30.0)
-        rough = np.asarray(sheet.camera_position_m) + 0.03 * rng.normal(size=3)
-        rvec, tvec = placement_pose({"position_m": rough.tolist(), "look_at_m": [0.0, 0.0, 0.0],
-                                     "up_hint": [0.0, 0.0, 1.0]})
-        k = cam.camera_matrix.copy()
-        k[:2, :2] *= 1.0 + 0.05 * rng.normal()
-        f_sd = 0.05 * k[0, 0]
-        start = replace(cam, rvec=rvec, tvec=tvec, camera_matrix=k, shutter="rolling", readout_time_s=math.nan,
-                        intrinsics_parameters=("fx", "fy"), intrinsics_covariance=np.full((2, 2), f_sd**2))
+        start = _data_sheet_start(sheet, cam, rng)
         pose = fit_pose_to_track(t, xy, np.full(xy.shape, sigma), start, length, focal_sd_rel=0.05)
         assert abs(pose.chi2_red - 1.0) < 0.3 and pose.depth_scale_sd_rel <= MAX_DEPTH_SCALE_SD_REL
         pulls["pose readout"].append((pose.readout_time_s - readout) / pose.readout_time_sd_s)
-        posed = replace(start.with_intrinsics(("fx", "fy"), pose.focal_scale * np.diag(k)[:2]), rvec=pose.rvec,
-                        tvec=pose.tvec, pose_covariance=pose.covariance,
-                        intrinsics_covariance=np.full((2, 2), (pose.focal_scale_sd * k[0, 0]) ** 2))
-        track = pd.DataFrame({"frame": np.arange(len(t)), "t_s": t, "x_px": xy[:, 0], "y_px": xy[:, 1],
-                              "sigma_px": sigma})
-        angles, _ = angles_from_pixel_track(track, posed, p)
-        for mode in range(camera_mode_count(angles.columns)):  # the pose came from these same frames
-            angles[camera_mode_prior_column(mode + 1)] = 0.0
+        angles = _angles_through_pose(p, start, pose, t, xy, sigma)
         own_t = t + xy[:, 1] / cam.height_px * readout  # the tip's own times (its row's), the noise aside
         s = simulate(p, t_eval_s=own_t)
         truth = pd.DataFrame({"t_s": own_t, "theta_rad": s.theta_rad.to_numpy(), "phi_rad": s.phi_rad.to_numpy()})
