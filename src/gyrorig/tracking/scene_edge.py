@@ -30,7 +30,6 @@ def _bin_of(dx, dy):
     return int((math.atan2(dy, dx) + math.pi) / (2 * math.pi) * ANGLE_BINS) % ANGLE_BINS
 
 
-
 _BIN_ANGLES = -math.pi + (np.arange(ANGLE_BINS) + 0.5) * (2 * math.pi / ANGLE_BINS)
 
 
