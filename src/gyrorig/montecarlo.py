@@ -41,7 +41,7 @@ FIT_MC_SCENES = ("air-cushion-heavy-top", "eddy-damped-top-b2", "accelerated-piv
 #: ``runs.csv``: one row per run and quantity (a failed run: one row with ``error``)
 RUN_COLUMNS = ("scene", "seed", "duration_s", "quantity", "status", "value", "standard_error",
                "formal_standard_error", "truth", "pull", "chi2_red", "errors", "error_kind", "harmonics", "terms",
-               "added_terms", "refused_terms", "wall_s", "error")
+               "added_terms", "refused_terms", "breaks", "wall_s", "error")
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def fit_monte_carlo_run(scene: str | Protocol, seed: int, duration_s: float,
              "truth": q.truth, "pull": q.pull, "chi2_red": fit.chi2_red, "errors": fit.errors,
              "error_kind": str(fit.error_kind), "harmonics": fit.spec.harmonics, "terms": fit.terms.describe(),
              "added_terms": ",".join(fit.terms_beyond_plan), "refused_terms": ",".join(fit.terms_not_identifiable),
-             "wall_s": time.perf_counter() - start, "error": "", **drawn}
+             "breaks": len(fit.breaks), "wall_s": time.perf_counter() - start, "error": "", **drawn}
             for name, q in fit.quantities.items()]
 
 

@@ -28,7 +28,7 @@ from .constraints import Constraints, constrainable_names
 from .data import FIT_REQUIRED, FitConvergenceError, FitData, FitError, fit_data_from_angles
 from .fitting import STATE_NAMES, TERM_CHOICES, fit_angles, linear_response, record_state, state_values
 from .model import FitModel, Residuals, SceneModel, model_for_scene
-from .result import (NONLINEAR_PHASE_RAD, QUANTITY_UNITS, ErrorKind, FitResult, Note, NoteKind, Quantity,
+from .result import (NONLINEAR_PHASE_RAD, QUANTITY_UNITS, ErrorKind, FitResult, MotionBreak, Note, NoteKind, Quantity,
                      QuantityStatus, Undetermined)
 from .selection import (PLANNED_NONCENTRALITY, TERM_P_VALUE, Selector, fit_model, left_out_noncentrality, plan_terms,
                         score_term, trial_term)
@@ -40,6 +40,6 @@ from .uncertainty import phase_uncertainty
 __all__ = ["Constraints", "constrainable_names", "FitError", "FitConvergenceError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "FitModel", "Residuals",
            "SceneModel", "Solution", "Selector", "model_for_scene", "fit_data_from_angles", "fit_angles", "fit_model",
            "solve", "plan_terms", "phase_uncertainty", "left_out_noncentrality", "linear_response", "score_term",
-           "trial_term", "ErrorKind", "Note", "NoteKind", "QuantityStatus", "Undetermined", "OPTIONAL_TERMS",
+           "trial_term", "ErrorKind", "MotionBreak", "Note", "NoteKind", "QuantityStatus", "Undetermined", "OPTIONAL_TERMS",
            "QUANTITY_UNITS", "MAX_HARMONICS", "NONLINEAR_PHASE_RAD", "PLANNED_NONCENTRALITY", "TERM_P_VALUE",
            "TERM_CHOICES", "FIT_REQUIRED", "record_state", "state_values", "STATE_NAMES"]

@@ -8,16 +8,18 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
+from scipy.stats import chi2 as chi2_dist
 
 from .._format import with_error
 from ..prediction import Prediction
 from ..protocols import AirDamping, Protocol
+from .breaks import find_break
 from .checks import check_notes
 from .constraints import Constraints
 from .data import FitData, FitError, fit_data_from_angles
 from .model import FitModel, Residuals, model_for_scene
 from .quantities import build_quantities, quantity_functions, truth_values
-from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, Note, NoteKind, Reason, Undetermined
+from .result import NONLINEAR_PHASE_RAD, ErrorKind, FitResult, MotionBreak, Note, NoteKind, Reason, Undetermined
 from .selection import PLANNED_NONCENTRALITY, fit_model, left_out_noncentrality
 from .solver import Solution, solve
 from .spec import FitTerms
@@ -33,6 +35,8 @@ SYSTEMATIC_CHI2_RED = 10.0
 #: times and finds the precession's growth this many standard errors from 0
 SPIN_DOWN_CHI2_GAIN = 4.0
 SPIN_DOWN_SIGMAS = 5.0
+#: breaks in the motion looked for, one after another in the part kept (:mod:`gyrorig.fit.breaks`)
+MAX_BREAKS = 3
 
 
 def _choose_model(data: FitData, scene, terms: FitTerms | str) -> tuple[Solution, list[Note], dict, FitTerms]:
@@ -71,6 +75,30 @@ def _standard_errors(sol: Solution, data: FitData, fns: dict, error_kind: ErrorK
             se_stat = max(se_stat, bootstrap_sd[k])
         values[k] = (v, math.hypot(se_stat, camera_se.get(k, 0.0)))
     return values, formal, camera_se
+
+
+def _without(angles: pd.DataFrame, exclude: np.ndarray | None, data: FitData, drop: np.ndarray, scene,
+             constraints: Constraints, terms):
+    """The record without the fit's frames ``drop``: the angles' exclusion mask, the fit's data and the model
+    chosen again (:func:`_choose_model`)."""
+    gone = np.isin(angles["t_s"].to_numpy(float), data.t_s[drop])
+    exclude = gone if exclude is None else np.asarray(exclude, bool) | gone
+    data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints, leave_out_still_ends=True)
+    return exclude, data, _choose_model(data, scene, terms)
+
+
+def _break_notes(breaks: list[MotionBreak], data: FitData) -> list[Note]:
+    """A note for each break in the motion found (:mod:`gyrorig.fit.breaks`), and one that says which part was
+    fitted."""
+    if not breaks:
+        return []
+    out = [Note(NoteKind.MOTION_BREAK, f"{brk.describe()}; the longer part is kept") for brk in breaks]
+    after = any(b.t_after_s <= data.t_s[0] for b in breaks)
+    out.append(Note(NoteKind.MOTION_BREAK, f"fitted: the frames from {data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s (give "
+                    "the recording's --start and --end to fit another part)" + (
+                        "; it starts after a break, not from the protocol's launch: theory at the launch is shown "
+                        "beside it, not compared" if after else "")))
+    return out
 
 
 def _limb_note(angles: pd.DataFrame) -> list[Note]:
@@ -246,12 +274,20 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
     if any(hand):  # the frames between a still end and the free motion left out too, and the model chosen again
         drop = np.zeros(data.n, bool)
         drop[:hand[0]] = drop[data.n - hand[1]:] = True
-        gone = np.isin(angles["t_s"].to_numpy(float), data.t_s[drop])
-        exclude = gone if exclude is None else np.asarray(exclude, bool) | gone
-        data = fit_data_from_angles(angles, exclude, scene.precession_hint_rad_s, constraints,
-                                    leave_out_still_ends=True)
-        sol, notes, undetermined, chosen = _choose_model(data, scene, terms)
-    notes = _still_note(data, hand) + notes
+        exclude, data, (sol, notes, undetermined, chosen) = _without(angles, exclude, data, drop, scene, constraints,
+                                                                     terms)
+    breaks = []
+    while check_residuals and len(breaks) < MAX_BREAKS and chi2_dist.sf(sol.chi2, sol.dof) < 1e-3:
+        brk = find_break(sol, data)
+        if brk is None:
+            break
+        # the longer part kept, and its model chosen again (a part may hold terms the whole record's misfit hid)
+        before = np.arange(data.n) <= brk.last_before
+        drop = ~before if before.sum() >= data.n - before.sum() else before
+        exclude, data, (sol, notes, undetermined, chosen) = _without(angles, exclude, data, drop, scene, constraints,
+                                                                     terms)
+        breaks.append(brk)
+    notes = _still_note(data, hand) + _break_notes(breaks, data) + notes
     if data.camera_prior is not None and sol.spec.camera_modes and np.any(data.camera_prior == 0.0):
         # a pose found from these frames: its modes' priors less what the frames hold, the chosen model refitted
         data = replace(data, camera_prior_root=shared_pose_prior_root(sol.spec, sol.x, data))
@@ -274,7 +310,9 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
     if check_residuals and not sol.spec.damped and protocol.has_gravity and sol.chi2 > SYSTEMATIC_CHI2_RED * sol.dof:
         notes += _spin_down_note(angles, protocol, prediction, exclude, constraints, sol, data)
     truth_vals = truth_values(truth, data, sol.spec, sol.x) if truth is not None else {}
-    quantities = build_quantities(sol.spec, values, formal, camera_se, undetermined, protocol, prediction, truth_vals)
+    after_break = any(b.t_after_s <= data.t_s[0] for b in breaks)
+    quantities = build_quantities(sol.spec, values, formal, camera_se, undetermined, protocol, prediction, truth_vals,
+                                  after_break=after_break)
     notes += check_notes(sol, data, protocol, quantities)
     residuals, curve = _residual_tables(sol, data)
     names = sol.spec.names()
@@ -282,7 +320,8 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
     return FitResult(spec=sol.spec, params=params, quantities=quantities, chi2=sol.chi2, dof=sol.dof,
                      residuals=residuals, model_curve=curve, t_ref_s=data.t_ref_s, error_kind=error_kind,
                      notes=tuple(notes), x=sol.x, covariance=sol.cov, wall_time_s=time.perf_counter() - start_time,
-                     terms=chosen, phase_uncertainty_rad=phases, bootstrap=bootstrap, constraints=constraints)
+                     terms=chosen, phase_uncertainty_rad=phases, bootstrap=bootstrap, constraints=constraints,
+                     breaks=tuple(breaks))
 
 
 def _spin_down_note(angles: pd.DataFrame, protocol: Protocol, prediction: Prediction | None,

@@ -177,12 +177,14 @@ def _time_constant_tested_as_rate(quantities: dict[str, Quantity]) -> dict[str, 
 
 
 def build_quantities(spec: ModelSpec, values: dict, formal: dict, camera_se: dict, undetermined: dict[str, Reason],
-                     protocol: Protocol, prediction: Prediction | None, truth: dict[str, float]) -> dict[str, Quantity]:
+                     protocol: Protocol, prediction: Prediction | None, truth: dict[str, float], *,
+                     after_break: bool = False) -> dict[str, Quantity]:
     """The quantities of the scene, with theory and truth beside them.
 
     ``values``: quantity -> (value, standard error); ``formal``: quantity -> formal standard error;
     ``camera_se``: the camera model's share; ``undetermined``: quantity -> why not; ``truth``:
-    quantity -> true value (synthetic runs).
+    quantity -> true value (synthetic runs); ``after_break``: the frames fitted start after a break in the motion
+    (:mod:`gyrorig.fit.breaks`), where the launch's theory is shown beside them but not compared.
     """
     theory = theory_values(prediction)
     out: dict[str, Quantity] = {}
@@ -203,6 +205,10 @@ def build_quantities(spec: ModelSpec, values: dict, formal: dict, camera_se: dic
         comparable, cnote = _comparison_note(name, spec, protocol, values["cone_angle_rad"][0])
         if name == "tilt_time_constant_s":
             comparable = q.value is not None
+        if after_break:
+            comparable, cnote = False, ("the frames fitted start after a break in the motion: the prediction is for "
+                                        "the protocol's launch, which they do not start from; no difference in "
+                                        "standard errors is given")
         q = _compare(q, theory, comparable and q.determined, cnote)
         if name in truth and q.determined:
             tv = truth[name]

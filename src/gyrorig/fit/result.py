@@ -19,7 +19,8 @@ from .._format import with_error
 from .constraints import Constraints
 from .spec import FitTerms, ModelSpec
 
-__all__ = ["QUANTITY_UNITS", "QuantityStatus", "Undetermined", "Reason", "ErrorKind", "NoteKind", "Note", "Quantity",
+__all__ = ["QUANTITY_UNITS", "QuantityStatus", "Undetermined", "Reason", "ErrorKind", "NoteKind", "Note", "MotionBreak",
+           "Quantity",
            "FitResult", "NONLINEAR_PHASE_RAD", "TERM_P_VALUE"]
 
 QUANTITY_UNITS = {
@@ -126,6 +127,8 @@ class NoteKind(StrEnum):
     SPIN_DOWN = "spin-down"
     #: the record's still ends (a top held before its release, caught before the recording ends) left out
     STILL_ENDS = "still-ends"
+    #: the motion changes in a moment (a touch, a bump): the model fits each part but not both; the longer fitted
+    MOTION_BREAK = "motion-break"
 
 
 @dataclass(frozen=True)
@@ -225,6 +228,32 @@ def _quantity_lines(q: Quantity) -> list[str]:
     return out
 
 
+@dataclass(frozen=True)
+class MotionBreak:
+    """Where the record's motion breaks: the last frame before it and the first after (indices into the fit's
+    frames), their times [s], and the reduced chi-squares of the whole record and of each part fitted alone."""
+
+    last_before: int
+    first_after: int
+    t_before_s: float
+    t_after_s: float
+    chi2_red_whole: float
+    chi2_red_before: float
+    chi2_red_after: float
+    f_statistic: float
+
+    def as_dict(self) -> dict:
+        return {"t_before_s": self.t_before_s, "t_after_s": self.t_after_s, "chi2_red_whole": self.chi2_red_whole,
+                "chi2_red_before": self.chi2_red_before, "chi2_red_after": self.chi2_red_after,
+                "f_statistic": self.f_statistic}
+
+    def describe(self) -> str:
+        return (f"the motion breaks between {self.t_before_s:.4g} s and {self.t_after_s:.4g} s (a touch, a bump "
+                f"against a stop, a knock?): the model fits the frames before it and those after it each on its "
+                f"own (reduced chi-square {self.chi2_red_before:.3g} and {self.chi2_red_after:.3g}) but not both "
+                f"with one set of parameters ({self.chi2_red_whole:.3g})")
+
+
 @dataclass(frozen=True, repr=False)
 class FitResult:
     """Outcome of :func:`gyrorig.fit.fit_angles`.  ``print(result)`` shows :meth:`report`."""
@@ -250,6 +279,14 @@ class FitResult:
     bootstrap: tuple[int, int] | None = None
     #: parameters held fixed or given priors (:class:`gyrorig.fit.constraints.Constraints`)
     constraints: Constraints = Constraints()
+    #: breaks in the motion found (:mod:`gyrorig.fit.breaks`), in the order found; the fit is of the part kept
+    breaks: tuple[MotionBreak, ...] = ()
+
+    @property
+    def starts_after_break(self) -> bool:
+        """Whether the part fitted starts after a break in the motion (the protocol's launch is then not its start)."""
+        t0 = float(self.residuals.t_s.min()) if len(self.residuals) else math.nan
+        return any(b.t_after_s <= t0 for b in self.breaks)
 
     @property
     def linear_regime(self) -> bool:
@@ -356,6 +393,7 @@ class FitResult:
                                      "covariance": self.covariance.tolist(),
                                      "correlation": self.correlation.tolist()},
             "constraints": {**self.constraints.as_dict(), "unused": self.constraints.unused(self.spec)},
+            "breaks": [b.as_dict() for b in self.breaks],
             "wall_time_s": self.wall_time_s,
         }
 

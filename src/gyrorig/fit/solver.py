@@ -23,7 +23,7 @@ from .data import FitData, FitError
 from .model import FitModel, Residuals
 from .spec import ModelSpec
 
-__all__ = ["Solution", "solve", "remaining_step_se", "conditional_amplitudes", "linear_start", "plane_axis",
+__all__ = ["Solution", "solve", "gauss_newton_polish", "remaining_step_se", "conditional_amplitudes", "linear_start", "plane_axis",
            "dominant_frequency", "linear_harmonics", "mean_axis"]
 
 #: Levenberg-Marquardt tolerances (xtol, ftol, gtol); undamped Gauss-Newton steps finish the job
@@ -87,7 +87,7 @@ def solve(spec: ModelSpec, data: FitData, start: dict[str, float], *, near: bool
         with np.errstate(over="ignore", invalid="ignore"):
             r0 = white(x0)
         if np.all(np.isfinite(r0)):
-            x, r, J = _gauss_newton_polish(white, x0, r0, white.jac(x0), max_steps=60)
+            x, r, J = gauss_newton_polish(white, x0, r0, white.jac(x0), max_steps=60)
             if remaining_step_se(J, r) < STATIONARY_STEP_SE and np.all(np.isfinite(x)):
                 return Solution(spec, x, _covariance(J, white.fixed), float(r @ r), n_res - n_free, True,
                                 "Gauss-Newton from a near start")
@@ -99,7 +99,7 @@ def solve(spec: ModelSpec, data: FitData, start: dict[str, float], *, near: bool
         with np.errstate(over="ignore", invalid="ignore"):
             res = least_squares(white, x, jac=white.jac, method="lm", x_scale="jac", xtol=LM_TOL, ftol=LM_TOL,
                                 gtol=LM_TOL, max_nfev=50 * (len(x0) + 1))
-            x, r, J = _gauss_newton_polish(white, res.x, res.fun, res.jac)
+            x, r, J = gauss_newton_polish(white, res.x, res.fun, res.jac)
         chi2_now = float(r @ r)
         stationary = (remaining_step_se(J, r) < STATIONARY_STEP_SE
                       or chi2_prev - chi2_now < STALLED_CHI2_GAIN)
@@ -138,7 +138,7 @@ def remaining_step_se(J: np.ndarray, r: np.ndarray) -> float:
     return float(np.max(np.abs(step) / se)) if np.all(np.isfinite(step)) else math.inf
 
 
-def _gauss_newton_polish(white: Residuals, x: np.ndarray, r: np.ndarray, J: np.ndarray, max_steps: int = 30
+def gauss_newton_polish(white: Residuals, x: np.ndarray, r: np.ndarray, J: np.ndarray, max_steps: int = 30
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Finish a least-squares minimisation with undamped Gauss-Newton steps.
 
