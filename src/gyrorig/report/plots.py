@@ -195,15 +195,21 @@ def plot_fit(angles: pd.DataFrame, smoothed: pd.DataFrame | None, fit, *, title:
             spans = [(lo, hi) for lo, hi in ((t[ok][0], fitted[0]), (fitted[-1], t[ok][-1])) if hi > lo]
             for k, (lo, hi) in enumerate(spans):
                 ax.axvspan(lo, hi, color="0.85", zorder=0, label=None if k else "left out of the fit")
+            for k, brk in enumerate(fit.breaks):  # where the motion broke (a knock, a touch)
+                ax.axvline(0.5 * (brk.t_before_s + brk.t_after_s), color="C3", ls="--", lw=0.8,
+                           label=None if k else "break in the motion")
         ax.set(xlabel="t [s]", ylabel="tilt theta [deg]", title="tilt, first second fitted" if zoom else "tilt")
         # below the axes: inside, the legend hides the oscillation it labels
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=4, frameon=False)
     ax = axes[1, 0]
     phi_meas = np.unwrap(angles.phi_rad.to_numpy()[ok])
     phi_fit = np.interp(t[ok], curve.t_s, np.unwrap(curve.phi_rad))
-    phi_fit += 2 * np.pi * np.round((phi_meas[0] - phi_fit[0]) / (2 * np.pi))
+    # the fit drawn over the span it fitted, its turns counted as the tracked azimuth's where that span starts
+    inside = (t[ok] >= curve.t_s.min()) & (t[ok] <= curve.t_s.max()) if len(curve) else np.zeros(ok.sum(), bool)
+    first = int(np.argmax(inside)) if inside.any() else 0
+    phi_fit += 2 * np.pi * np.round((phi_meas[first] - phi_fit[first]) / (2 * np.pi))
     ax.plot(t[ok], np.degrees(phi_meas), ".", ms=2, color="0.5", label="tracked")
-    ax.plot(t[ok], np.degrees(phi_fit), lw=0.8, color="C1", label="fit")
+    ax.plot(t[ok][inside], np.degrees(phi_fit[inside]), lw=0.8, color="C1", label="fit")
     ax.set(xlabel="t [s]", ylabel="azimuth phi [deg] (unwrapped)", title="precession")
     ax.legend(fontsize=7)
     ax = axes[1, 1]
