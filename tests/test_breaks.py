@@ -1,6 +1,7 @@
 """A break in the motion (a knock, a touch, a bump against a stop): found, located, and the longer part fitted;
 a misfit spread over the record is not taken for one."""
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -116,3 +117,23 @@ def test_the_part_after_a_knock_is_not_compared_with_the_launchs_theory():
             q = fit.quantities[name]
             assert q.exact is not None, name
             assert (q.diff_exact_se is None) == after, name
+
+
+def test_gyrorig_fit_takes_the_part_asked_for(tmp_path):
+    """``gyrorig fit --start``: the part of an angle table after a knock fitted alone, on its own clock (seconds) or
+    by frame; a span with no rows is refused with the option named (exit 2)."""
+    from gyrorig.cli import main
+
+    p = load_protocol(HEAVY)
+    angles, _ = _knocked(p, 4.0, 1.0, 0.3)
+    angles.to_csv(tmp_path / "angles.csv", index=False)
+    for start in ("1.01", "203f"):
+        out = tmp_path / f"fit-{start}"
+        assert main(["fit", str(tmp_path / "angles.csv"), "--protocol", str(HEAVY), "--out", str(out),
+                     "--start", start]) == 0
+        doc = json.loads((out / "fit.json").read_text())
+        assert doc["breaks"] == []
+        t = pd.read_csv(out / "fit_residuals.csv").t_s
+        assert 1.0 < t.min() < 1.02
+    assert main(["fit", str(tmp_path / "angles.csv"), "--protocol", str(HEAVY), "--out", str(tmp_path / "none"),
+                 "--start", "9"]) == 2

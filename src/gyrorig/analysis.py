@@ -68,6 +68,24 @@ def _read_angles(path: str | Path) -> pd.DataFrame:
         raise ValueError(f"cannot read angle table {path}: not UTF-8 text (a CSV table is expected)") from None
 
 
+def _span(angles: pd.DataFrame, start, end) -> pd.DataFrame:
+    """The rows of an angle table between two cuts (times on its own clock, or its frame numbers)."""
+    if start is None and end is None:
+        return angles
+    keep = np.ones(len(angles), bool)
+    for cut, option, after in ((start, "--start", True), (end, "--end", False)):
+        if cut is None:
+            continue
+        column = "t_s" if cut.unit == "s" else "frame"
+        if column not in angles.columns:
+            raise ValueError(f"{option} {cut}: the angle table has no {column} column")
+        v = angles[column].to_numpy(float)
+        keep &= (v >= cut.value) if after else (v <= cut.value)
+    if not keep.any():
+        raise ValueError(f"no rows of the angle table lie between --start and --end ({start}, {end})")
+    return angles[keep].reset_index(drop=True)
+
+
 def smooth_file(angles_csv: str | Path, out: str | Path) -> SmoothResult:
     """``gyrorig smooth``: write ``smoothed.csv`` and ``smooth.json``."""
     out = Path(out)
@@ -103,9 +121,12 @@ def _write_fit(out: Path, angles: pd.DataFrame, fitted: Fitted, protocol: Protoc
 def fit_file(angles_csv: str | Path, protocol: Protocol, out: str | Path, *, truth_csv: str | Path | None = None,
              smooth: SmoothResult | None = None, prediction: Prediction | None = None,
              rng: np.random.Generator | None = None, terms: FitTerms | str = "data",
-             constraints: Constraints | None = None) -> FitResult:
-    """``gyrorig fit``: smooth (for the outlier marks) unless given, fit, write ``fit.json`` and plots."""
-    angles = _read_angles(angles_csv)
+             constraints: Constraints | None = None, start=None, end=None) -> FitResult:
+    """``gyrorig fit``: smooth (for the outlier marks) unless given, fit, write ``fit.json`` and plots.
+
+    ``start``, ``end``: :class:`gyrorig.tracking.sources.Cut` s (None: the table's first or last row): the part of the
+    table to use, by its own times (``t_s``) or its ``frame`` column."""
+    angles = _span(_read_angles(angles_csv), start, end)
     truth = load_truth(truth_csv) if truth_csv is not None else None
     fitted = smooth_and_fit(angles, protocol, prediction=prediction, truth=truth, rng=rng, terms=terms, smooth=smooth,
                             constraints=constraints)

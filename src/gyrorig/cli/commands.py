@@ -464,8 +464,11 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     from ..analysis import fit_file
 
     out = Path(args.out)
+    from ..tracking.sources import parse_cut
+
+    start, end = (None if v is None else parse_cut(v, o) for v, o in ((args.start, "--start"), (args.end, "--end")))
     fit = fit_file(args.angles, load_protocol(args.protocol), out, truth_csv=args.truth, terms=terms_arg(args.terms),
-                   constraints=_constraints(args))
+                   constraints=_constraints(args), start=start, end=end)
     print_fit(fit, out)
     return EXIT_OK
 

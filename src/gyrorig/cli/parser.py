@@ -263,6 +263,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("angles", help="angles.csv from 'gyrorig track'")
     f.add_argument("--protocol", required=True, help=PROTOCOL_HELP + " (decides the model)")
     f.add_argument("--out", required=True, help="output directory (fit.json, fit.png, fit_residuals.csv)")
+    for name, where in (("--start", "first"), ("--end", "last")):
+        f.add_argument(name, default=None, metavar="T", help=f"the {where} moment of the table to fit: a time on its "
+                       "own clock (its t_s column, seconds: 12.5) or a frame (its frame column: 300f)")
     add_fit_options(f)
     f.set_defaults(func="_cmd_fit")
 

@@ -94,8 +94,8 @@ def _break_notes(breaks: list[MotionBreak], data: FitData) -> list[Note]:
         return []
     out = [Note(NoteKind.MOTION_BREAK, f"{brk.describe()}; the longer part is kept") for brk in breaks]
     after = any(b.t_after_s <= data.t_s[0] for b in breaks)
-    out.append(Note(NoteKind.MOTION_BREAK, f"fitted: the frames from {data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s (give "
-                    "the recording's --start and --end to fit another part)" + (
+    out.append(Note(NoteKind.MOTION_BREAK, f"fitted: the frames from {data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s "
+                    "(--start and --end fit another part)" + (
                         "; it starts after a break, not from the protocol's launch: theory at the launch is shown "
                         "beside it, not compared" if after else "")))
     return out
