@@ -19,9 +19,8 @@ from .._format import with_error
 from .constraints import Constraints
 from .spec import FitTerms, ModelSpec
 
-__all__ = ["QUANTITY_UNITS", "QuantityStatus", "Undetermined", "Reason", "ErrorKind", "NoteKind", "Note", "MotionBreak",
-           "Quantity",
-           "FitResult", "NONLINEAR_PHASE_RAD", "TERM_P_VALUE"]
+__all__ = ["QUANTITY_UNITS", "QuantityStatus", "Undetermined", "Reason", "ErrorKind", "NoteKind", "Note", "Quantity",
+           "MotionBreak", "FitResult", "NONLINEAR_PHASE_RAD", "TERM_P_VALUE"]
 
 QUANTITY_UNITS = {
     "precession_rate_rad_s": "rad/s",
@@ -230,8 +229,9 @@ def _quantity_lines(q: Quantity) -> list[str]:
 
 @dataclass(frozen=True)
 class MotionBreak:
-    """Where the record's motion breaks: the last frame before it and the first after (indices into the fit's
-    frames), their times [s], and the reduced chi-squares of the whole record and of each part fitted alone."""
+    """Where the record's motion breaks: the last frame before it and the first after (indices into the frames the
+    fit held when it was found), their times [s], the reduced chi-squares of those frames fitted whole and of each
+    part fitted alone, and the split's F statistic (:mod:`gyrorig.fit.breaks`)."""
 
     last_before: int
     first_after: int

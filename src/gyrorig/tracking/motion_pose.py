@@ -65,6 +65,8 @@ MAX_DEPTH_SCALE_SD_REL = 0.01
 #: the first pass tracks from the rough placement, and its pose only starts the second: it is refused beyond this
 #: (the motion then says nothing of the distance), the final pose beyond :data:`MAX_DEPTH_SCALE_SD_REL`
 FIRST_PASS_DEPTH_SCALE_SD_REL = 0.05
+#: above this reduced chi-square of the joint fit a refusal says the motion model did not follow the track
+MISFIT_CHI2_RED = 3.0
 #: the distance's profile is taken this far (relative) either side of the fitted one
 PROFILE_STEP = 0.05
 #: the focal length's starting scales tried, in its stated sds, where the stated one's rays mostly miss the tip's
@@ -411,11 +413,14 @@ def pose_from_motion(video, start: Camera, protocol: Protocol, *, progress=None)
                                  slow_terms=protocol.is_damped, focal_sd_rel=focal_sd_rel)
         limit = MAX_DEPTH_SCALE_SD_REL if final else FIRST_PASS_DEPTH_SCALE_SD_REL
         if pose.depth_scale_sd_rel > limit:  # before tracking again with a pose that may be far off
+            misfit = (f"; the motion model leaves a reduced chi-square of {pose.chi2_red:.3g}: it does not follow the "
+                      "track (a frame rate too low for the nod, the top touched during the record, or the fit in a "
+                      "false minimum)" if pose.chi2_red > MISFIT_CHI2_RED else "")
             raise TrackingError(
                 f"the tip's motion fixes the camera's distance only to {pose.depth_scale_sd_rel:.1%} (limit "
                 f"{limit:.0%}): a camera looking along the vertical sees the nutation's nod end-on, or "
                 "the nutation is too small; view the rig from 15 degrees or more off the vertical, or use a board at a "
-                "known place or lab fiducials")
+                f"known place or lab fiducials{misfit}")
         camera = replace(camera, rvec=pose.rvec, tvec=pose.tvec)
         if focal_sd_rel > 0:  # the next pass tracks at the focal length found
             camera = replace(camera, camera_matrix=start.camera_matrix).with_intrinsics(
