@@ -40,6 +40,6 @@ from .uncertainty import phase_uncertainty
 __all__ = ["Constraints", "constrainable_names", "FitError", "FitConvergenceError", "ModelSpec", "FitTerms", "Quantity", "FitResult", "FitData", "FitModel", "Residuals",
            "SceneModel", "Solution", "Selector", "model_for_scene", "fit_data_from_angles", "fit_angles", "fit_model",
            "solve", "plan_terms", "phase_uncertainty", "left_out_noncentrality", "linear_response", "score_term",
-           "trial_term", "ErrorKind", "MotionBreak", "Note", "NoteKind", "QuantityStatus", "Undetermined", "OPTIONAL_TERMS",
-           "QUANTITY_UNITS", "MAX_HARMONICS", "NONLINEAR_PHASE_RAD", "PLANNED_NONCENTRALITY", "TERM_P_VALUE",
+           "trial_term", "ErrorKind", "MotionBreak", "Note", "NoteKind", "QuantityStatus", "Undetermined",
+           "OPTIONAL_TERMS", "QUANTITY_UNITS", "MAX_HARMONICS", "NONLINEAR_PHASE_RAD", "PLANNED_NONCENTRALITY", "TERM_P_VALUE",
            "TERM_CHOICES", "FIT_REQUIRED", "record_state", "state_values", "STATE_NAMES"]

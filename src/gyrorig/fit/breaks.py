@@ -125,10 +125,10 @@ def find_break(sol: Solution, data: FitData) -> MotionBreak | None:
         around = range(max(lo, best - 4 * step), min(hi, best + 4 * step) + 1, step)
         best = int(min(around, key=pooled))
     chi2_split, dof_split, before, after = cost(best)
-    whole = sol.chi2 / max(sol.dof, 1)
-    split = chi2_split / max(dof_split, 1)
     if not (math.isfinite(chi2_split) and chi2_split > 0):
         return None
+    whole = sol.chi2 / max(sol.dof, 1)
+    split = chi2_split / dof_split
     f_stat = ((sol.chi2 - chi2_split) / k) / (chi2_split / dof_split)
     if f_dist.sf(f_stat, k, dof_split) > BREAK_P:
         return None
@@ -140,5 +140,4 @@ def find_break(sol: Solution, data: FitData) -> MotionBreak | None:
     for j in (best - reach, best + reach):
         if lo <= j <= hi and pooled(j) < split + SHARPNESS_RISE * (whole - split):
             return None
-    return MotionBreak(best - 1, best, float(data.t_s[best - 1]), float(data.t_s[best]), whole, before, after,
-                       float(f_stat))
+    return MotionBreak(float(data.t_s[best - 1]), float(data.t_s[best]), whole, before, after, float(f_stat))

@@ -87,13 +87,12 @@ def _without(angles: pd.DataFrame, exclude: np.ndarray | None, data: FitData, dr
     return exclude, data, _choose_model(data, scene, terms)
 
 
-def _break_notes(breaks: list[MotionBreak], data: FitData) -> list[Note]:
+def _break_notes(breaks: list[MotionBreak], data: FitData, after: bool) -> list[Note]:
     """A note for each break in the motion found (:mod:`gyrorig.fit.breaks`), and one that says which part was
-    fitted."""
+    fitted (``after``: one that starts after a break)."""
     if not breaks:
         return []
     out = [Note(NoteKind.MOTION_BREAK, f"{brk.describe()}; the longer part is kept") for brk in breaks]
-    after = any(b.t_after_s <= data.t_s[0] for b in breaks)
     out.append(Note(NoteKind.MOTION_BREAK, f"fitted: the frames from {data.t_s[0]:.4g} s to {data.t_s[-1]:.4g} s "
                     "(--start and --end fit another part)" + (
                         "; it starts after a break, not from the protocol's launch: theory at the launch is shown "
@@ -282,12 +281,13 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
         if brk is None:
             break
         # the longer part kept, and its model chosen again (a part may hold terms the whole record's misfit hid)
-        before = np.arange(data.n) <= brk.last_before
+        before = data.t_s <= brk.t_before_s
         drop = ~before if before.sum() >= data.n - before.sum() else before
         exclude, data, (sol, notes, undetermined, chosen) = _without(angles, exclude, data, drop, scene, constraints,
                                                                      terms)
         breaks.append(brk)
-    notes = _still_note(data, hand) + _break_notes(breaks, data) + notes
+    after_break = any(b.t_after_s <= data.t_s[0] for b in breaks)
+    notes = _still_note(data, hand) + _break_notes(breaks, data, after_break) + notes
     if data.camera_prior is not None and sol.spec.camera_modes and np.any(data.camera_prior == 0.0):
         # a pose found from these frames: its modes' priors less what the frames hold, the chosen model refitted
         data = replace(data, camera_prior_root=shared_pose_prior_root(sol.spec, sol.x, data))
@@ -310,7 +310,6 @@ def fit_angles(angles: pd.DataFrame, protocol: Protocol, *, prediction: Predicti
     if check_residuals and not sol.spec.damped and protocol.has_gravity and sol.chi2 > SYSTEMATIC_CHI2_RED * sol.dof:
         notes += _spin_down_note(angles, protocol, prediction, exclude, constraints, sol, data)
     truth_vals = truth_values(truth, data, sol.spec, sol.x) if truth is not None else {}
-    after_break = any(b.t_after_s <= data.t_s[0] for b in breaks)
     quantities = build_quantities(sol.spec, values, formal, camera_se, undetermined, protocol, prediction, truth_vals,
                                   after_break=after_break)
     notes += check_notes(sol, data, protocol, quantities)

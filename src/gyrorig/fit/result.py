@@ -229,12 +229,10 @@ def _quantity_lines(q: Quantity) -> list[str]:
 
 @dataclass(frozen=True)
 class MotionBreak:
-    """Where the record's motion breaks: the last frame before it and the first after (indices into the frames the
-    fit held when it was found), their times [s], the reduced chi-squares of those frames fitted whole and of each
-    part fitted alone, and the split's F statistic (:mod:`gyrorig.fit.breaks`)."""
+    """Where the record's motion breaks: the times of the last frame before it and the first after [s], the reduced
+    chi-squares of the frames fitted when it was found, whole and each part alone, and the split's F statistic
+    (:mod:`gyrorig.fit.breaks`)."""
 
-    last_before: int
-    first_after: int
     t_before_s: float
     t_after_s: float
     chi2_red_whole: float

@@ -23,8 +23,8 @@ from .data import FitData, FitError
 from .model import FitModel, Residuals
 from .spec import ModelSpec
 
-__all__ = ["Solution", "solve", "gauss_newton_polish", "remaining_step_se", "conditional_amplitudes", "linear_start", "plane_axis",
-           "dominant_frequency", "linear_harmonics", "mean_axis"]
+__all__ = ["Solution", "solve", "gauss_newton_polish", "remaining_step_se", "conditional_amplitudes", "linear_start",
+           "plane_axis", "dominant_frequency", "linear_harmonics", "mean_axis"]
 
 #: Levenberg-Marquardt tolerances (xtol, ftol, gtol); undamped Gauss-Newton steps finish the job
 LM_TOL = 1e-9
