@@ -248,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--track-name", default=None,
                    help="with a Tracker .trk holding several point masses: the tip's track's name")
     k.add_argument("--tip-only", action="store_true",
-                   help="skip the frame's off-axis dots (no psi_rad; about twice as fast)")
+                   help="skip the frame's off-axis dots (no psi_rad; 10-25 %% less tracking time)")
     k.add_argument("--overlay", action="store_true",
                    help="also write overlay.png: a contact sheet of frames with the tip as found, its path and "
                         "the quality flags, to see without any truth that the tracker followed the tip")
@@ -279,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_fit_options(an)
     an.add_argument("--frame-dots", action="store_true",
                     help="also track the frame's off-axis dots (psi_rad in track/angles.csv; the fit does not use it, "
-                         "and it takes 30-40 %% of the tracking time)")
+                         "and it takes 10-35 %% more tracking time)")
     an.set_defaults(func="_cmd_analyze")
 
     idf = sub.add_parser("identify", help="a rig's parameters with covariance from its measurements: fit.json files "

@@ -10,6 +10,7 @@ far as its texture reaches, and it never depends on the frame's brightness.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -118,6 +119,14 @@ def local_contrast(image: np.ndarray, scale_px: int) -> np.ndarray:
     return img - _square_opening(img, int(scale_px))
 
 
+@functools.lru_cache(maxsize=16)
+def _near_kept_kernel(reach_px: float) -> np.ndarray:
+    """The disc (OpenCV's ellipse of odd size ``2 ceil(reach_px) + 1``) within which a part below a cut belongs to the
+    part kept above it (:func:`_components`)."""
+    size = 2 * int(math.ceil(reach_px)) + 1
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+
+
 def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_px: float, out: list,
                 split_above: float | None, max_radius_px: float = math.inf, cut: float = 0.5) -> None:
     """The blobs of ``mask`` (in window coordinates offset by ``x0, y0``), appended to ``out``.  A large blob
@@ -126,8 +135,9 @@ def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_
     lies below the cut is searched again in the same way (a fainter spot joined to it stands apart there); a blob
     wider than ``max_radius_px`` (its inscribed circle; after that cut, where made) is cut once more at
     :data:`SECOND_CUT` of its peak (a spot joined to a bright patch of the scene that stands out half as much)."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     min_area = max(3.0, math.pi * min_radius_px * min_radius_px)
+    binary = np.ascontiguousarray(mask).view(np.uint8) if mask.dtype == np.bool_ else mask.astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
     for i in range(1, n):
         bx, by = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_TOP]
         bw, bh = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
@@ -138,12 +148,15 @@ def _components(sub: np.ndarray, mask: np.ndarray, x0: int, y0: int, min_radius_
         peak = float(values[own].max())
         if split_above is not None and peak > split_above and stats[i, cv2.CC_STAT_AREA] > 4 * min_area + 50:
             above = values > cut * peak
-            _components(values, own & above, x0 + bx, y0 + by, min_radius_px, out, None, max_radius_px, cut)
+            kept = own & above
+            _components(values, kept, x0 + bx, y0 + by, min_radius_px, out, None, max_radius_px, cut)
             # what the cut left, away from what it kept, may hold a fainter spot of its own (a white tip on a white
             # table joined to a crossbar dot on a dark rotor): searched in the same way, each part cut at half its own
-            # peak; beside a kept part (its halo, or a spot merged with it) it is that part's
-            reach = 2 * int(math.ceil(min(max_radius_px, NEAR_KEPT_PX))) + 1
-            near = cv2.dilate(above.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (reach, reach)))
+            # peak; beside a kept part (its halo, or a spot merged with it) it is that part's (no blob of the
+            # smallest area fits in what lies below the cut: nothing to search)
+            if np.count_nonzero(own) - np.count_nonzero(kept) < min_area:
+                continue
+            near = cv2.dilate(above.view(np.uint8), _near_kept_kernel(min(max_radius_px, NEAR_KEPT_PX)))
             _components(values, own & (near == 0), x0 + bx, y0 + by, min_radius_px, out, split_above, max_radius_px,
                         cut)
             continue

@@ -26,7 +26,7 @@ from .rays import pixel_rays
 from .scene_spot import fit_round_spot
 from .spot import SpotFit
 
-__all__ = ["DotTracker", "dot_angle", "dot_angles"]
+__all__ = ["DotTracker", "dot_angle", "dot_angles", "dot_circles", "CIRCLE_SAMPLES"]
 
 
 def _axis_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -71,6 +71,31 @@ def dot_angles(xy_px: np.ndarray, dot: "Marker | Sequence[Marker]", n: np.ndarra
     psi = np.arctan2(v @ b, v @ a) - np.array([_angle_on_frame(m) for m in dots])
     bad = ~np.isfinite(near) | (off > 0.25 * rho) | (np.abs(np.linalg.norm(v, axis=1) - rho) > 0.25 * rho)
     return np.where(bad, np.nan, psi)
+
+
+#: the places a dot not followed can take are sampled at this many angles about the axis (:func:`dot_circles`)
+CIRCLE_SAMPLES = 48
+
+
+def dot_circles(dots: Sequence[Marker], n: np.ndarray, cam: Camera) -> tuple[tuple[float, float, float], ...]:
+    """Where each of ``dots`` (not followed: its angle about the axis unknown) can appear for the tip direction
+    ``n``: :data:`CIRCLE_SAMPLES` points of its circle about the axis, projected, each ``(x, y, r)`` [px] with ``r``
+    its image radius plus half the largest gap between neighbouring points (every place on the circle lies within
+    one of them)."""
+    if not dots:
+        return ()
+    a, b = _axis_basis(np.asarray(n, float))
+    q = np.linspace(0.0, 2 * np.pi, CIRCLE_SAMPLES, endpoint=False)
+    depth = float(np.linalg.norm(cam.centre_m))
+    out = []
+    for dot in dots:
+        ring = (dot.off_axis_m * (np.cos(q)[:, None] * a + np.sin(q)[:, None] * b) + dot.position_m[2] * n)
+        xy = cv2.projectPoints(ring.reshape(-1, 1, 3), cam.rvec, cam.tvec, cam.camera_matrix,
+                               cam.dist_coeffs)[0].reshape(-1, 2)
+        gap = float(np.max(np.hypot(*(xy - np.roll(xy, 1, axis=0)).T)))
+        r = cam.camera_matrix[0, 0] * dot.radius_m / depth + gap / 2
+        out.extend((float(x), float(y), r) for x, y in xy)
+    return tuple(out)
 
 
 def dot_angle(x_px: float, y_px: float, dot: Marker, n: np.ndarray, cam: Camera) -> float | None:

@@ -13,7 +13,7 @@ from ..markers import Marker
 from ..tables import ANGLE_COLUMNS, MARKER_COLUMNS
 from .copies import RecentPictures, copy_extents, copy_groups
 from .detect import Detection
-from .dots import DotTracker
+from .dots import DotTracker, dot_circles
 from .follow import ANCHOR_FRAMES, TipFollower
 from .rays import angle_covariances, angles_with_covariance, limb_flags
 from .scene_spot import near_ring_move
@@ -55,7 +55,7 @@ class TrackRows:
     """Rows of the angle and marker tables as the loop produces them, for a tip of ``tip_radius_px`` (its expected
     image radius)."""
 
-    def __init__(self, tip_radius_px: float = math.nan):
+    def __init__(self, tip_radius_px: float = math.nan, loose_dots: tuple[Marker, ...] = ()):
         self.angles: list[tuple] = []
         self.markers: list[tuple] = []
         self.tip_px: dict[int, tuple[float, float]] = {}  # angle row -> tip pixel position
@@ -67,8 +67,12 @@ class TrackRows:
         #: the frames the follower saw (a duplicate frame is not shown it), latest last:
         #: (row, index, t_frame, threshold)
         self.seen: list[tuple[int, int, float, Detection]] = []
-        #: the frame dots fitted in the last frame, (x, y, r) [px]; None when one was not found there
+        #: the other spots that can stand near the tip, (x, y, r) [px]: the frame dots fitted in the last frame and
+        #: where the dots not followed (``loose_dots``: the rotor's, or all without the frame's dots followed) can be
+        #: about the axis the tip gave (:func:`~gyrorig.tracking.dots.dot_circles`); None when not known (a frame dot
+        #: not found, or no tip in the last frame to place the others by)
         self.others: tuple | None = ()
+        self.loose_dots = loose_dots
         self.recent, self.alike = RecentPictures(), []  # the last frames; rows alike (a codec's copies: module copies)
         #: the rows of frames whose picture repeats the one before's, with their frames' times (:meth:`repeat`)
         self.repeated: list[tuple[int, float]] = []
@@ -78,7 +82,7 @@ class TrackRows:
               frame: np.ndarray, index: int, t_frame: float, threshold: Detection) -> None:
         """Track one (new) frame and add its rows."""
         located = follower.locate(frame, threshold, self.others)
-        self.others = () if dots is None else None
+        self.others = () if dots is None and not self.loose_dots else None
         for fit, (row, *seen) in zip(located.earlier, reversed(self.seen)):
             # an acquisition, or the tip followed back: the frames before get the tip's positions back
             if fit is None:  # taken in that frame, or not found in it
@@ -149,11 +153,14 @@ class TrackRows:
                 move = near_ring_move(frame, fit, follower.r_expected, camera)
                 if move.any():
                     self.scene_var[row] = move**2
+            loose = dot_circles(self.loose_dots, geo[2], camera) if frame is not None else ()
+            if dots is None and frame is not None and self.loose_dots:
+                self.others = loose
             if dots is not None:
                 psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
                 self.psi[row] = (psi, psi_sigma)
                 if len(found) == len(dots.dots):
-                    self.others = tuple((f.x_px, f.y_px, f.radius_px) for _, f in found)
+                    self.others = tuple((f.x_px, f.y_px, f.radius_px) for _, f in found) + loose
                 for name, dfit in found:
                     t_dot = t_frame + camera.exposure_s / 2 + camera.row_delay_s(dfit.y_px)
                     self.markers.append(marker_row(index, t_dot, name, dfit, "blended" if dfit.blended else "ok"))

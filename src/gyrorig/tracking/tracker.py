@@ -421,7 +421,7 @@ def track(video, camera: Camera, protocol: Protocol, *, progress: Progress | Non
         dots = DotTracker(dot_markers, camera) if dot_markers else None
         # the local-contrast opening must be wider than the largest spot the follower takes for the tip
         scale_px = opening_size_px(SIZE_RANGE["blob"][1] * follower.r_expected, camera.psf_sigma_px)
-        rows = TrackRows(follower.r_expected)
+        rows = TrackRows(follower.r_expected, tuple(m for m in markers.moving_dots() if m not in dot_markers))
         frame_types: dict[int, str] = {}  # frame number -> picture type (video files)
         repeated = RepeatedFrames()
         clock = FrameClock(camera.fps, time_scale, source)
