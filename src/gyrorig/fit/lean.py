@@ -20,7 +20,7 @@ from .data import FitData
 from .model import FitModel
 from .result import TERM_P_VALUE, Note, NoteKind
 from .solver import Solution, linear_start, plane_axis, solve
-from .uncertainty import lag1_autocorrelation
+from .uncertainty import har_threshold, long_run_ratio
 
 __all__ = ["lean_trial", "lean_kept", "leaned", "lean_wanted", "f_test", "LEAN_MIN_TURN_RAD", "LEAN_MIN_TURN_DAMPED_RAD",
            "LEAN_MIN_TILT_SIGMAS", "LEAN_LABEL"]
@@ -85,21 +85,24 @@ def f_test(ref: Solution, sol: Solution) -> bool:
 
 def lean_wanted(plain: Solution, lean: Solution, data: FitData, need: Callable[[int], float]) -> bool:
     """Whether the chi-square test and the F test (:func:`f_test`) want the lean in ``lean`` over ``plain``, its
-    chi-square gain divided by ``(1 + rho) / (1 - rho)`` where ``plain``'s residuals are correlated from frame to frame
-    (``rho``, the larger lag-1 autocorrelation of the two angles, when positive): the lean's circle is slow, and the
-    gain such noise lends a slow term grows as its spectrum at low frequencies does (AR(1): by that factor).  The lean
-    itself must pass the same test (its squared tilt over its variance, scaled by the reduced chi-square where above
-    1; not for a lean the user fixed, ``--fix axis_tilt_rad=...``): a refit from another start can lower the
-    chi-square by converging further, not by the lean."""
-    rho = min(max(max(lag1_autocorrelation(FitModel(plain.spec), data, plain.x)), 0.0), 0.95)
-    shrink = (1 - rho) / (1 + rho)
-    gain = (plain.chi2 - lean.chi2) * shrink
+    chi-square gain divided by how much more the residuals vary at the lowest frequencies than white noise would
+    (:func:`~gyrorig.fit.uncertainty.long_run_ratio` of ``lean``'s residuals, whose own lean is taken out): the lean's
+    circle is as slow as the record, and noise correlated over many frames (a codec's drifting errors, a texture
+    passing behind the tip) lends a slow term that much more; the threshold is then the F distribution's for that
+    ratio's degrees of freedom (:func:`~gyrorig.fit.uncertainty.har_threshold`).  The lean itself must pass the same
+    test (its squared tilt over its variance, scaled by the reduced chi-square where above 1; not for a lean the user
+    fixed, ``--fix axis_tilt_rad=...``): a refit from another start can lower the chi-square by converging further, not
+    by the lean."""
+    ratio, nu = long_run_ratio(FitModel(lean.spec), data, lean.x)
+    ratio = max(ratio, 1e-12)
+    gain = (plain.chi2 - lean.chi2) / ratio
     ddof, dof = plain.dof - lean.dof, max(lean.dof, 1)
+    threshold = har_threshold(need(ddof), ddof, nu)
     i = lean.spec.names().index("axis_tilt_rad")
     var = float(lean.cov[i, i]) * max(1.0, lean.chi2 / dof)
     stated = "axis_tilt_rad" in dict(data.constraints.fixed)  # a lean the user measured: no error of its own
-    wald = math.inf if stated else lean.values()["axis_tilt_rad"] ** 2 / var * shrink if var > 0 else 0.0
-    return (gain > need(ddof) and wald > need(ddof)
+    wald = math.inf if stated else lean.values()["axis_tilt_rad"] ** 2 / var / ratio if var > 0 else 0.0
+    return (gain > threshold and wald > threshold
             and bool(f_dist.sf(gain / ddof / (lean.chi2 / dof), ddof, dof) < TERM_P_VALUE))
 
 

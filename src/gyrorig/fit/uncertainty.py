@@ -15,14 +15,17 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from scipy.fft import dct
 from scipy.stats import chi2
+from scipy.stats import f as f_dist
 
 from .data import FitData
 from .model import FitModel, Residuals
 from .result import ErrorKind, Note, NoteKind
 from .spec import ModelSpec
 
-__all__ = ["delta_se", "phase_uncertainty", "lag1_autocorrelation", "block_bootstrap", "statistical_covariance",
+__all__ = ["delta_se", "phase_uncertainty", "lag1_autocorrelation", "long_run_ratio", "har_threshold",
+           "block_bootstrap", "statistical_covariance",
            "shared_pose_prior_root",
            "choose_errors", "RATE_PARAMETERS"]
 
@@ -69,6 +72,34 @@ def lag1_autocorrelation(model: FitModel, data: FitData, x: np.ndarray) -> tuple
     r = Residuals(model, data)(x)[:2 * data.n].reshape(2, -1)
     rho = [float(np.sum(ri[1:] * ri[:-1]) / np.sum(ri * ri)) for ri in r]
     return rho[0], rho[1]
+
+
+def long_run_ratio(model: FitModel, data: FitData, x: np.ndarray) -> tuple[float, int]:
+    """How much more the whitened residuals vary at the lowest frequencies than white noise would: their long-run
+    variance over their variance (the larger of theta's and phi's), and the degrees of freedom ``nu`` of that estimate.
+
+    The equal-weighted cosine estimate (Lazarus, Lewis, Stock and Watson, "HAR inference: recommendations for
+    practice", 2018): the mean square of the residuals' projections on the ``nu = 0.4 T^(2/3)`` slowest cosines
+    ``sqrt(2 / T) cos(pi j (t + 1/2) / T)`` over the record's ``T`` frames.  A term as slow as the record (a lean's
+    circle) takes up that much more of such noise than of white noise; a statistic divided by the ratio is
+    ``F``-distributed with ``nu`` denominator degrees of freedom (:func:`har_threshold`)."""
+    r = Residuals(model, data)(x)[:2 * data.n].reshape(2, -1)
+    n = r.shape[1]
+    nu = max(int(round(0.4 * n ** (2.0 / 3.0))), 3)
+    # DCT-II: 2 sum_t r_t cos(pi j (t + 1/2) / T), the projections up to a factor
+    projections = math.sqrt(2.0 / n) * 0.5 * dct(r, type=2, axis=1)[:, 1:nu + 1]
+    white = np.mean(r * r, axis=1)
+    ratio = np.mean(projections ** 2, axis=1) / np.where(white > 0, white, 1.0)
+    return float(np.max(ratio)), nu
+
+
+def har_threshold(need: float, ddof: int, nu: int) -> float:
+    """The value a statistic of ``ddof`` parameters divided by a :func:`long_run_ratio` of ``nu`` degrees of freedom
+    must exceed, at the p-value at which chi-square(``ddof``) needs ``need``: ``ddof nu / (nu - ddof + 1)`` times that
+    point of ``F(ddof, nu - ddof + 1)`` (the long-run variance is itself estimated)."""
+    p = float(chi2.sf(need, ddof))
+    dof = max(nu - ddof + 1, 1)
+    return float(ddof * nu / dof * f_dist.isf(p, ddof, dof))
 
 
 def block_bootstrap(spec: ModelSpec, x: np.ndarray, data: FitData, fns: dict, rng: np.random.Generator,
