@@ -279,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_fit_options(an)
     an.add_argument("--frame-dots", action="store_true",
                     help="also track the frame's off-axis dots (psi_rad in track/angles.csv; the fit does not use it, "
-                         "and it takes 10-35 %% more tracking time)")
+                         "and it takes 10-40 %% more tracking time)")
     an.set_defaults(func="_cmd_analyze")
 
     idf = sub.add_parser("identify", help="a rig's parameters with covariance from its measurements: fit.json files "

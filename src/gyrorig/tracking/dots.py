@@ -73,6 +73,17 @@ def dot_angles(xy_px: np.ndarray, dot: "Marker | Sequence[Marker]", n: np.ndarra
     return np.where(bad, np.nan, psi)
 
 
+def _project(X: np.ndarray, cam: Camera) -> np.ndarray:
+    """Pixels (k, 2) of the lab points ``X`` (k, 3) through the camera."""
+    return cv2.projectPoints(X.reshape(-1, 1, 3), cam.rvec, cam.tvec, cam.camera_matrix,
+                             cam.dist_coeffs)[0].reshape(-1, 2)
+
+
+def _image_radius_px(dot: Marker, cam: Camera) -> float:
+    """The dot's image radius [px] at the pivot's distance from the camera."""
+    return float(cam.camera_matrix[0, 0] * dot.radius_m / np.linalg.norm(cam.centre_m))
+
+
 #: the places a dot not followed can take are sampled at this many angles about the axis (:func:`dot_circles`)
 CIRCLE_SAMPLES = 48
 
@@ -86,14 +97,11 @@ def dot_circles(dots: Sequence[Marker], n: np.ndarray, cam: Camera) -> tuple[tup
         return ()
     a, b = _axis_basis(np.asarray(n, float))
     q = np.linspace(0.0, 2 * np.pi, CIRCLE_SAMPLES, endpoint=False)
-    depth = float(np.linalg.norm(cam.centre_m))
     out = []
     for dot in dots:
-        ring = (dot.off_axis_m * (np.cos(q)[:, None] * a + np.sin(q)[:, None] * b) + dot.position_m[2] * n)
-        xy = cv2.projectPoints(ring.reshape(-1, 1, 3), cam.rvec, cam.tvec, cam.camera_matrix,
-                               cam.dist_coeffs)[0].reshape(-1, 2)
+        xy = _project(dot.off_axis_m * (np.cos(q)[:, None] * a + np.sin(q)[:, None] * b) + dot.position_m[2] * n, cam)
         gap = float(np.max(np.hypot(*(xy - np.roll(xy, 1, axis=0)).T)))
-        r = cam.camera_matrix[0, 0] * dot.radius_m / depth + gap / 2
+        r = _image_radius_px(dot, cam) + gap / 2
         out.extend((float(x), float(y), r) for x, y in xy)
     return tuple(out)
 
@@ -112,8 +120,7 @@ class DotTracker:
     def __init__(self, dots: tuple[Marker, ...], cam: Camera):
         self.dots = dots
         self.cam = cam
-        depth = float(np.linalg.norm(cam.centre_m))
-        self.r_px = {d.name: cam.camera_matrix[0, 0] * d.radius_m / depth for d in dots}
+        self.r_px = {d.name: _image_radius_px(d, cam) for d in dots}
         self.psi = None
         self.rate = 0.0
         self.t = None
@@ -121,8 +128,7 @@ class DotTracker:
         self.last_r = dict(self.r_px)
 
     def _project(self, X: np.ndarray) -> np.ndarray:
-        return cv2.projectPoints(X.reshape(-1, 1, 3), self.cam.rvec, self.cam.tvec, self.cam.camera_matrix,
-                                 self.cam.dist_coeffs)[0].reshape(-1, 2)
+        return _project(X, self.cam)
 
     def _acquire(self, image, n, tip_xy, r_tip, threshold):
         dot = self.dots[0]

@@ -153,8 +153,9 @@ class TrackRows:
                 move = near_ring_move(frame, fit, follower.r_expected, camera)
                 if move.any():
                     self.scene_var[row] = move**2
-            loose = dot_circles(self.loose_dots, geo[2], camera) if frame is not None else ()
-            if dots is None and frame is not None and self.loose_dots:
+            # placed by this frame's tip for the next frame's (not for a frame given back: frame None)
+            loose = dot_circles(self.loose_dots, geo[2], camera) if frame is not None and self.loose_dots else ()
+            if dots is None and loose:
                 self.others = loose
             if dots is not None:
                 psi, psi_sigma, found = dots.step(frame, t_mid, geo[2], (fit.x_px, fit.y_px), fit.radius_px, threshold)
