@@ -112,6 +112,27 @@ def test_scatter_check_finds_an_error_common_to_every_frame():
         assert f >= 1.0 and (f - 1.0) <= 4 * max(se, 0.02), (label, f, se)
 
 
+def test_frames_whose_own_errors_are_far_below_the_floor_are_not_taken_for_outliers():
+    """A saturated phone tip's fit reports 0.01-0.02 px in some stretches where the codec's floor is 0.08 px: judged by
+    their reported errors alone, those frames lie 5-7 of them off the path (a 120 frames/s phone render lost two
+    clear frames 0.12 and 0.26 px off so).  With the floor the check finds, only the frames truly off the path are
+    outliers: the four moved by 2 px (9 or more of their residuals' SDs, two of them inside such stretches), no other
+    (a unit normal passes 5 in 1 of 1.7 million coordinates), and the floor within 4 of its standard errors.  Before,
+    the check took 10 of the stretches' frames for outliers besides the four, and found the floor 0.070 px."""
+    rng = np.random.default_rng(9)
+    t, frames, xy = _path(1200)
+    quiet = (frames % 60) < 10  # stretches of 10 frames whose fits report far less than the floor
+    sigma = np.where(quiet, rng.uniform(0.01, 0.02, len(t)), rng.uniform(0.03, 0.12, len(t)))
+    floor = 0.08
+    noisy = xy + rng.normal(0, 1, xy.shape) * np.hypot(sigma, floor)[:, None]
+    planted = [125, 304, 500, 790]  # 125 and 304 inside quiet stretches
+    assert quiet[[125, 304]].all() and not quiet[[500, 790]].any()
+    noisy[planted] += [2.0, 0.0]
+    check = check_sigmas(t, frames, noisy, np.repeat(sigma[:, None] ** 2, 2, axis=1), floor=True, min_factor=1.0)
+    assert check.outliers == tuple(planted)
+    assert abs(check.floor_px - floor) < 4 * check.floor_px_se
+
+
 def test_scatter_check_finds_an_error_common_to_each_run_of_b_pictures():
     """A codec renders the B pictures between two reference pictures from the same two, and moves them alike: here
     a 0.06 px error common to each run of four B pictures (P, B, B, B, B, P, ...), beside reported errors of

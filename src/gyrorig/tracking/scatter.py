@@ -45,6 +45,9 @@ OUTLIER_Z = 5.0
 #: a path that leaves more than this share of the checked frames off it does not follow the motion (a frame rate
 #: too low for it: the frames near each turn of the path off it together), whatever its residuals' correlations say
 MAX_OUTLIER_SHARE = 0.1
+#: the most times the outliers are looked for again with the errors the variance model found, and the model solved
+#: again without them (:func:`check_sigmas` with ``floor``)
+MAX_RESEARCH_PASSES = 3
 
 
 #: the scatter is also compared with the errors over each stretch of this many checked frames (:func:`local_factors`)
@@ -338,7 +341,11 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     ``classes`` (n,), optional: a label per frame (e.g. its quality flag); the factor is then also found
     per label, from the residuals of the frames that carry it.  With ``floor`` an error the same for every
     frame and independent from frame to frame (a lossy codec's) is found beside the factors
-    (:attr:`SigmaCheck.floor_px`), and the factors are held at ``min_factor`` or above.  ``groups`` (n,),
+    (:attr:`SigmaCheck.floor_px`), and the factors are held at ``min_factor`` or above; the outliers are then
+    looked for again with the errors so found (each class's factor on the reported errors, the floor added) and
+    the errors solved again without them, until the outliers stay the same (the reported errors alone make frames
+    whose own errors are far below the floor look far off the path, and the scale they give a stretch of such frames
+    hides a frame truly off it).  ``groups`` (n,),
     optional: an integer per frame (-1: none); an error common to the frames of each group and independent
     from group to group (a codec's run of B pictures between two reference pictures, predicted from the same
     two) is found beside them (:attr:`SigmaCheck.shared_px`).  ``omega_rad_s``: the path holds a sinusoid of
@@ -351,25 +358,26 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     t_s, frames = np.asarray(t_s, float), np.asarray(frames, int)
     xy, var = np.asarray(xy, float), np.asarray(var, float)
     active = np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(var) & (var > 0), axis=1)
-    outliers: list[int] = []
-    while True:
-        centres, z = path_residuals(t_s, frames, xy, var, active, omega_rad_s)
-        if len(centres) < 5:
-            return SigmaCheck(math.nan, math.nan, 2 * len(centres), tuple(outliers))
-        # robust scale while outliers may remain: the median of z^2 is 0.4549 for a unit normal; over the record, or
-        # over each frame's stretch where that is larger
-        scale = np.sqrt(np.maximum(float(np.median(z * z)), _running_median(z * z, LOCAL_FRAMES)) / 0.4549)
-        worst = np.max(np.abs(z), axis=1) / scale
-        k = int(np.argmax(worst))
-        if worst[k] <= OUTLIER_Z:
-            break
-        active[centres[k]] = False
-        outliers.append(int(centres[k]))
+    finite = active.copy()
+    active, outliers = _outlier_search(t_s, frames, xy, var, finite, omega_rad_s)
     by_class, tau2, tau2_se, kappa2, kappa2_se = {}, 0.0, 0.0, 0.0, 0.0
     if classes is not None or floor or groups is not None:
         labels = np.asarray(classes).astype(str) if classes is not None else np.full(len(t_s), "all")
-        by_class, tau2, tau2_se, kappa2, kappa2_se = _variance_model(t_s, frames, xy, var, active, labels, floor,
-                                                                     min_factor, groups, omega_rad_s)
+        for attempt in range(MAX_RESEARCH_PASSES + 1):
+            if len(path_residuals(t_s, frames, xy, var, active, omega_rad_s)[0]) < 5:
+                break
+            by_class, tau2, tau2_se, kappa2, kappa2_se = _variance_model(t_s, frames, xy, var, active, labels, floor,
+                                                                         min_factor, groups, omega_rad_s)
+            if not floor or not math.isfinite(tau2) or attempt == MAX_RESEARCH_PASSES:
+                break
+            factors = np.array([by_class.get(str(label), (1.0,))[0] for label in labels])
+            again = _outlier_search(t_s, frames, xy, var * factors[:, None] ** 2 + tau2, finite, omega_rad_s)
+            if set(again[1]) == set(outliers):
+                break
+            active, outliers = again
+    centres, z = path_residuals(t_s, frames, xy, var, active, omega_rad_s)
+    if len(centres) < 5:
+        return SigmaCheck(math.nan, math.nan, 2 * len(centres), tuple(sorted(outliers)))
     factor = math.sqrt(float(np.mean(z * z)))
     floor_px, floor_se = _root(tau2, tau2_se)
     shared_px, shared_se = _root(kappa2, kappa2_se)
@@ -390,6 +398,27 @@ def check_sigmas(t_s, frames, xy, var, classes=None, *, floor: bool = False, min
     return SigmaCheck(factor, factor / math.sqrt(2 * z.size), int(z.size), tuple(sorted(outliers)), by_class,
                       floor_px=floor_px, floor_px_se=floor_se, shared_px=shared_px, shared_px_se=shared_se,
                       residual_acf=acf, smooth_path=smooth, omega_rad_s=omega_rad_s)
+
+
+def _outlier_search(t_s, frames, xy, var, active, omega_rad_s) -> tuple[np.ndarray, list[int]]:
+    """The frames off the path by more than :data:`OUTLIER_Z` of their residuals' standard deviations under the
+    errors ``var``, removed one at a time, the worst first (its residual also reaches its neighbours'
+    predictions), against a robust scale while outliers may remain (the median of ``z^2`` is 0.4549 for a unit
+    normal; over the record, or over each frame's stretch where that is larger).  Returns the frames left active
+    (a copy of ``active`` without them) and the outliers in the order found."""
+    active = active.copy()
+    outliers: list[int] = []
+    while True:
+        centres, z = path_residuals(t_s, frames, xy, var, active, omega_rad_s)
+        if len(centres) < 5:
+            return active, outliers
+        scale = np.sqrt(np.maximum(float(np.median(z * z)), _running_median(z * z, LOCAL_FRAMES)) / 0.4549)
+        worst = np.max(np.abs(z), axis=1) / scale
+        k = int(np.argmax(worst))
+        if worst[k] <= OUTLIER_Z:
+            return active, outliers
+        active[centres[k]] = False
+        outliers.append(int(centres[k]))
 
 
 def local_factors(t_s, frames, xy, var, active, omega_rad_s: float = math.nan, *,
